@@ -1,0 +1,319 @@
+//! Step 6 of the paper: the box pose from unordered corner detections, by searching over which
+//! detected peak is which model corner.
+//!
+//! [`paper_exact_search`] is the paper's method, kept as the reference: take the `m` highest-scoring
+//! peaks, fit every ordered injective assignment of them to the 8 corners (8!/(8−m)!, 6720 for
+//! m = 5) by least squares, and keep the assignment with the least sum of squared residuals.
+//! [`fast_exact_search`] returns the same minimum by branch and bound.
+
+use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
+
+use crate::align::{kabsch, min_rotation_sse, sum_squared_residuals};
+use crate::box_model::{BoxModel, CORNER_COUNT};
+use crate::error::{GeometryError, Result, ensure_finite, ensure_finite_points, ensure_len};
+
+/// The number of peaks the paper fits.
+pub const PAPER_PEAKS_USED: usize = 5;
+
+/// The best assignment of detected peaks to model corners and its pose.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CorrespondenceFit {
+    /// Maps model (box-frame) points into the camera frame: peak ≈ pose · corner.
+    pub pose: Isometry3<f64>,
+    /// Indices into the input points of the peaks used, highest score first.
+    pub peaks: Vec<usize>,
+    /// `corners[k]` is the model corner matched to `points[peaks[k]]`.
+    pub corners: Vec<usize>,
+    /// Σ_k ‖pose · corner(corners[k]) − points[peaks[k]]‖² over the pairs used, in m².
+    pub sum_squared_error: f64,
+}
+
+/// The paper's search, by brute force: the `m` highest-scoring points (ties to the lower index)
+/// are fitted to every ordered injective assignment of model corners with [`kabsch`], and the
+/// assignment with the least sum of squared residuals wins (the first in lexicographic order on
+/// ties).
+///
+/// `scores` gives one score per point; 3 ≤ m ≤ 8 and at least m points are needed, and the chosen
+/// points must not be collinear or coincident.
+pub fn paper_exact_search(
+    model: &BoxModel,
+    points: &[Point3<f64>],
+    scores: &[f64],
+    m: usize,
+) -> Result<CorrespondenceFit> {
+    let peaks = highest_scoring(points, scores, m)?;
+    let targets: Vec<Point3<f64>> = peaks.iter().map(|&i| points[i]).collect();
+    let corners = model.corners();
+
+    let mut best: Option<(f64, Isometry3<f64>, Vec<usize>)> = None;
+    let mut assignment = Vec::with_capacity(m);
+    let mut sources = Vec::with_capacity(m);
+    for_each_injective_assignment(m, &mut assignment, &mut |assignment| {
+        sources.clear();
+        sources.extend(assignment.iter().map(|&c| corners[c]));
+        let pose = kabsch(&sources, &targets)?;
+        let sse = sum_squared_residuals(&pose, &sources, &targets);
+        if best.as_ref().is_none_or(|(best_sse, ..)| sse < *best_sse) {
+            best = Some((sse, pose, assignment.to_vec()));
+        }
+        Ok(())
+    })?;
+    let (sum_squared_error, pose, corners) = best.expect("at least one assignment exists for m ≤ 8");
+    Ok(CorrespondenceFit { pose, peaks, corners, sum_squared_error })
+}
+
+/// Calls `visit` with every ordered injective map from `m` peaks to the 8 corners, in
+/// lexicographic order.
+fn for_each_injective_assignment(
+    m: usize,
+    assignment: &mut Vec<usize>,
+    visit: &mut impl FnMut(&[usize]) -> Result<()>,
+) -> Result<()> {
+    if assignment.len() == m {
+        return visit(assignment);
+    }
+    for corner in 0..CORNER_COUNT {
+        if !assignment.contains(&corner) {
+            assignment.push(corner);
+            for_each_injective_assignment(m, assignment, visit)?;
+            assignment.pop();
+        }
+    }
+    Ok(())
+}
+
+/// The same optimum as [`paper_exact_search`] (same inputs, same minimum sum of squared error),
+/// found by an exact branch and bound instead of brute force.
+///
+/// Peaks are assigned depth-first, in score order. Three facts prune the tree without losing the
+/// optimum:
+/// 1. Assignments related by a symmetry of the box (a corner permutation induced by one of its 4, 8
+///    or 24 rotations) have equal error, so only the lexicographically smallest of each orbit is
+///    visited. The group acts freely on injective maps of ≥ 3 peaks, so this divides the work by
+///    the group order.
+/// 2. The least-squares error of a set of pairs is at least that of any subset (the superset's
+///    optimal motion is a candidate motion for the subset), so a partial assignment whose fitted
+///    error already reaches the best complete one is cut. The partial error is computed without an
+///    SVD, from the largest eigenvalue of Horn's quaternion matrix; it never overestimates.
+/// 3. For two pairs the fitted error is exactly (d − D)²/2, d the peaks' distance and D the
+///    corners': a cheap cut before any fit, and the key that orders candidates so that consistent
+///    corners are tried first and a tight bound is found early.
+///
+/// Every complete assignment that may beat the incumbent is re-fitted with [`kabsch`] before it is
+/// accepted, so the returned error is computed exactly as the reference computes it.
+pub fn fast_exact_search(
+    model: &BoxModel,
+    points: &[Point3<f64>],
+    scores: &[f64],
+    m: usize,
+) -> Result<CorrespondenceFit> {
+    let peaks = highest_scoring(points, scores, m)?;
+    let targets: Vec<Point3<f64>> = peaks.iter().map(|&i| points[i]).collect();
+    let mut search = BranchAndBound::new(model, &targets);
+    search.descend(0, search.all_symmetries_active(), PartialSums::default())?;
+    let corners = search.best_assignment[..m].to_vec();
+    let model_corners = model.corners();
+    let sources: Vec<_> = corners.iter().map(|&c| model_corners[c]).collect();
+    let pose = kabsch(&sources, &targets)?;
+    let sum_squared_error = sum_squared_residuals(&pose, &sources, &targets);
+    Ok(CorrespondenceFit { pose, peaks, corners, sum_squared_error })
+}
+
+/// Running sums over the pairs assigned so far, from which the centred cross-covariance and the
+/// minimal rigid error of the prefix follow in O(1).
+#[derive(Debug, Clone, Copy, Default)]
+struct PartialSums {
+    count: f64,
+    corner_sum: Vector3<f64>,
+    peak_sum: Vector3<f64>,
+    /// Σ peak · cornerᵀ.
+    cross: Matrix3<f64>,
+    corner_norms: f64,
+    peak_norms: f64,
+}
+
+impl PartialSums {
+    fn with_pair(&self, corner: &Vector3<f64>, peak: &Vector3<f64>) -> Self {
+        Self {
+            count: self.count + 1.0,
+            corner_sum: self.corner_sum + corner,
+            peak_sum: self.peak_sum + peak,
+            cross: self.cross + peak * corner.transpose(),
+            corner_norms: self.corner_norms + corner.norm_squared(),
+            peak_norms: self.peak_norms + peak.norm_squared(),
+        }
+    }
+
+    /// Least-squares rigid error of the pairs (a lower bound, see [`min_rotation_sse`]).
+    fn fitted_error(&self) -> f64 {
+        let corner_mean = self.corner_sum / self.count;
+        let peak_mean = self.peak_sum / self.count;
+        let cross = self.cross - self.peak_sum * corner_mean.transpose();
+        let corner_norms = self.corner_norms - self.count * corner_mean.norm_squared();
+        let peak_norms = self.peak_norms - self.count * peak_mean.norm_squared();
+        min_rotation_sse(&cross, corner_norms.max(0.0), peak_norms.max(0.0))
+    }
+}
+
+struct BranchAndBound {
+    m: usize,
+    /// Peaks relative to their centroid, which keeps the running sums well conditioned.
+    peaks: Vec<Vector3<f64>>,
+    original_peaks: Vec<Point3<f64>>,
+    model_corners: [Point3<f64>; CORNER_COUNT],
+    peak_distance: Vec<Vec<f64>>,
+    corner_distance: [[f64; CORNER_COUNT]; CORNER_COUNT],
+    /// Corner permutations of the box's non-identity symmetries.
+    symmetries: Vec<[usize; CORNER_COUNT]>,
+    /// Rounding allowance on bounds: a bound must exceed the incumbent by this much to cut.
+    margin: f64,
+    best_error: f64,
+    best_assignment: [usize; CORNER_COUNT],
+    assignment: [usize; CORNER_COUNT],
+    used: [bool; CORNER_COUNT],
+}
+
+impl BranchAndBound {
+    fn new(model: &BoxModel, targets: &[Point3<f64>]) -> Self {
+        let centroid = targets.iter().map(|p| p.coords).sum::<Vector3<f64>>() / targets.len() as f64;
+        let peaks: Vec<_> = targets.iter().map(|p| p.coords - centroid).collect();
+        let model_corners = model.corners();
+        let peak_distance =
+            peaks.iter().map(|a| peaks.iter().map(|b| (a - b).norm()).collect()).collect();
+        let corner_distance = std::array::from_fn(|i| {
+            std::array::from_fn(|j| (model_corners[i] - model_corners[j]).norm())
+        });
+        let symmetries =
+            model.symmetries().iter().skip(1).map(|g| g.corner_permutation).collect();
+        let scale = peaks.iter().map(|p| p.norm_squared()).sum::<f64>()
+            + targets.len() as f64 * model.diameter().powi(2);
+        Self {
+            m: targets.len(),
+            peaks,
+            original_peaks: targets.to_vec(),
+            model_corners,
+            peak_distance,
+            corner_distance,
+            symmetries,
+            margin: 1e-12 * scale,
+            best_error: f64::INFINITY,
+            best_assignment: [0; CORNER_COUNT],
+            assignment: [0; CORNER_COUNT],
+            used: [false; CORNER_COUNT],
+        }
+    }
+
+    fn all_symmetries_active(&self) -> u32 {
+        (1u32 << self.symmetries.len()) - 1
+    }
+
+    /// Assigns peak `depth`. `active` holds the symmetries that fix every corner assigned so far:
+    /// only they can still map the prefix to a lexicographically smaller one.
+    fn descend(&mut self, depth: usize, active: u32, sums: PartialSums) -> Result<()> {
+        let mut candidates: [(f64, usize, u32); CORNER_COUNT] = [(0.0, 0, 0); CORNER_COUNT];
+        let mut candidate_count = 0;
+        'corners: for corner in 0..CORNER_COUNT {
+            if self.used[corner] {
+                continue;
+            }
+            let mut still_fixing = 0u32;
+            for (g, permutation) in self.symmetries.iter().enumerate() {
+                if active & (1 << g) == 0 {
+                    continue;
+                }
+                match permutation[corner].cmp(&corner) {
+                    std::cmp::Ordering::Less => continue 'corners,
+                    std::cmp::Ordering::Equal => still_fixing |= 1 << g,
+                    std::cmp::Ordering::Greater => {}
+                }
+            }
+            // Two-pair errors against every peak already placed: each is a lower bound.
+            let mut worst_pair = 0.0f64;
+            let mut inconsistency = 0.0;
+            for earlier in 0..depth {
+                let gap = self.peak_distance[earlier][depth]
+                    - self.corner_distance[self.assignment[earlier]][corner];
+                worst_pair = worst_pair.max(0.5 * gap * gap);
+                inconsistency += gap * gap;
+            }
+            if worst_pair >= self.best_error + self.margin {
+                continue;
+            }
+            candidates[candidate_count] = (inconsistency, corner, still_fixing);
+            candidate_count += 1;
+        }
+        let candidates = &mut candidates[..candidate_count];
+        candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+
+        for &(_, corner, still_fixing) in candidates.iter() {
+            let sums = sums.with_pair(&self.model_corners[corner].coords, &self.peaks[depth]);
+            let bound = if depth >= 2 { sums.fitted_error() } else { 0.0 };
+            if bound >= self.best_error + self.margin {
+                continue;
+            }
+            self.assignment[depth] = corner;
+            if depth + 1 == self.m {
+                if bound < self.best_error {
+                    self.accept_if_better()?;
+                }
+                continue;
+            }
+            self.used[corner] = true;
+            self.descend(depth + 1, still_fixing, sums)?;
+            self.used[corner] = false;
+        }
+        Ok(())
+    }
+
+    /// Fits the complete assignment exactly and makes it the incumbent if it beats it.
+    fn accept_if_better(&mut self) -> Result<()> {
+        let sources: Vec<_> = self.assignment[..self.m].iter().map(|&c| self.model_corners[c]).collect();
+        let pose = kabsch(&sources, &self.original_peaks)?;
+        let error = sum_squared_residuals(&pose, &sources, &self.original_peaks);
+        if error < self.best_error {
+            self.best_error = error;
+            self.best_assignment = self.assignment;
+        }
+        Ok(())
+    }
+}
+
+/// Indices of the `m` highest-scoring points, highest first (ties to the lower index), after
+/// checking the inputs.
+fn highest_scoring(points: &[Point3<f64>], scores: &[f64], m: usize) -> Result<Vec<usize>> {
+    ensure_len("scores (one per point)", points.len(), scores.len())?;
+    ensure_finite_points("points", points)?;
+    ensure_finite("scores", scores)?;
+    if !(3..=CORNER_COUNT).contains(&m) {
+        return Err(GeometryError::InvalidParameter {
+            name: "m",
+            reason: "the number of peaks fitted must be between 3 and 8",
+        });
+    }
+    if points.len() < m {
+        return Err(GeometryError::TooFewPoints { what: "correspondence search", needed: m, got: points.len() });
+    }
+    let mut order: Vec<usize> = (0..points.len()).collect();
+    order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
+    order.truncate(m);
+    let chosen: Vec<_> = order.iter().map(|&i| points[i]).collect();
+    ensure_spread_in_two_directions(&chosen)?;
+    Ok(order)
+}
+
+/// Fails unless the points span at least a plane, without which no rotation is determined.
+pub(crate) fn ensure_spread_in_two_directions(points: &[Point3<f64>]) -> Result<()> {
+    let centroid = points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / points.len() as f64;
+    let scatter: Matrix3<f64> =
+        points.iter().map(|p| (p.coords - centroid) * (p.coords - centroid).transpose()).sum();
+    let mut spread = scatter.symmetric_eigenvalues();
+    spread.as_mut_slice().sort_by(|a, b| b.total_cmp(a));
+    if spread[0] <= 0.0 {
+        return Err(GeometryError::Degenerate("coincident points"));
+    }
+    // Eigenvalues are squared lengths: 1e-20 relative is a width of 1e-10 of the extent.
+    if spread[1] <= 1e-20 * spread[0] {
+        return Err(GeometryError::Degenerate("collinear points"));
+    }
+    Ok(())
+}
