@@ -48,7 +48,8 @@ pub struct NmsParams {
     /// Standard deviation of the suppression kernel, in voxels.
     pub sigma: f64,
     /// Half-width, in voxels, of the window of the original heatmap whose positive values are
-    /// averaged around each peak for a sub-voxel position; 0 keeps the voxel centre.
+    /// averaged around each peak for a sub-voxel position; 0 keeps the voxel centre. The window is
+    /// clipped at the heatmap's border, which pulls peaks there towards the inside.
     pub refine_radius: usize,
 }
 

@@ -19,6 +19,9 @@ pub mod box_model;
 pub mod correspondence;
 pub mod error;
 pub mod heatmap;
+pub mod metrics;
+pub mod robust;
+pub mod size_fit;
 
 pub use box_model::{BoxModel, BoxSymmetry, ShapeClass};
 pub use error::{GeometryError, Result};
