@@ -51,10 +51,14 @@ pub struct SizedBoxFit {
 /// each is half a side) and, since principal axes are arbitrary when two or three sides are about
 /// equal or corners are missing, also from that frame turned by every combination of −30°, 0 and
 /// +30° about its three axes: 27 deterministic starts, a spacing that the nearest-corner
-/// assignment recovers from. From each start it alternates: match every point to its nearest
+/// assignment recovers from. Outliers far away skew principal axes, so every right angle between
+/// three points (a corner and two edge neighbours) gives further starts. The 12 starts of least
+/// cost are run; from each it alternates: match every point to its nearest
 /// corner; fit rotation and translation to the inliers ([`kabsch`]); then, per axis, solve half
 /// the side and the centre offset in closed form (a two-parameter linear least-squares problem in
-/// the box frame). The start with the least cost wins.
+/// the box frame). Inliers are the points within a cutoff that starts at twice the median residual
+/// and tightens to `params.truncation` as the fit improves (graduated truncation, so that a start
+/// far from the answer is not left without inliers). The start with the least cost wins.
 ///
 /// Needs at least 4 points that do not all lie in one plane.
 pub fn fit_pose_and_size(points: &[Point3<f64>], params: &SizeFitParams) -> Result<SizedBoxFit> {
@@ -84,16 +88,37 @@ pub fn fit_pose_and_size(points: &[Point3<f64>], params: &SizeFitParams) -> Resu
     let principal = Rotation3::from_matrix_unchecked(axes);
 
     const TURNS: [f64; 3] = [-30.0, 0.0, 30.0];
-    let mut best: Option<Alternation> = None;
+    let mut starts = Vec::new();
     for &rx in &TURNS {
         for &ry in &TURNS {
             for &rz in &TURNS {
-                let turn = Rotation3::from_euler_angles(rx.to_radians(), ry.to_radians(), rz.to_radians());
-                let Some(fit) = Alternation::run(points, principal * turn, centroid, params) else { continue };
-                if best.as_ref().is_none_or(|b| fit.cost < b.cost) {
-                    best = Some(fit);
-                }
+                let rotation = principal
+                    * Rotation3::from_euler_angles(rx.to_radians(), ry.to_radians(), rz.to_radians());
+                let half_size = points
+                    .iter()
+                    .map(|p| (rotation.inverse() * (p.coords - centroid)).abs())
+                    .sum::<Vector3<f64>>()
+                    / points.len() as f64;
+                starts.push(Start { rotation, centre: centroid, half_size });
             }
+        }
+    }
+    starts.extend(right_angle_starts(points));
+
+    // Alternating from every start costs far more than scoring it: run only the most promising.
+    const STARTS_RUN: usize = 12;
+    let mut scored: Vec<(f64, Start)> = starts
+        .into_iter()
+        .map(|start| (start.cost(points, params.truncation), start))
+        .collect();
+    scored.sort_by(|a, b| a.0.total_cmp(&b.0));
+    scored.truncate(STARTS_RUN);
+
+    let mut best: Option<Alternation> = None;
+    for (_, start) in scored {
+        let Some(fit) = Alternation::run(points, start, params) else { continue };
+        if best.as_ref().is_none_or(|b| fit.cost < b.cost) {
+            best = Some(fit);
         }
     }
     let best = best.ok_or(GeometryError::Degenerate("no start reached a box with positive sides"))?;
@@ -108,17 +133,80 @@ struct Alternation {
     cost: f64,
 }
 
+/// An initial box: frame, centre and half sides.
+#[derive(Debug, Clone, Copy)]
+struct Start {
+    rotation: Rotation3<f64>,
+    centre: Vector3<f64>,
+    half_size: Vector3<f64>,
+}
+
+impl Start {
+    /// The truncated cost of the start as it is, with the truncation widened to twice the median
+    /// residual as in the alternation's first round.
+    fn cost(&self, points: &[Point3<f64>], truncation: f64) -> f64 {
+        let state = Alternation { rotation: self.rotation, centre: self.centre, half_size: self.half_size, cost: 0.0 };
+        let (_, residuals) = state.nearest_corners(points);
+        truncated_cost(&residuals, truncation.max(2.0 * median(&residuals)))
+    }
+}
+
+/// Starts that do not depend on the points' principal axes, which outliers far from the box
+/// dominate: every point `a` with two others `b`, `c` such that b − a ⟂ c − a (within about 8°)
+/// may be a corner with two edge neighbours. That gives two axes and two sides; the third axis is
+/// their normal, and the third side the median distance of the other points from the face's plane
+/// (those off it), with the box on either side of the face: two starts per right angle.
+fn right_angle_starts(points: &[Point3<f64>]) -> Vec<Start> {
+    let mut starts = Vec::new();
+    for (ia, a) in points.iter().enumerate() {
+        for (ib, b) in points.iter().enumerate().filter(|&(ib, _)| ib != ia) {
+            for (ic, c) in points.iter().enumerate().skip(ib + 1).filter(|&(ic, _)| ic != ia) {
+                let (edge_b, edge_c) = (b - a, c - a);
+                let (len_b, len_c) = (edge_b.norm(), edge_c.norm());
+                if len_b == 0.0 || len_c == 0.0 || (edge_b.dot(&edge_c) / (len_b * len_c)).abs() > 0.15 {
+                    continue;
+                }
+                let x = edge_b / len_b;
+                let y = (edge_c - x * x.dot(&edge_c)).normalize();
+                let z = x.cross(&y);
+                let face_centre = a.coords + 0.5 * (edge_b + edge_c);
+                let tolerance = 0.05 * len_b.min(len_c);
+                let off_face: Vec<f64> = points
+                    .iter()
+                    .enumerate()
+                    .filter(|&(i, _)| i != ia && i != ib && i != ic)
+                    .map(|(_, p)| z.dot(&(p.coords - face_centre)).abs())
+                    .filter(|&d| d > tolerance)
+                    .collect();
+                if off_face.is_empty() {
+                    continue;
+                }
+                let depth = median(&off_face);
+                let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
+                let half_size = Vector3::new(0.5 * len_b, 0.5 * len_c, 0.5 * depth);
+                for side in [-0.5, 0.5] {
+                    starts.push(Start { rotation, centre: face_centre + z * (side * depth), half_size });
+                }
+            }
+        }
+    }
+    starts
+}
+
 impl Alternation {
-    fn run(points: &[Point3<f64>], rotation: Rotation3<f64>, centre: Vector3<f64>, params: &SizeFitParams) -> Option<Self> {
-        let local = |p: &Point3<f64>| rotation.inverse() * (p.coords - centre);
-        let half_size = points.iter().map(|p| local(p).abs()).sum::<Vector3<f64>>() / points.len() as f64;
+    fn run(points: &[Point3<f64>], start: Start, params: &SizeFitParams) -> Option<Self> {
+        let Start { rotation, centre, half_size } = start;
         let mut state = Self { rotation, centre, half_size, cost: f64::INFINITY };
-        let mut previous_assignment = Vec::new();
+        let mut previous = (Vec::new(), Vec::new());
         for _ in 0..params.max_iterations {
             let (assignment, residuals) = state.nearest_corners(points);
-            let inliers: Vec<usize> = (0..points.len()).filter(|&i| residuals[i] < params.truncation).collect();
-            let cost = truncated_cost(&residuals, params.truncation);
-            let settled = assignment == previous_assignment && cost >= state.cost * (1.0 - 1e-12);
+            // Graduated truncation: a start far from the answer has every residual above the
+            // final truncation, so the cutoff starts at twice the median residual and tightens
+            // with it down to the truncation asked for.
+            let cutoff = params.truncation.max(2.0 * median(&residuals));
+            let inliers: Vec<usize> = (0..points.len()).filter(|&i| residuals[i] < cutoff).collect();
+            let cost = truncated_cost(&residuals, cutoff);
+            let settled = (&assignment, &inliers) == (&previous.0, &previous.1) && cost >= state.cost * (1.0 - 1e-12);
             state.cost = cost;
             if settled || inliers.len() < 4 {
                 break;
@@ -129,7 +217,7 @@ impl Alternation {
             state.rotation = pose.rotation.to_rotation_matrix();
             state.centre = pose.translation.vector;
             state.solve_size_and_centre(&inliers, &assignment, points);
-            previous_assignment = assignment;
+            previous = (assignment, inliers);
         }
         let (_, residuals) = state.nearest_corners(points);
         state.cost = truncated_cost(&residuals, params.truncation);
@@ -207,6 +295,12 @@ impl Alternation {
             cost: self.cost,
         })
     }
+}
+
+fn median(values: &[f64]) -> f64 {
+    let mut sorted = values.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    sorted[sorted.len() / 2]
 }
 
 fn truncated_cost(residuals: &[f64], truncation: f64) -> f64 {
