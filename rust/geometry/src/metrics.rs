@@ -2,7 +2,7 @@
 //! bop_toolkit's `pose_error.py`). A pose maps box-frame points into the camera frame; `estimate`
 //! is the fitted pose and `truth` the ground truth. Distances are in metres.
 
-use nalgebra::{Isometry3, Point3, Vector3};
+use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 
 use crate::box_model::{BoxModel, CORNER_COUNT};
 use crate::error::{GeometryError, Result, ensure_finite, ensure_finite_points};
@@ -86,11 +86,16 @@ pub fn mssd(model: &BoxModel, estimate: &Isometry3<f64>, truth: &Isometry3<f64>)
 pub fn rotation_error_deg(model: &BoxModel, estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> Result<f64> {
     ensure_pose("estimate", estimate)?;
     ensure_pose("truth", truth)?;
-    let relative = estimate.rotation.to_rotation_matrix().inverse() * truth.rotation.to_rotation_matrix();
+    let relative = estimate.rotation.inverse() * truth.rotation;
     Ok(model
         .symmetries()
         .iter()
-        .map(|s| (relative * s.rotation).angle().to_degrees())
+        .map(|s| {
+            // 2·atan2(‖q_v‖, |q_w|) is the same angle as the arccos form, without arccos's loss
+            // of precision near 0°.
+            let q = relative * UnitQuaternion::from_rotation_matrix(&s.rotation);
+            (2.0 * q.imag().norm().atan2(q.scalar().abs())).to_degrees()
+        })
         .fold(f64::INFINITY, f64::min))
 }
 
