@@ -120,29 +120,27 @@ fn weighted_fit(
     let source_mean = weighted_mean(source);
     let target_mean = weighted_mean(target);
     let mut covariance = Matrix3::zeros();
-    let mut source_variance = 0.0;
-    let mut target_variance = 0.0;
+    let mut source_scatter = Matrix3::zeros();
+    let mut target_scatter = Matrix3::zeros();
     for ((s, t), &w) in source.iter().zip(target).zip(weights) {
         let s = s.coords - source_mean;
         let t = t.coords - target_mean;
         covariance += t * s.transpose() * (w / total);
-        source_variance += s.norm_squared() * w / total;
-        target_variance += t.norm_squared() * w / total;
+        source_scatter += s * s.transpose() * (w / total);
+        target_scatter += t * t.transpose() * (w / total);
     }
-    if source_variance == 0.0 || target_variance == 0.0 {
-        return Err(GeometryError::Degenerate("coincident points"));
-    }
+    // Each set must span a plane for the rotation to be determined. (The covariance itself may
+    // still be rank-deficient, for example for a rectangle matched to a rotated copy of itself
+    // with its corners permuted; the optimal rotation is then not unique but the SVD gives one
+    // that attains the minimum.)
+    ensure_scatter_spans_a_plane(&source_scatter)?;
+    ensure_scatter_spans_a_plane(&target_scatter)?;
+    let source_variance = source_scatter.trace();
 
     let svd = covariance.svd(true, true);
     let (u, v_t) = (svd.u.expect("requested U"), svd.v_t.expect("requested V^T"));
     let mut singular: Vec<(usize, f64)> = svd.singular_values.iter().copied().enumerate().collect();
     singular.sort_by(|a, b| b.1.total_cmp(&a.1));
-    // Singular values of the covariance are bounded by the product of the two RMS spreads; a second
-    // one that vanishes against that bound means both sets lie (nearly) on one line.
-    let spread = (source_variance * target_variance).sqrt();
-    if singular[1].1 <= 1e-10 * spread {
-        return Err(GeometryError::Degenerate("collinear points"));
-    }
     let reflection = (u * v_t).determinant() < 0.0;
     let mut signs = Matrix3::identity();
     if reflection {
@@ -154,16 +152,35 @@ fn weighted_fit(
     Ok(WeightedFit { rotation, source_mean, target_mean, source_variance, signed_singular_sum })
 }
 
+/// Fails unless points with this (centred) scatter matrix span at least a plane.
+pub(crate) fn ensure_scatter_spans_a_plane(scatter: &Matrix3<f64>) -> Result<()> {
+    let trace = scatter.trace();
+    if !(trace > 0.0) {
+        return Err(GeometryError::Degenerate("coincident points"));
+    }
+    // The sum of the principal 2×2 minors is λ₁λ₂ + λ₁λ₃ + λ₂λ₃, about λ₁λ₂ when the points are
+    // nearly collinear: against trace² ≈ λ₁², a ratio of 1e-20 is a width of 1e-10 of the extent.
+    // (Cheaper than an eigen-decomposition, and on the searches' hot paths.)
+    let minor = |i: usize, j: usize| scatter[(i, i)] * scatter[(j, j)] - scatter[(i, j)] * scatter[(j, i)];
+    if minor(0, 1) + minor(0, 2) + minor(1, 2) <= 1e-20 * trace * trace {
+        return Err(GeometryError::Degenerate("collinear points"));
+    }
+    Ok(())
+}
+
 /// Minimum over rotations R of Σ ‖R·a_i − b_i‖² for centred point sets, from their cross term
-/// `cross = Σ b_i a_iᵀ` and squared norms Σ‖a_i‖², Σ‖b_i‖², without forming R.
+/// `cross = Σ b_i a_iᵀ` and squared norms Σ‖a_i‖², Σ‖b_i‖², without forming R; or, as soon as it
+/// is certain that the minimum is at least `enough`, a lower bound that is itself ≥ `enough`.
 ///
 /// Horn's quaternion form: the minimum is Σ‖a‖² + Σ‖b‖² − 2λ with λ the largest eigenvalue of a
 /// traceless symmetric 4×4 matrix; λ is the largest root of its characteristic quartic, found by
-/// Newton's method from the upper bound (Σ‖a‖² + Σ‖b‖²)/2 (Theobald's QCP, 2005). Newton from the
-/// right of the largest root of a real-rooted polynomial decreases monotonically onto it, so even an
-/// unconverged λ is an upper bound and the returned value a lower bound on the true minimum, which
-/// is what the branch-and-bound search needs.
-pub(crate) fn min_rotation_sse(cross: &Matrix3<f64>, source_norms: f64, target_norms: f64) -> f64 {
+/// Newton's method (Theobald's QCP, 2005). Newton started right of the largest root of a
+/// real-rooted polynomial decreases monotonically onto it, so every iterate bounds λ from above
+/// and Σ‖a‖² + Σ‖b‖² − 2λ from below: the value returned is never more than the true minimum,
+/// which is what the branch-and-bound search needs. The start is the least of three upper bounds
+/// on λ = σ₁ + σ₂ ± σ₃ (σ the singular values of `cross`): (Σ‖a‖² + Σ‖b‖²)/2, √(Σ‖a‖²·Σ‖b‖²)
+/// and √3·‖cross‖_F.
+pub(crate) fn min_rotation_sse(cross: &Matrix3<f64>, source_norms: f64, target_norms: f64, enough: f64) -> f64 {
     // Horn's matrix is written for S = Σ a bᵀ, the transpose of `cross`.
     let s = |row: usize, col: usize| cross[(col, row)];
     let (sxx, sxy, sxz) = (s(0, 0), s(0, 1), s(0, 2));
@@ -175,13 +192,20 @@ pub(crate) fn min_rotation_sse(cross: &Matrix3<f64>, source_norms: f64, target_n
         [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
         [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
     ];
-    let c2 = -2.0 * cross.norm_squared();
+    let frobenius_squared = cross.norm_squared();
+    let c2 = -2.0 * frobenius_squared;
     let c1 = -8.0 * cross.determinant();
     let c0 = determinant4(&n);
 
     let total = source_norms + target_norms;
-    let mut lambda = 0.5 * total;
-    for _ in 0..60 {
+    let stop_below = 0.5 * (total - enough);
+    let mut lambda = (0.5 * total)
+        .min((source_norms * target_norms).sqrt())
+        .min((3.0 * frobenius_squared).sqrt());
+    for _ in 0..100 {
+        if lambda <= stop_below {
+            break;
+        }
         let l2 = lambda * lambda;
         let value = (l2 + c2) * l2 + c1 * lambda + c0;
         let slope = 4.0 * l2 * lambda + 2.0 * c2 * lambda + c1;
@@ -288,6 +312,26 @@ mod tests {
     }
 
     #[test]
+    fn rank_deficient_covariance_still_gives_an_optimal_fit() {
+        // A rectangle matched to itself with corners permuted so that Σ b aᵀ has rank 1: the
+        // rotation is not unique, but the fit exists and no rotation does better.
+        let rectangle = [
+            Point3::new(-0.15, -0.1, 0.0),
+            Point3::new(0.15, -0.1, 0.0),
+            Point3::new(0.15, 0.1, 0.0),
+            Point3::new(-0.15, 0.1, 0.0),
+        ];
+        let permuted = [rectangle[0], rectangle[2], rectangle[1], rectangle[3]];
+        let fit = kabsch(&rectangle, &permuted).unwrap();
+        let best = sum_squared_residuals(&fit, &rectangle, &permuted);
+        for k in 0..100 {
+            let axis = Unit::new_normalize(Vector3::new((k as f64).cos(), (k as f64 * 1.3).sin(), 0.5));
+            let other = Isometry3::from_parts(fit.translation, UnitQuaternion::from_axis_angle(&axis, 0.02 * k as f64));
+            assert!(sum_squared_residuals(&other, &rectangle, &permuted) >= best - 1e-12);
+        }
+    }
+
+    #[test]
     fn degenerate_inputs_are_errors() {
         let line: Vec<_> = (0..4).map(|i| Point3::new(i as f64, 2.0 * i as f64, 0.0)).collect();
         let same = vec![Point3::new(1.0, 1.0, 1.0); 4];
@@ -325,7 +369,10 @@ mod tests {
             na += a.norm_squared();
             nb += b.norm_squared();
         }
-        let qcp_sse = min_rotation_sse(&cross, na, nb);
+        let qcp_sse = min_rotation_sse(&cross, na, nb, f64::INFINITY);
+        // Stopped early, it still bounds the minimum from below, and by at least `enough`.
+        let early = min_rotation_sse(&cross, na, nb, 0.5 * svd_sse);
+        assert!(early >= 0.5 * svd_sse && early <= svd_sse + 1e-12);
         assert!((qcp_sse - svd_sse).abs() < 1e-12, "{qcp_sse} vs {svd_sse}");
     }
 }

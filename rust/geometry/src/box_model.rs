@@ -1,6 +1,8 @@
 //! The box model: a cuboid centred at its frame's origin with axes along its edges, its 8 corners,
 //! and its rotational symmetry group.
 
+use std::sync::OnceLock;
+
 use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 
 use crate::error::{GeometryError, Result, ensure_finite};
@@ -126,6 +128,33 @@ impl BoxModel {
     }
 }
 
+impl BoxModel {
+    /// Corner permutations of the symmetry group under the default tolerance, identity first,
+    /// from tables computed once per shape class (the searches run often, the group never
+    /// changes).
+    pub(crate) fn symmetry_permutations(&self) -> &'static [[usize; CORNER_COUNT]] {
+        static TABLES: OnceLock<[Vec<[usize; CORNER_COUNT]>; 5]> = OnceLock::new();
+        let tables = TABLES.get_or_init(|| {
+            let representative = |size: [f64; 3]| {
+                BoxModel { size: Vector3::from(size) }.symmetries().iter().map(|g| g.corner_permutation).collect()
+            };
+            [
+                representative([1.0, 2.0, 3.0]),
+                representative([1.0, 2.0, 2.0]),
+                representative([2.0, 1.0, 2.0]),
+                representative([2.0, 2.0, 1.0]),
+                representative([1.0, 1.0, 1.0]),
+            ]
+        });
+        let table = match self.shape_class(Self::DEFAULT_SYMMETRY_TOLERANCE) {
+            ShapeClass::Generic => 0,
+            ShapeClass::SquareFaced { axis } => 1 + axis,
+            ShapeClass::Cube => 4,
+        };
+        &tables[table]
+    }
+}
+
 /// The sign vector (±1, ±1, ±1) of corner `i`.
 pub(crate) fn corner_signs(i: usize) -> Vector3<f64> {
     Vector3::from_fn(|axis, _| if (i >> axis) & 1 == 1 { 1.0 } else { -1.0 })
@@ -209,6 +238,14 @@ mod tests {
                     assert!(closed, "group not closed under composition");
                 }
             }
+        }
+    }
+
+    #[test]
+    fn cached_permutations_match_the_group() {
+        for m in [model(0.3, 0.2, 0.1), model(0.3, 0.1, 0.3), model(0.2, 0.3, 0.3), model(0.1, 0.1, 0.3), model(0.2, 0.2, 0.2)] {
+            let computed: Vec<_> = m.symmetries().iter().map(|g| g.corner_permutation).collect();
+            assert_eq!(m.symmetry_permutations(), computed.as_slice());
         }
     }
 

@@ -8,7 +8,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
-use crate::align::{kabsch, min_rotation_sse, sum_squared_residuals};
+use crate::align::{ensure_scatter_spans_a_plane, kabsch, min_rotation_sse, sum_squared_residuals};
 use crate::box_model::{BoxModel, CORNER_COUNT};
 use crate::error::{GeometryError, Result, ensure_finite, ensure_finite_points, ensure_len};
 
@@ -99,8 +99,12 @@ fn for_each_injective_assignment(
 ///    corners': a cheap cut before any fit, and the key that orders candidates so that consistent
 ///    corners are tried first and a tight bound is found early.
 ///
-/// Every complete assignment that may beat the incumbent is re-fitted with [`kabsch`] before it is
-/// accepted, so the returned error is computed exactly as the reference computes it.
+/// 4. A peak not yet placed must still find a free corner whose distances to the corners placed
+///    agree with its distances to the peaks placed; the least two-pair error it can reach bounds
+///    every completion (look-ahead).
+///
+/// The winner is re-fitted with [`kabsch`], so the returned pose and error are computed exactly
+/// as the reference computes them.
 pub fn fast_exact_search(
     model: &BoxModel,
     points: &[Point3<f64>],
@@ -108,14 +112,18 @@ pub fn fast_exact_search(
     m: usize,
 ) -> Result<CorrespondenceFit> {
     let peaks = highest_scoring(points, scores, m)?;
-    let targets: Vec<Point3<f64>> = peaks.iter().map(|&i| points[i]).collect();
-    let mut search = BranchAndBound::new(model, &targets);
-    search.descend(0, search.all_symmetries_active(), PartialSums::default())?;
+    let mut targets = [Point3::origin(); CORNER_COUNT];
+    for (target, &i) in targets.iter_mut().zip(&peaks) {
+        *target = points[i];
+    }
+    let targets = &targets[..m];
+    let mut search = BranchAndBound::new(model, targets);
+    search.descend(0, search.all_symmetries_active(), PartialSums::default());
     let corners = search.best_assignment[..m].to_vec();
     let model_corners = model.corners();
     let sources: Vec<_> = corners.iter().map(|&c| model_corners[c]).collect();
-    let pose = kabsch(&sources, &targets)?;
-    let sum_squared_error = sum_squared_residuals(&pose, &sources, &targets);
+    let pose = kabsch(&sources, targets)?;
+    let sum_squared_error = sum_squared_residuals(&pose, &sources, targets);
     Ok(CorrespondenceFit { pose, peaks, corners, sum_squared_error })
 }
 
@@ -144,27 +152,27 @@ impl PartialSums {
         }
     }
 
-    /// Least-squares rigid error of the pairs (a lower bound, see [`min_rotation_sse`]).
-    fn fitted_error(&self) -> f64 {
+    /// Least-squares rigid error of the pairs, or a lower bound on it that is at least `enough`
+    /// (see [`min_rotation_sse`]).
+    fn fitted_error(&self, enough: f64) -> f64 {
         let corner_mean = self.corner_sum / self.count;
         let peak_mean = self.peak_sum / self.count;
         let cross = self.cross - self.peak_sum * corner_mean.transpose();
         let corner_norms = self.corner_norms - self.count * corner_mean.norm_squared();
         let peak_norms = self.peak_norms - self.count * peak_mean.norm_squared();
-        min_rotation_sse(&cross, corner_norms.max(0.0), peak_norms.max(0.0))
+        min_rotation_sse(&cross, corner_norms.max(0.0), peak_norms.max(0.0), enough)
     }
 }
 
 struct BranchAndBound {
     m: usize,
     /// Peaks relative to their centroid, which keeps the running sums well conditioned.
-    peaks: Vec<Vector3<f64>>,
-    original_peaks: Vec<Point3<f64>>,
-    model_corners: [Point3<f64>; CORNER_COUNT],
-    peak_distance: Vec<Vec<f64>>,
+    peaks: [Vector3<f64>; CORNER_COUNT],
+    corners: [Vector3<f64>; CORNER_COUNT],
+    peak_distance: [[f64; CORNER_COUNT]; CORNER_COUNT],
     corner_distance: [[f64; CORNER_COUNT]; CORNER_COUNT],
     /// Corner permutations of the box's non-identity symmetries.
-    symmetries: Vec<[usize; CORNER_COUNT]>,
+    symmetries: &'static [[usize; CORNER_COUNT]],
     /// Rounding allowance on bounds: a bound must exceed the incumbent by this much to cut.
     margin: f64,
     best_error: f64,
@@ -176,25 +184,24 @@ struct BranchAndBound {
 impl BranchAndBound {
     fn new(model: &BoxModel, targets: &[Point3<f64>]) -> Self {
         let centroid = targets.iter().map(|p| p.coords).sum::<Vector3<f64>>() / targets.len() as f64;
-        let peaks: Vec<_> = targets.iter().map(|p| p.coords - centroid).collect();
+        let mut peaks = [Vector3::zeros(); CORNER_COUNT];
+        for (peak, target) in peaks.iter_mut().zip(targets) {
+            *peak = target.coords - centroid;
+        }
         let model_corners = model.corners();
-        let peak_distance =
-            peaks.iter().map(|a| peaks.iter().map(|b| (a - b).norm()).collect()).collect();
-        let corner_distance = std::array::from_fn(|i| {
-            std::array::from_fn(|j| (model_corners[i] - model_corners[j]).norm())
-        });
-        let symmetries =
-            model.symmetries().iter().skip(1).map(|g| g.corner_permutation).collect();
+        let corners = std::array::from_fn(|i| model_corners[i].coords);
+        let distances = |points: &[Vector3<f64>; CORNER_COUNT]| {
+            std::array::from_fn(|i| std::array::from_fn(|j| (points[i] - points[j]).norm()))
+        };
         let scale = peaks.iter().map(|p| p.norm_squared()).sum::<f64>()
             + targets.len() as f64 * model.diameter().powi(2);
         Self {
             m: targets.len(),
+            peak_distance: distances(&peaks),
+            corner_distance: distances(&corners),
             peaks,
-            original_peaks: targets.to_vec(),
-            model_corners,
-            peak_distance,
-            corner_distance,
-            symmetries,
+            corners,
+            symmetries: &model.symmetry_permutations()[1..],
             margin: 1e-12 * scale,
             best_error: f64::INFINITY,
             best_assignment: [0; CORNER_COUNT],
@@ -207,9 +214,25 @@ impl BranchAndBound {
         (1u32 << self.symmetries.len()) - 1
     }
 
+    /// The least two-pair error a peak `later` can still have against the peaks placed up to
+    /// `depth`, over the corners still free: a lower bound on the error of every completion.
+    fn look_ahead_bound(&self, depth: usize, later: usize) -> f64 {
+        (0..CORNER_COUNT)
+            .filter(|&c| !self.used[c])
+            .map(|c| {
+                (0..=depth)
+                    .map(|i| {
+                        let gap = self.peak_distance[i][later] - self.corner_distance[self.assignment[i]][c];
+                        0.5 * gap * gap
+                    })
+                    .fold(0.0, f64::max)
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// Assigns peak `depth`. `active` holds the symmetries that fix every corner assigned so far:
     /// only they can still map the prefix to a lexicographically smaller one.
-    fn descend(&mut self, depth: usize, active: u32, sums: PartialSums) -> Result<()> {
+    fn descend(&mut self, depth: usize, active: u32, sums: PartialSums) {
         let mut candidates: [(f64, usize, u32); CORNER_COUNT] = [(0.0, 0, 0); CORNER_COUNT];
         let mut candidate_count = 0;
         'corners: for corner in 0..CORNER_COUNT {
@@ -246,35 +269,23 @@ impl BranchAndBound {
         candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
 
         for &(_, corner, still_fixing) in candidates.iter() {
-            let sums = sums.with_pair(&self.model_corners[corner].coords, &self.peaks[depth]);
-            let bound = if depth >= 2 { sums.fitted_error() } else { 0.0 };
-            if bound >= self.best_error + self.margin {
-                continue;
-            }
+            let cut = self.best_error + self.margin;
             self.assignment[depth] = corner;
-            if depth + 1 == self.m {
-                if bound < self.best_error {
-                    self.accept_if_better()?;
-                }
-                continue;
-            }
             self.used[corner] = true;
-            self.descend(depth + 1, still_fixing, sums)?;
+            let sums = sums.with_pair(&self.corners[corner], &self.peaks[depth]);
+            let promising = (depth + 1..self.m).all(|later| self.look_ahead_bound(depth, later) < cut)
+                && (depth < 2 || sums.fitted_error(cut) < cut);
+            if promising {
+                if depth + 1 == self.m {
+                    // Not cut, so the quaternion solve ran to convergence: this is the error.
+                    self.best_error = sums.fitted_error(f64::INFINITY);
+                    self.best_assignment = self.assignment;
+                } else {
+                    self.descend(depth + 1, still_fixing, sums);
+                }
+            }
             self.used[corner] = false;
         }
-        Ok(())
-    }
-
-    /// Fits the complete assignment exactly and makes it the incumbent if it beats it.
-    fn accept_if_better(&mut self) -> Result<()> {
-        let sources: Vec<_> = self.assignment[..self.m].iter().map(|&c| self.model_corners[c]).collect();
-        let pose = kabsch(&sources, &self.original_peaks)?;
-        let error = sum_squared_residuals(&pose, &sources, &self.original_peaks);
-        if error < self.best_error {
-            self.best_error = error;
-            self.best_assignment = self.assignment;
-        }
-        Ok(())
     }
 }
 
@@ -306,14 +317,5 @@ pub(crate) fn ensure_spread_in_two_directions(points: &[Point3<f64>]) -> Result<
     let centroid = points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / points.len() as f64;
     let scatter: Matrix3<f64> =
         points.iter().map(|p| (p.coords - centroid) * (p.coords - centroid).transpose()).sum();
-    let mut spread = scatter.symmetric_eigenvalues();
-    spread.as_mut_slice().sort_by(|a, b| b.total_cmp(a));
-    if spread[0] <= 0.0 {
-        return Err(GeometryError::Degenerate("coincident points"));
-    }
-    // Eigenvalues are squared lengths: 1e-20 relative is a width of 1e-10 of the extent.
-    if spread[1] <= 1e-20 * spread[0] {
-        return Err(GeometryError::Degenerate("collinear points"));
-    }
-    Ok(())
+    ensure_scatter_spans_a_plane(&scatter)
 }
