@@ -78,13 +78,38 @@ class _RestMonitor:
             self.rest_since = None
         return EventStatus.DidNothing()
 
+    @property
+    def at_rest(self) -> bool:
+        return self.rest_since is not None and self.history[-1][0] - self.rest_since >= self.window_s
+
     def window_max(self) -> tuple[float, float]:
         return max(h[1] for h in self.history), max(h[2] for h in self.history)
 
 
-def settle(boxes: list[BoxBody], recipe: Recipe) -> SettleResult:
-    """Drops `boxes` (sizes, masses, frictions, initial poses) on the recipe's support and
-    simulates until at rest or `settle.max_time_s`; returns the settled poses and certificate."""
+def as_box_body(obj) -> BoxBody:
+    """A BoxBody from a BoxBody or from a row of the `objects` table (a dict or pandas row with
+    size_m, mass_kg, friction, initial_world_box_quat_wxyz, initial_world_box_translation_m)."""
+    if isinstance(obj, BoxBody):
+        return obj
+    return BoxBody(
+        size_m=np.asarray(obj["size_m"], float),
+        mass_kg=float(obj["mass_kg"]),
+        friction=float(obj["friction"]),
+        quat_wxyz=np.asarray(obj["initial_world_box_quat_wxyz"], float),
+        translation_m=np.asarray(obj["initial_world_box_translation_m"], float),
+    )
+
+
+def settle(objects, recipe: Recipe | str) -> SettleResult:
+    """Drops `objects` on the recipe's support and simulates until they are at rest or
+    `settle.max_time_s` has passed; returns the settled poses, the certificate and the wall time.
+
+    `objects`: BoxBody items, or `objects` table rows (initial pose = initial_world_box_*).
+    `recipe`: a Recipe or the path of a recipe TOML (support, [settle] thresholds, time step).
+    The poses should be non-penetrating (projection.project), as in a generated dataset.
+    """
+    recipe = recipe if isinstance(recipe, Recipe) else Recipe.load(recipe)
+    boxes = [as_box_body(o) for o in objects]
     start = time.perf_counter()
     scene = build_scene_plant(boxes, recipe.support, recipe.settle.time_step_s)
     context = scene.new_context(boxes)
@@ -104,13 +129,12 @@ def settle(boxes: list[BoxBody], recipe: Recipe) -> SettleResult:
         min_signed_distance_m=min_signed_distance(scene, context),
         stable=True,
     )
-    certificate.rejection = _rejection(recipe, boxes, poses, certificate, at_rest=monitor.rest_since is not None
-                                       and context.get_time() - monitor.rest_since >= recipe.settle.window_s)
+    certificate.rejection = _rejection(recipe, poses, certificate, monitor.at_rest)
     certificate.stable = certificate.rejection is None
     return SettleResult(poses, certificate, time.perf_counter() - start, monitor.steps)
 
 
-def _rejection(recipe: Recipe, boxes, poses, cert: Certificate, at_rest: bool) -> str | None:
+def _rejection(recipe: Recipe, poses, cert: Certificate, at_rest: bool) -> str | None:
     s = recipe.settle
     if not at_rest or cert.max_linear_speed_mps > s.max_linear_speed_mps or cert.max_angular_speed_radps > s.max_angular_speed_radps:
         return NOT_SETTLED
