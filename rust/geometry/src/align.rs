@@ -168,57 +168,86 @@ pub(crate) fn ensure_scatter_spans_a_plane(scatter: &Matrix3<f64>) -> Result<()>
     Ok(())
 }
 
-/// Minimum over rotations R of Σ ‖R·a_i − b_i‖² for centred point sets, from their cross term
-/// `cross = Σ b_i a_iᵀ` and squared norms Σ‖a_i‖², Σ‖b_i‖², without forming R; or, as soon as it
-/// is certain that the minimum is at least `enough`, a lower bound that is itself ≥ `enough`.
-///
-/// Horn's quaternion form: the minimum is Σ‖a‖² + Σ‖b‖² − 2λ with λ the largest eigenvalue of a
-/// traceless symmetric 4×4 matrix; λ is the largest root of its characteristic quartic, found by
-/// Newton's method (Theobald's QCP, 2005). Newton started right of the largest root of a
-/// real-rooted polynomial decreases monotonically onto it, so every iterate bounds λ from above
-/// and Σ‖a‖² + Σ‖b‖² − 2λ from below: the value returned is never more than the true minimum,
-/// which is what the branch-and-bound search needs. The start is the least of three upper bounds
-/// on λ = σ₁ + σ₂ ± σ₃ (σ the singular values of `cross`): (Σ‖a‖² + Σ‖b‖²)/2, √(Σ‖a‖²·Σ‖b‖²)
-/// and √3·‖cross‖_F.
-pub(crate) fn min_rotation_sse(cross: &Matrix3<f64>, source_norms: f64, target_norms: f64, enough: f64) -> f64 {
-    // Horn's matrix is written for S = Σ a bᵀ, the transpose of `cross`.
-    let s = |row: usize, col: usize| cross[(col, row)];
-    let (sxx, sxy, sxz) = (s(0, 0), s(0, 1), s(0, 2));
-    let (syx, syy, syz) = (s(1, 0), s(1, 1), s(1, 2));
-    let (szx, szy, szz) = (s(2, 0), s(2, 1), s(2, 2));
-    let n = [
-        [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
-        [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
-        [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
-        [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
-    ];
-    let frobenius_squared = cross.norm_squared();
-    let c2 = -2.0 * frobenius_squared;
-    let c1 = -8.0 * cross.determinant();
-    let c0 = determinant4(&n);
+/// Horn's quaternion form of the rigid fit of centred point sets a_i → b_i, from their cross term
+/// `cross = Σ b_i a_iᵀ` and squared norms Σ‖a_i‖², Σ‖b_i‖²: the least Σ ‖R·a_i − b_i‖² over
+/// rotations is Σ‖a‖² + Σ‖b‖² − 2λ, with λ the largest eigenvalue of a traceless symmetric 4×4
+/// matrix, i.e. the largest root of its characteristic quartic λ⁴ + c₂λ² + c₁λ + c₀ (Theobald's
+/// QCP, 2005). No SVD and no rotation are formed.
+pub(crate) struct QuaternionFit {
+    total: f64,
+    c2: f64,
+    c1: f64,
+    c0: f64,
+    /// An upper bound on λ: the least of (Σ‖a‖² + Σ‖b‖²)/2, √(Σ‖a‖²·Σ‖b‖²) and √3·‖cross‖_F, all
+    /// bounds on λ = σ₁ + σ₂ ± σ₃ (σ the singular values of `cross`).
+    lambda_bound: f64,
+}
 
-    let total = source_norms + target_norms;
-    let stop_below = 0.5 * (total - enough);
-    let mut lambda = (0.5 * total)
-        .min((source_norms * target_norms).sqrt())
-        .min((3.0 * frobenius_squared).sqrt());
-    for _ in 0..100 {
-        if lambda <= stop_below {
-            break;
+impl QuaternionFit {
+    pub(crate) fn new(cross: &Matrix3<f64>, source_norms: f64, target_norms: f64) -> Self {
+        // Horn's matrix is written for S = Σ a bᵀ, the transpose of `cross`.
+        let s = |row: usize, col: usize| cross[(col, row)];
+        let (sxx, sxy, sxz) = (s(0, 0), s(0, 1), s(0, 2));
+        let (syx, syy, syz) = (s(1, 0), s(1, 1), s(1, 2));
+        let (szx, szy, szz) = (s(2, 0), s(2, 1), s(2, 2));
+        let n = [
+            [sxx + syy + szz, syz - szy, szx - sxz, sxy - syx],
+            [syz - szy, sxx - syy - szz, sxy + syx, szx + sxz],
+            [szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy],
+            [sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz],
+        ];
+        let frobenius_squared = cross.norm_squared();
+        let total = source_norms + target_norms;
+        Self {
+            total,
+            c2: -2.0 * frobenius_squared,
+            c1: -8.0 * cross.determinant(),
+            c0: determinant4(&n),
+            lambda_bound: (0.5 * total)
+                .min((source_norms * target_norms).sqrt())
+                .min((3.0 * frobenius_squared).sqrt()),
         }
-        let l2 = lambda * lambda;
-        let value = (l2 + c2) * l2 + c1 * lambda + c0;
-        let slope = 4.0 * l2 * lambda + 2.0 * c2 * lambda + c1;
-        if slope <= 0.0 {
-            break;
-        }
-        let step = value / slope;
-        if !(step > 1e-15 * lambda.abs()) {
-            break;
-        }
-        lambda -= step;
     }
-    (total - 2.0 * lambda).max(0.0)
+
+    /// Whether the least squared error is at least `enough`, decided without finding λ: that is
+    /// λ ≤ x = (Σ‖a‖² + Σ‖b‖² − enough)/2, and since the quartic has only real roots, Budan–Fourier
+    /// says it has none above x > 0 exactly when it and its derivatives are all positive there
+    /// (the third, 24x, and fourth, 24, are). Each must be positive by more than its rounding
+    /// error, so that a "yes" is never an artefact of rounding.
+    pub(crate) fn error_reaches(&self, enough: f64) -> bool {
+        let x = 0.5 * (self.total - enough);
+        if self.lambda_bound <= x {
+            return true;
+        }
+        if !(x > 0.0) {
+            return false;
+        }
+        let (x2, c2, c1, c0) = (x * x, self.c2, self.c1, self.c0);
+        let clearly_positive = |value: f64, magnitude: f64| value > 1e-13 * magnitude;
+        clearly_positive(12.0 * x2 + 2.0 * c2, 12.0 * x2 + 2.0 * c2.abs())
+            && clearly_positive(4.0 * x2 * x + 2.0 * c2 * x + c1, 4.0 * x2 * x + 2.0 * c2.abs() * x + c1.abs())
+            && clearly_positive((x2 + c2) * x2 + c1 * x + c0, x2 * x2 + c2.abs() * x2 + c1.abs() * x + c0.abs())
+    }
+
+    /// The least squared error, by Newton's method on the quartic from `lambda_bound`: from the
+    /// right of the largest root of a real-rooted polynomial it decreases monotonically onto it.
+    pub(crate) fn min_error(&self) -> f64 {
+        let mut lambda = self.lambda_bound;
+        for _ in 0..100 {
+            let l2 = lambda * lambda;
+            let value = (l2 + self.c2) * l2 + self.c1 * lambda + self.c0;
+            let slope = 4.0 * l2 * lambda + 2.0 * self.c2 * lambda + self.c1;
+            if slope <= 0.0 {
+                break;
+            }
+            let step = value / slope;
+            if !(step > 1e-15 * lambda.abs()) {
+                break;
+            }
+            lambda -= step;
+        }
+        (self.total - 2.0 * lambda).max(0.0)
+    }
 }
 
 fn determinant4(a: &[[f64; 4]; 4]) -> f64 {
@@ -369,10 +398,10 @@ mod tests {
             na += a.norm_squared();
             nb += b.norm_squared();
         }
-        let qcp_sse = min_rotation_sse(&cross, na, nb, f64::INFINITY);
-        // Stopped early, it still bounds the minimum from below, and by at least `enough`.
-        let early = min_rotation_sse(&cross, na, nb, 0.5 * svd_sse);
-        assert!(early >= 0.5 * svd_sse && early <= svd_sse + 1e-12);
+        let fit = QuaternionFit::new(&cross, na, nb);
+        let qcp_sse = fit.min_error();
+        assert!(fit.error_reaches(0.99 * svd_sse));
+        assert!(!fit.error_reaches(1.01 * svd_sse));
         assert!((qcp_sse - svd_sse).abs() < 1e-12, "{qcp_sse} vs {svd_sse}");
     }
 }

@@ -129,9 +129,10 @@ impl BoxModel {
 }
 
 impl BoxModel {
-    /// Corner permutations of the symmetry group under the default tolerance, identity first,
-    /// from tables computed once per shape class (the searches run often, the group never
-    /// changes).
+    /// Corner permutations of the symmetry group with side lengths compared exactly, identity
+    /// first, from tables computed once per shape class (the searches run often). Exact, because
+    /// the searches drop assignments that a symmetry maps onto others, which is lossless only if
+    /// their errors are equal, not nearly equal.
     pub(crate) fn symmetry_permutations(&self) -> &'static [[usize; CORNER_COUNT]] {
         static TABLES: OnceLock<[Vec<[usize; CORNER_COUNT]>; 5]> = OnceLock::new();
         let tables = TABLES.get_or_init(|| {
@@ -146,7 +147,7 @@ impl BoxModel {
                 representative([1.0, 1.0, 1.0]),
             ]
         });
-        let table = match self.shape_class(Self::DEFAULT_SYMMETRY_TOLERANCE) {
+        let table = match self.shape_class(0.0) {
             ShapeClass::Generic => 0,
             ShapeClass::SquareFaced { axis } => 1 + axis,
             ShapeClass::Cube => 4,
@@ -247,6 +248,7 @@ mod tests {
             let computed: Vec<_> = m.symmetries().iter().map(|g| g.corner_permutation).collect();
             assert_eq!(m.symmetry_permutations(), computed.as_slice());
         }
+        assert_eq!(model(0.2, 0.2 + 1e-12, 0.2).symmetry_permutations().len(), 8);
     }
 
     #[test]

@@ -8,7 +8,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
-use crate::align::{ensure_scatter_spans_a_plane, kabsch, min_rotation_sse, sum_squared_residuals};
+use crate::align::{QuaternionFit, ensure_scatter_spans_a_plane, kabsch, sum_squared_residuals};
 use crate::box_model::{BoxModel, CORNER_COUNT};
 use crate::error::{GeometryError, Result, ensure_finite, ensure_finite_points, ensure_len};
 
@@ -85,23 +85,24 @@ fn for_each_injective_assignment(
 /// The same optimum as [`paper_exact_search`] (same inputs, same minimum sum of squared error),
 /// found by an exact branch and bound instead of brute force.
 ///
-/// Peaks are assigned depth-first, in score order. Three facts prune the tree without losing the
-/// optimum:
-/// 1. Assignments related by a symmetry of the box (a corner permutation induced by one of its 4, 8
-///    or 24 rotations) have equal error, so only the lexicographically smallest of each orbit is
-///    visited. The group acts freely on injective maps of ≥ 3 peaks, so this divides the work by
-///    the group order.
+/// Peaks are assigned depth-first. Four facts prune the tree without losing the optimum:
+/// 1. Assignments related by a symmetry of the box (a corner permutation induced by one of its 4,
+///    8 or 24 rotations; side lengths compared exactly) have equal error, so only the
+///    lexicographically smallest of each orbit is visited. The group acts freely on injective maps
+///    of ≥ 3 peaks, so this divides the work by the group order.
 /// 2. The least-squares error of a set of pairs is at least that of any subset (the superset's
 ///    optimal motion is a candidate motion for the subset), so a partial assignment whose fitted
-///    error already reaches the best complete one is cut. The partial error is computed without an
-///    SVD, from the largest eigenvalue of Horn's quaternion matrix; it never overestimates.
+///    error already reaches the best complete one is cut. Whether it does is decided in O(1),
+///    without an SVD: the error is Σ‖a‖² + Σ‖b‖² − 2λ with λ the largest eigenvalue of Horn's
+///    quaternion matrix, and the sign pattern of its characteristic quartic and derivatives at
+///    the threshold tells whether λ lies below it (Budan–Fourier; the quartic is real-rooted).
 /// 3. For two pairs the fitted error is exactly (d − D)²/2, d the peaks' distance and D the
 ///    corners': a cheap cut before any fit, and the key that orders candidates so that consistent
 ///    corners are tried first and a tight bound is found early.
-///
 /// 4. A peak not yet placed must still find a free corner whose distances to the corners placed
-///    agree with its distances to the peaks placed; the least two-pair error it can reach bounds
-///    every completion (look-ahead).
+///    agree with its distances to the peaks placed: the least two-pair error it can reach bounds
+///    every completion (look-ahead). The peak with the largest such bound is placed next, so that
+///    an outlier is placed early and its error cuts the tree.
 ///
 /// The winner is re-fitted with [`kabsch`], so the returned pose and error are computed exactly
 /// as the reference computes them.
@@ -118,8 +119,13 @@ pub fn fast_exact_search(
     }
     let targets = &targets[..m];
     let mut search = BranchAndBound::new(model, targets);
-    search.descend(0, search.all_symmetries_active(), PartialSums::default());
-    let corners = search.best_assignment[..m].to_vec();
+    // A greedy dive from every first corner finds a good incumbent before the exhaustive pass,
+    // which then cuts far more: the two chiral halves of a box's corners cannot be told apart by
+    // distances, and without it the wrong half may be searched first with a poor bound.
+    for dive in [true, false] {
+        search.descend(0, 0, search.all_symmetries_active(), PartialSums::default(), &[[0.0; CORNER_COUNT]; CORNER_COUNT], dive);
+    }
+    let corners = search.best_corners[..m].to_vec();
     let model_corners = model.corners();
     let sources: Vec<_> = corners.iter().map(|&c| model_corners[c]).collect();
     let pose = kabsch(&sources, targets)?;
@@ -152,15 +158,14 @@ impl PartialSums {
         }
     }
 
-    /// Least-squares rigid error of the pairs, or a lower bound on it that is at least `enough`
-    /// (see [`min_rotation_sse`]).
-    fn fitted_error(&self, enough: f64) -> f64 {
+    /// The quaternion form of the pairs' least-squares rigid fit.
+    fn fit(&self) -> QuaternionFit {
         let corner_mean = self.corner_sum / self.count;
         let peak_mean = self.peak_sum / self.count;
         let cross = self.cross - self.peak_sum * corner_mean.transpose();
         let corner_norms = self.corner_norms - self.count * corner_mean.norm_squared();
         let peak_norms = self.peak_norms - self.count * peak_mean.norm_squared();
-        min_rotation_sse(&cross, corner_norms.max(0.0), peak_norms.max(0.0), enough)
+        QuaternionFit::new(&cross, corner_norms.max(0.0), peak_norms.max(0.0))
     }
 }
 
@@ -176,9 +181,13 @@ struct BranchAndBound {
     /// Rounding allowance on bounds: a bound must exceed the incumbent by this much to cut.
     margin: f64,
     best_error: f64,
-    best_assignment: [usize; CORNER_COUNT],
+    /// Corner of each peak in the best complete assignment.
+    best_corners: [usize; CORNER_COUNT],
+    /// The peak placed at each depth, and its corner.
+    order: [usize; CORNER_COUNT],
     assignment: [usize; CORNER_COUNT],
-    used: [bool; CORNER_COUNT],
+    peak_placed: [bool; CORNER_COUNT],
+    corner_used: [bool; CORNER_COUNT],
 }
 
 impl BranchAndBound {
@@ -204,9 +213,11 @@ impl BranchAndBound {
             symmetries: &model.symmetry_permutations()[1..],
             margin: 1e-12 * scale,
             best_error: f64::INFINITY,
-            best_assignment: [0; CORNER_COUNT],
+            best_corners: [0; CORNER_COUNT],
+            order: [0; CORNER_COUNT],
             assignment: [0; CORNER_COUNT],
-            used: [false; CORNER_COUNT],
+            peak_placed: [false; CORNER_COUNT],
+            corner_used: [false; CORNER_COUNT],
         }
     }
 
@@ -214,29 +225,40 @@ impl BranchAndBound {
         (1u32 << self.symmetries.len()) - 1
     }
 
-    /// The least two-pair error a peak `later` can still have against the peaks placed up to
-    /// `depth`, over the corners still free: a lower bound on the error of every completion.
-    fn look_ahead_bound(&self, depth: usize, later: usize) -> f64 {
-        (0..CORNER_COUNT)
-            .filter(|&c| !self.used[c])
-            .map(|c| {
-                (0..=depth)
-                    .map(|i| {
-                        let gap = self.peak_distance[i][later] - self.corner_distance[self.assignment[i]][c];
-                        0.5 * gap * gap
-                    })
-                    .fold(0.0, f64::max)
-            })
-            .fold(f64::INFINITY, f64::min)
+    /// Half the squared difference between the distance of peaks `a`, `b` and that of corners
+    /// `c`, `d`: the least-squares error of those two pairs alone, a lower bound on any
+    /// assignment that contains them.
+    fn pair_error(&self, a: usize, b: usize, c: usize, d: usize) -> f64 {
+        let gap = self.peak_distance[a][b] - self.corner_distance[c][d];
+        0.5 * gap * gap
     }
 
-    /// Assigns peak `depth`. `active` holds the symmetries that fix every corner assigned so far:
-    /// only they can still map the prefix to a lexicographically smaller one.
-    fn descend(&mut self, depth: usize, active: u32, sums: PartialSums) {
+    /// Places `peak` at `depth`. `active` holds the symmetries that fix every corner assigned so
+    /// far: only they can still map the prefix to a lexicographically smaller one.
+    /// `worst_pair[k][c]` is the largest two-pair error of peak `k` on corner `c` against the
+    /// pairs placed so far, a lower bound on every completion that puts `k` on `c`.
+    ///
+    /// The next peak is the one whose best free corner has the largest such bound (the most
+    /// constrained, so that an outlier is placed early and its error cuts the tree). Those bounds
+    /// depend only on distances, which the box's symmetries preserve exactly, so all assignments
+    /// of one orbit follow the same peak order and the lexicographic choice of one per orbit
+    /// stays sound.
+    ///
+    /// With `dive`, only one path is followed below each first corner: a quick greedy search for
+    /// an incumbent.
+    fn descend(
+        &mut self,
+        depth: usize,
+        peak: usize,
+        active: u32,
+        sums: PartialSums,
+        worst_pair: &[[f64; CORNER_COUNT]; CORNER_COUNT],
+        dive: bool,
+    ) {
         let mut candidates: [(f64, usize, u32); CORNER_COUNT] = [(0.0, 0, 0); CORNER_COUNT];
         let mut candidate_count = 0;
         'corners: for corner in 0..CORNER_COUNT {
-            if self.used[corner] {
+            if self.corner_used[corner] || worst_pair[peak][corner] >= self.best_error + self.margin {
                 continue;
             }
             let mut still_fixing = 0u32;
@@ -250,42 +272,55 @@ impl BranchAndBound {
                     std::cmp::Ordering::Greater => {}
                 }
             }
-            // Two-pair errors against every peak already placed: each is a lower bound.
-            let mut worst_pair = 0.0f64;
-            let mut inconsistency = 0.0;
-            for earlier in 0..depth {
-                let gap = self.peak_distance[earlier][depth]
-                    - self.corner_distance[self.assignment[earlier]][corner];
-                worst_pair = worst_pair.max(0.5 * gap * gap);
-                inconsistency += gap * gap;
-            }
-            if worst_pair >= self.best_error + self.margin {
-                continue;
-            }
-            candidates[candidate_count] = (inconsistency, corner, still_fixing);
+            candidates[candidate_count] = (worst_pair[peak][corner], corner, still_fixing);
             candidate_count += 1;
         }
         let candidates = &mut candidates[..candidate_count];
         candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        // Below the first peak a dive follows only the most consistent candidate.
+        let candidates = if dive && depth > 0 { &candidates[..candidates.len().min(1)] } else { candidates };
 
+        self.order[depth] = peak;
+        self.peak_placed[peak] = true;
         for &(_, corner, still_fixing) in candidates.iter() {
             let cut = self.best_error + self.margin;
-            self.assignment[depth] = corner;
-            self.used[corner] = true;
-            let sums = sums.with_pair(&self.corners[corner], &self.peaks[depth]);
-            let promising = (depth + 1..self.m).all(|later| self.look_ahead_bound(depth, later) < cut)
-                && (depth < 2 || sums.fitted_error(cut) < cut);
-            if promising {
-                if depth + 1 == self.m {
-                    // Not cut, so the quaternion solve ran to convergence: this is the error.
-                    self.best_error = sums.fitted_error(f64::INFINITY);
-                    self.best_assignment = self.assignment;
-                } else {
-                    self.descend(depth + 1, still_fixing, sums);
+            self.corner_used[corner] = true;
+            // Tighten the two-pair bounds of the unplaced peaks with the new pair, and pick the
+            // most constrained of them.
+            let mut tightened = *worst_pair;
+            let mut next = None;
+            let mut next_bound = -1.0;
+            for later in (0..self.m).filter(|&k| !self.peak_placed[k]) {
+                let mut bound = f64::INFINITY;
+                for c in (0..CORNER_COUNT).filter(|&c| !self.corner_used[c]) {
+                    let error = tightened[later][c].max(self.pair_error(peak, later, corner, c));
+                    tightened[later][c] = error;
+                    bound = bound.min(error);
+                }
+                if bound > next_bound {
+                    (next, next_bound) = (Some(later), bound);
                 }
             }
-            self.used[corner] = false;
+            let sums = sums.with_pair(&self.corners[corner], &self.peaks[peak]);
+            let promising = next_bound < cut && (depth < 2 || !sums.fit().error_reaches(cut));
+            if promising {
+                self.assignment[depth] = corner;
+                match next {
+                    Some(next) => self.descend(depth + 1, next, still_fixing, sums, &tightened, dive),
+                    None => {
+                        let error = sums.fit().min_error();
+                        if error < self.best_error {
+                            self.best_error = error;
+                            for i in 0..self.m {
+                                self.best_corners[self.order[i]] = self.assignment[i];
+                            }
+                        }
+                    }
+                }
+            }
+            self.corner_used[corner] = false;
         }
+        self.peak_placed[peak] = false;
     }
 }
 

@@ -7,7 +7,7 @@ use nalgebra::{Point3, Vector3};
 use proptest::prelude::*;
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 96, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
 
     /// The branch and bound finds the brute force's minimum on every kind of input: all shape
     /// classes, random poses, noise from none to a third of the box, 0–4 outliers, shuffled scores.

@@ -8,7 +8,6 @@ use rand_chacha::ChaCha8Rng;
 
 pub struct Scene {
     pub model: BoxModel,
-    pub truth: Isometry3<f64>,
     pub points: Vec<Point3<f64>>,
     pub scores: Vec<f64>,
 }
@@ -39,7 +38,7 @@ pub fn scenes(count: usize, seed: u64) -> Vec<Scene> {
                 })
                 .collect();
             let scores = (0..8).map(|_| rng.random_range(0.2..1.0)).collect();
-            Scene { model, truth, points, scores }
+            Scene { model, points, scores }
         })
         .collect()
 }
