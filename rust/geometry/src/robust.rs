@@ -6,7 +6,7 @@
 
 use nalgebra::{Isometry3, Point3};
 
-use crate::align::kabsch;
+use crate::align::{kabsch, quaternion_kabsch};
 use crate::box_model::{BoxModel, CORNER_COUNT};
 use crate::correspondence::ensure_spread_in_two_directions;
 use crate::error::{GeometryError, Result, ensure_finite_points};
@@ -79,7 +79,9 @@ pub fn robust_fit(model: &BoxModel, points: &[Point3<f64>], params: &RobustParam
         (distance(a, b) - distance(&corners[c], &corners[d])).abs() <= 2.0 * threshold
     };
 
-    let mut best: Option<Scored> = None;
+    // Scoring dominates: hypotheses are only costed, with an early exit once the running cost
+    // exceeds the best one's, and the winner alone is scored in full.
+    let mut best: Option<(f64, Isometry3<f64>)> = None;
     let n = points.len();
     for i in 0..n {
         for j in i + 1..n {
@@ -90,18 +92,20 @@ pub fn robust_fit(model: &BoxModel, points: &[Point3<f64>], params: &RobustParam
                         continue;
                     }
                     // A collinear point triple determines no pose: skip the hypothesis.
-                    let Ok(pose) = kabsch(&[corners[a], corners[b], corners[c]], &[*p, *q, *r]) else {
+                    let Ok(pose) = quaternion_kabsch(&[corners[a], corners[b], corners[c]], &[*p, *q, *r]) else {
                         continue;
                     };
-                    let scored = Scored::new(pose, &corners, points, threshold);
-                    if best.as_ref().is_none_or(|b| scored.is_better_than(b)) {
-                        best = Some(scored);
+                    let bound = best.as_ref().map_or(f64::INFINITY, |(cost, _)| *cost);
+                    let cost = truncated_cost_below(&pose, &corners, points, threshold, bound);
+                    if cost < bound {
+                        best = Some((cost, pose));
                     }
                 }
             }
         }
     }
-    let mut best = best.ok_or(GeometryError::NoConsensus { needed: 3 })?;
+    let (_, pose) = best.ok_or(GeometryError::NoConsensus { needed: 3 })?;
+    let mut best = Scored::new(pose, &corners, points, threshold);
 
     for _ in 0..params.max_refinements {
         let (sources, targets): (Vec<_>, Vec<_>) = (0..n)
@@ -134,6 +138,27 @@ pub fn robust_fit(model: &BoxModel, points: &[Point3<f64>], params: &RobustParam
     })
 }
 
+/// Σ min(r², τ²) over the points under `pose`, or any value ≥ `bound` as soon as the running sum
+/// reaches it.
+fn truncated_cost_below(
+    pose: &Isometry3<f64>,
+    corners: &[Point3<f64>; CORNER_COUNT],
+    points: &[Point3<f64>],
+    threshold: f64,
+    bound: f64,
+) -> f64 {
+    let placed: [Point3<f64>; CORNER_COUNT] = std::array::from_fn(|c| pose * corners[c]);
+    let cap = threshold * threshold;
+    let mut cost = 0.0;
+    for p in points {
+        cost += placed.iter().map(|c| (c - p).norm_squared()).fold(cap, f64::min);
+        if cost >= bound {
+            break;
+        }
+    }
+    cost
+}
+
 /// A pose with its per-point nearest corners, residuals and truncated cost.
 struct Scored {
     pose: Isometry3<f64>,
@@ -163,7 +188,7 @@ impl Scored {
         Self { pose, nearest_corners, residuals, inliers, cost }
     }
 
-    /// Lower truncated cost wins; this is strict so that the first of equal hypotheses is kept.
+    /// Lower truncated cost wins; strict, so that refinement stops once it stops gaining.
     fn is_better_than(&self, other: &Scored) -> bool {
         self.cost < other.cost
     }
