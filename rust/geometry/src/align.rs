@@ -176,7 +176,7 @@ fn weighted_fit(
 /// Fails unless points with this (centred) scatter matrix span at least a plane.
 pub(crate) fn ensure_scatter_spans_a_plane(scatter: &Matrix3<f64>) -> Result<()> {
     let trace = scatter.trace();
-    if !(trace > 0.0) {
+    if trace <= 0.0 {
         return Err(GeometryError::Degenerate("coincident points"));
     }
     // The sum of the principal 2×2 minors is λ₁λ₂ + λ₁λ₃ + λ₂λ₃, about λ₁λ₂ when the points are
@@ -243,7 +243,7 @@ impl QuaternionFit {
         if self.lambda_bound <= x {
             return true;
         }
-        if !(x > 0.0) {
+        if x <= 0.0 {
             return false;
         }
         let (x2, c2, c1, c0) = (x * x, self.c2, self.c1, self.c0);
@@ -274,11 +274,11 @@ impl QuaternionFit {
             Matrix3::from_fn(|r, c| shifted[rows[r]][cols[c]]).determinant()
         };
         let column = |j: usize| {
-            nalgebra::Vector4::from_fn(|i, _| if (i + j) % 2 == 0 { minor(j, i) } else { -minor(j, i) })
+            nalgebra::Vector4::from_fn(|i, _| if (i + j) & 1 == 0 { minor(j, i) } else { -minor(j, i) })
         };
         let best = (0..4).map(column).max_by(|a, b| a.norm_squared().total_cmp(&b.norm_squared()))?;
         // Cofactors are cubic in the matrix entries, whose size λ bounds.
-        if !(best.norm() > 1e-9 * lambda.abs().powi(3)) {
+        if best.norm() <= 1e-9 * lambda.abs().powi(3) {
             return None;
         }
         let q = nalgebra::Quaternion::new(best[0], best[1], best[2], best[3]);
@@ -295,7 +295,7 @@ impl QuaternionFit {
                 break;
             }
             let step = value / slope;
-            if !(step > 1e-15 * lambda.abs()) {
+            if step.is_nan() || step <= 1e-15 * lambda.abs() {
                 break;
             }
             lambda -= step;

@@ -24,7 +24,7 @@ pub struct CorrespondenceFit {
     pub peaks: Vec<usize>,
     /// `corners[k]` is the model corner matched to `points[peaks[k]]`.
     pub corners: Vec<usize>,
-    /// Σ_k ‖pose · corner(corners[k]) − points[peaks[k]]‖² over the pairs used, in m².
+    /// Σ_k ‖pose · corner(`corners[k]`) − `points[peaks[k]]`‖² over the pairs used, in m².
     pub sum_squared_error: f64,
 }
 

@@ -63,7 +63,7 @@ pub struct SizedBoxFit {
 /// Needs at least 4 points that do not all lie in one plane.
 pub fn fit_pose_and_size(points: &[Point3<f64>], params: &SizeFitParams) -> Result<SizedBoxFit> {
     ensure_finite_points("points", points)?;
-    if !(params.truncation > 0.0) || params.truncation.is_nan() {
+    if params.truncation.is_nan() || params.truncation <= 0.0 {
         return Err(GeometryError::InvalidParameter { name: "truncation", reason: "must be positive (or infinite)" });
     }
     if points.len() < 4 {
