@@ -98,6 +98,8 @@ def project(boxes: list[BoxBody], recipe: Recipe, jitter_rng: np.random.Generato
         weights[start : start + 4] = QUATERNION_WEIGHT
         weights[start + 4 : start + 7] = TRANSLATION_WEIGHT_PER_M2
         lower, upper = centre_bounds(recipe, box.size_m)
+        # A box stacked by the sampler may start above the drop layer: never push it higher.
+        upper[2] = max(upper[2], box.translation_m[2])
         prog.AddBoundingBoxConstraint(lower, upper, q[start + 4 : start + 7])
         # Quaternion components lie in [-1, 1]: bounds help both solvers stay in range.
         prog.AddBoundingBoxConstraint(-np.ones(4), np.ones(4), q[start : start + 4])

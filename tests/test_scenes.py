@@ -221,17 +221,17 @@ def test_too_many_boxes_for_the_support_fails_up_front(tmp_path):
 
 
 def test_recipe_whose_solve_always_fails_is_reported_without_a_shard(tmp_path):
-    """Passes the footprint check (3 × 0.01 m² < 0.04 m²) but three 10 cm cubes cannot be 5 mm
-    apart with centres in a 2.7 cm square at most 8.7 cm above the floor."""
+    """Passes the up-front checks, but no box can be 0.5 m from the floor while its lowest
+    point stays within drop.height_m (at most 0.15 m) of it: every solve fails."""
     recipe = tiny_variant(
-        tmp_path, "jammed", count="count = [3, 3]", size_min_m="size_min_m = [0.1, 0.1, 0.1]",
-        size_max_m="size_max_m = [0.1, 0.1, 0.1]", half_extent_m="half_extent_m = [0.1, 0.1]",
-        height_m="height_m = [0.0, 0.0]", max_solve_attempts="max_solve_attempts = 1",
+        tmp_path, "unreachable", min_separation_m="min_separation_m = 0.5",
+        count="count = [1, 1]", max_solve_attempts="max_solve_attempts = 1",
     )
     out = tmp_path / "out"
     result = run_cli("--recipe", recipe, "--out", out, "--no-progress")
     assert result.returncode == 2, result.stdout + result.stderr
-    assert "recipe 'jammed'" in result.stderr and "non-penetration solve failed" in result.stderr
+    assert "recipe 'unreachable'" in result.stderr and "non-penetration solve failed" in result.stderr
+    assert "Traceback" not in result.stderr
     assert not list(out.rglob("*.parquet"))
 
 
