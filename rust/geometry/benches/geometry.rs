@@ -19,40 +19,42 @@ use rand_chacha::ChaCha8Rng;
 const SCENES: usize = 16;
 
 fn correspondence(c: &mut Criterion) {
-    let scenes = common::scenes(SCENES, 2024);
-    let mut group = c.benchmark_group("pose_from_8_peaks");
-    group.throughput(Throughput::Elements(SCENES as u64));
-    group.sample_size(10);
-    group.bench_function("paper_exact_m5", |b| {
-        b.iter(|| {
-            for s in &scenes {
-                black_box(paper_exact_search(&s.model, black_box(&s.points), &s.scores, PAPER_PEAKS_USED).unwrap());
-            }
-        })
-    });
-    group.sample_size(100);
-    group.bench_function("fast_exact_m5", |b| {
-        b.iter(|| {
-            for s in &scenes {
-                black_box(fast_exact_search(&s.model, black_box(&s.points), &s.scores, PAPER_PEAKS_USED).unwrap());
-            }
-        })
-    });
-    group.bench_function("robust_fit", |b| {
-        b.iter(|| {
-            for s in &scenes {
-                black_box(robust_fit(&s.model, black_box(&s.points), &RobustParams::for_box(&s.model)).unwrap());
-            }
-        })
-    });
-    group.bench_function("pose_and_size_fit", |b| {
-        b.iter(|| {
-            for s in &scenes {
-                black_box(fit_pose_and_size(black_box(&s.points), &SizeFitParams::default()).unwrap());
-            }
-        })
-    });
-    group.finish();
+    for (name, outliers) in [("clean", 0..=0), ("outliers_1_to_2", 1..=2)] {
+        let scenes = common::scenes(SCENES, 2024, outliers);
+        let mut group = c.benchmark_group(format!("pose_from_8_peaks_{name}"));
+        group.throughput(Throughput::Elements(SCENES as u64));
+        group.sample_size(10);
+        group.bench_function("paper_exact_m5", |b| {
+            b.iter(|| {
+                for s in &scenes {
+                    black_box(paper_exact_search(&s.model, black_box(&s.points), &s.scores, PAPER_PEAKS_USED).unwrap());
+                }
+            })
+        });
+        group.sample_size(50);
+        group.bench_function("fast_exact_m5", |b| {
+            b.iter(|| {
+                for s in &scenes {
+                    black_box(fast_exact_search(&s.model, black_box(&s.points), &s.scores, PAPER_PEAKS_USED).unwrap());
+                }
+            })
+        });
+        group.bench_function("robust_fit", |b| {
+            b.iter(|| {
+                for s in &scenes {
+                    black_box(robust_fit(&s.model, black_box(&s.points), &RobustParams::for_box(&s.model)).unwrap());
+                }
+            })
+        });
+        group.bench_function("pose_and_size_fit", |b| {
+            b.iter(|| {
+                for s in &scenes {
+                    black_box(fit_pose_and_size(black_box(&s.points), &SizeFitParams::default()).unwrap());
+                }
+            })
+        });
+        group.finish();
+    }
 }
 
 fn nms(c: &mut Criterion) {

@@ -13,8 +13,10 @@ pub struct Scene {
 }
 
 /// `count` scenes from `seed`: sides 0.1–0.5 m, poses 0.8–2 m in front of the camera, 3 mm peak
-/// noise, 0–2 outliers (uniform within the box's diameter of its centre) with random scores.
-pub fn scenes(count: usize, seed: u64) -> Vec<Scene> {
+/// noise, and among the 8 peaks between `outliers.start()` and `outliers.end()` outliers (uniform
+/// within the box's diameter of its centre); scores are random, so outliers are as likely as
+/// inliers to be among the 5 that the paper's search fits.
+pub fn scenes(count: usize, seed: u64, outliers: std::ops::RangeInclusive<usize>) -> Vec<Scene> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     (0..count)
         .map(|_| {
@@ -23,7 +25,7 @@ pub fn scenes(count: usize, seed: u64) -> Vec<Scene> {
                 Vector3::new(rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3), rng.random_range(0.8..2.0)),
                 Vector3::from_fn(|_, _| rng.random_range(-3.0..3.0)),
             );
-            let outliers = rng.random_range(0..=2usize);
+            let outliers = rng.random_range(outliers.clone());
             let points = model
                 .corners()
                 .iter()
