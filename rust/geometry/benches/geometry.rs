@@ -9,7 +9,9 @@ mod common;
 use std::hint::black_box;
 
 use boxpose_geometry::correspondence::{PAPER_PEAKS_USED, fast_exact_search, paper_exact_search};
-use boxpose_geometry::heatmap::{HeatmapDims, NmsParams, VoxelCoord, non_maximum_suppression, render_target_heatmap};
+use boxpose_geometry::heatmap::{
+    HeatmapDims, NmsParams, VoxelCoord, non_maximum_suppression, render_target_heatmap,
+};
 use boxpose_geometry::robust::{RobustParams, robust_fit};
 use boxpose_geometry::size_fit::{SizeFitParams, fit_pose_and_size};
 use criterion::{Criterion, Throughput, criterion_group, criterion_main};
@@ -27,7 +29,15 @@ fn correspondence(c: &mut Criterion) {
         group.bench_function("paper_exact_m5", |b| {
             b.iter(|| {
                 for s in &scenes {
-                    black_box(paper_exact_search(&s.model, black_box(&s.points), &s.scores, PAPER_PEAKS_USED).unwrap());
+                    black_box(
+                        paper_exact_search(
+                            &s.model,
+                            black_box(&s.points),
+                            &s.scores,
+                            PAPER_PEAKS_USED,
+                        )
+                        .unwrap(),
+                    );
                 }
             })
         });
@@ -35,21 +45,38 @@ fn correspondence(c: &mut Criterion) {
         group.bench_function("fast_exact_m5", |b| {
             b.iter(|| {
                 for s in &scenes {
-                    black_box(fast_exact_search(&s.model, black_box(&s.points), &s.scores, PAPER_PEAKS_USED).unwrap());
+                    black_box(
+                        fast_exact_search(
+                            &s.model,
+                            black_box(&s.points),
+                            &s.scores,
+                            PAPER_PEAKS_USED,
+                        )
+                        .unwrap(),
+                    );
                 }
             })
         });
         group.bench_function("robust_fit", |b| {
             b.iter(|| {
                 for s in &scenes {
-                    black_box(robust_fit(&s.model, black_box(&s.points), &RobustParams::for_box(&s.model)).unwrap());
+                    black_box(
+                        robust_fit(
+                            &s.model,
+                            black_box(&s.points),
+                            &RobustParams::for_box(&s.model),
+                        )
+                        .unwrap(),
+                    );
                 }
             })
         });
         group.bench_function("pose_and_size_fit", |b| {
             b.iter(|| {
                 for s in &scenes {
-                    black_box(fit_pose_and_size(black_box(&s.points), &SizeFitParams::default()).unwrap());
+                    black_box(
+                        fit_pose_and_size(black_box(&s.points), &SizeFitParams::default()).unwrap(),
+                    );
                 }
             })
         });
@@ -58,21 +85,36 @@ fn correspondence(c: &mut Criterion) {
 }
 
 fn nms(c: &mut Criterion) {
-    let dims = HeatmapDims { depth: 64, height: 64, width: 64 };
+    let dims = HeatmapDims {
+        depth: 64,
+        height: 64,
+        width: 64,
+    };
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let corners: Vec<VoxelCoord> = (0..8)
-        .map(|_| VoxelCoord { z_bin: rng.random_range(8.0..56.0), v: rng.random_range(8.0..56.0), u: rng.random_range(8.0..56.0) })
+        .map(|_| VoxelCoord {
+            z_bin: rng.random_range(8.0..56.0),
+            v: rng.random_range(8.0..56.0),
+            u: rng.random_range(8.0..56.0),
+        })
         .collect();
     let mut volume = render_target_heatmap(dims, &corners, 2.0).unwrap();
     // A network's output is never clean: add low-level clutter everywhere.
     for x in volume.iter_mut() {
         *x += rng.random_range(0.0..0.05f32);
     }
-    let params = NmsParams { count: 8, sigma: 2.0, refine_radius: 0 };
+    let params = NmsParams {
+        count: 8,
+        sigma: 2.0,
+        refine_radius: 0,
+    };
     c.bench_function("nms_64x64x64_8_peaks", |b| {
         b.iter(|| black_box(non_maximum_suppression(black_box(&volume), dims, &params).unwrap()))
     });
-    let refined = NmsParams { refine_radius: 1, ..params };
+    let refined = NmsParams {
+        refine_radius: 1,
+        ..params
+    };
     c.bench_function("nms_64x64x64_8_peaks_refined", |b| {
         b.iter(|| black_box(non_maximum_suppression(black_box(&volume), dims, &refined).unwrap()))
     });

@@ -32,7 +32,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let started = Instant::now();
     for _ in 0..repeats {
         for s in &scenes {
-            black_box(fast_exact_search(&s.model, black_box(&s.points), &s.scores, m)?);
+            black_box(fast_exact_search(
+                &s.model,
+                black_box(&s.points),
+                &s.scores,
+                m,
+            )?);
         }
     }
     let fast_seconds = started.elapsed().as_secs_f64() / (count * repeats) as f64;
@@ -43,9 +48,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     let triple = |v: &[f64]| format!("[{:.17e},{:.17e},{:.17e}]", v[0], v[1], v[2]);
     let mut json = String::new();
-    write!(json, "{{\"m\":{m},\"rust_paper_exact_seconds_per_box\":{paper_seconds:e},\"rust_fast_exact_seconds_per_box\":{fast_seconds:e},\"scenes\":[")?;
+    write!(
+        json,
+        "{{\"m\":{m},\"rust_paper_exact_seconds_per_box\":{paper_seconds:e},\"rust_fast_exact_seconds_per_box\":{fast_seconds:e},\"scenes\":["
+    )?;
     for (i, (s, (p, f))) in scenes.iter().zip(paper.iter().zip(&fast)).enumerate() {
-        let points: Vec<String> = s.points.iter().map(|p| triple(p.coords.as_slice())).collect();
+        let points: Vec<String> = s
+            .points
+            .iter()
+            .map(|p| triple(p.coords.as_slice()))
+            .collect();
         let scores: Vec<String> = s.scores.iter().map(|x| format!("{x:.17e}")).collect();
         write!(
             json,

@@ -45,7 +45,10 @@ pub fn umeyama_weighted(
 
 /// The rigid fit of [`kabsch`] by Horn's quaternion method instead of an SVD (several times
 /// faster), for hot loops; falls back to [`kabsch`] when the quaternion is not determined.
-pub(crate) fn quaternion_kabsch(source: &[Point3<f64>], target: &[Point3<f64>]) -> Result<Isometry3<f64>> {
+pub(crate) fn quaternion_kabsch(
+    source: &[Point3<f64>],
+    target: &[Point3<f64>],
+) -> Result<Isometry3<f64>> {
     let n = source.len() as f64;
     let source_mean = source.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
     let target_mean = target.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
@@ -57,9 +60,10 @@ pub(crate) fn quaternion_kabsch(source: &[Point3<f64>], target: &[Point3<f64>]) 
         target_norms += t.norm_squared();
     }
     match QuaternionFit::new(&cross, source_norms, target_norms).rotation() {
-        Some(rotation) => {
-            Ok(Isometry3::from_parts(Translation3::from(target_mean - rotation * source_mean), rotation))
-        }
+        Some(rotation) => Ok(Isometry3::from_parts(
+            Translation3::from(target_mean - rotation * source_mean),
+            rotation,
+        )),
         None => kabsch(source, target),
     }
 }
@@ -70,7 +74,11 @@ pub fn sum_squared_residuals(
     source: &[Point3<f64>],
     target: &[Point3<f64>],
 ) -> f64 {
-    source.iter().zip(target).map(|(s, t)| (transform * s - t).norm_squared()).sum()
+    source
+        .iter()
+        .zip(target)
+        .map(|(s, t)| (transform * s - t).norm_squared())
+        .sum()
 }
 
 /// The parts of a weighted fit that both Kabsch and Umeyama are built from.
@@ -108,7 +116,11 @@ fn weighted_fit(
     target: &[Point3<f64>],
     weights: Option<&[f64]>,
 ) -> Result<WeightedFit> {
-    ensure_len("target points (one per source point)", source.len(), target.len())?;
+    ensure_len(
+        "target points (one per source point)",
+        source.len(),
+        target.len(),
+    )?;
     ensure_finite_points("source points", source)?;
     ensure_finite_points("target points", target)?;
     let uniform;
@@ -131,12 +143,21 @@ fn weighted_fit(
     };
     let positive = weights.iter().filter(|&&w| w > 0.0).count();
     if positive < 3 {
-        return Err(GeometryError::TooFewPoints { what: "rigid alignment", needed: 3, got: positive });
+        return Err(GeometryError::TooFewPoints {
+            what: "rigid alignment",
+            needed: 3,
+            got: positive,
+        });
     }
 
     let total: f64 = weights.iter().sum();
     let weighted_mean = |points: &[Point3<f64>]| {
-        points.iter().zip(weights).map(|(p, &w)| p.coords * w).sum::<Vector3<f64>>() / total
+        points
+            .iter()
+            .zip(weights)
+            .map(|(p, &w)| p.coords * w)
+            .sum::<Vector3<f64>>()
+            / total
     };
     let source_mean = weighted_mean(source);
     let target_mean = weighted_mean(target);
@@ -168,9 +189,20 @@ fn weighted_fit(
         signs[(singular[2].0, singular[2].0)] = -1.0;
     }
     let rotation = u * signs * v_t;
-    let signed_singular_sum = singular[0].1 + singular[1].1
-        + if reflection { -singular[2].1 } else { singular[2].1 };
-    Ok(WeightedFit { rotation, source_mean, target_mean, source_variance, signed_singular_sum })
+    let signed_singular_sum = singular[0].1
+        + singular[1].1
+        + if reflection {
+            -singular[2].1
+        } else {
+            singular[2].1
+        };
+    Ok(WeightedFit {
+        rotation,
+        source_mean,
+        target_mean,
+        source_variance,
+        signed_singular_sum,
+    })
 }
 
 /// Fails unless points with this (centred) scatter matrix span at least a plane.
@@ -182,7 +214,8 @@ pub(crate) fn ensure_scatter_spans_a_plane(scatter: &Matrix3<f64>) -> Result<()>
     // The sum of the principal 2×2 minors is λ₁λ₂ + λ₁λ₃ + λ₂λ₃, about λ₁λ₂ when the points are
     // nearly collinear: against trace² ≈ λ₁², a ratio of 1e-20 is a width of 1e-10 of the extent.
     // (Cheaper than an eigen-decomposition, and on the searches' hot paths.)
-    let minor = |i: usize, j: usize| scatter[(i, i)] * scatter[(j, j)] - scatter[(i, j)] * scatter[(j, i)];
+    let minor =
+        |i: usize, j: usize| scatter[(i, i)] * scatter[(j, j)] - scatter[(i, j)] * scatter[(j, i)];
     if minor(0, 1) + minor(0, 2) + minor(1, 2) <= 1e-20 * trace * trace {
         return Err(GeometryError::Degenerate("collinear points"));
     }
@@ -249,8 +282,14 @@ impl QuaternionFit {
         let (x2, c2, c1, c0) = (x * x, self.c2, self.c1, self.c0);
         let clearly_positive = |value: f64, magnitude: f64| value > 1e-13 * magnitude;
         clearly_positive(12.0 * x2 + 2.0 * c2, 12.0 * x2 + 2.0 * c2.abs())
-            && clearly_positive(4.0 * x2 * x + 2.0 * c2 * x + c1, 4.0 * x2 * x + 2.0 * c2.abs() * x + c1.abs())
-            && clearly_positive((x2 + c2) * x2 + c1 * x + c0, x2 * x2 + c2.abs() * x2 + c1.abs() * x + c0.abs())
+            && clearly_positive(
+                4.0 * x2 * x + 2.0 * c2 * x + c1,
+                4.0 * x2 * x + 2.0 * c2.abs() * x + c1.abs(),
+            )
+            && clearly_positive(
+                (x2 + c2) * x2 + c1 * x + c0,
+                x2 * x2 + c2.abs() * x2 + c1.abs() * x + c0.abs(),
+            )
     }
 
     /// The least squared error, by Newton's method on the quartic from `lambda_bound`: from the
@@ -274,9 +313,17 @@ impl QuaternionFit {
             Matrix3::from_fn(|r, c| shifted[rows[r]][cols[c]]).determinant()
         };
         let column = |j: usize| {
-            nalgebra::Vector4::from_fn(|i, _| if (i + j) & 1 == 0 { minor(j, i) } else { -minor(j, i) })
+            nalgebra::Vector4::from_fn(|i, _| {
+                if (i + j) & 1 == 0 {
+                    minor(j, i)
+                } else {
+                    -minor(j, i)
+                }
+            })
         };
-        let best = (0..4).map(column).max_by(|a, b| a.norm_squared().total_cmp(&b.norm_squared()))?;
+        let best = (0..4)
+            .map(column)
+            .max_by(|a, b| a.norm_squared().total_cmp(&b.norm_squared()))?;
         // Cofactors are cubic in the matrix entries, whose size λ bounds.
         if best.norm() <= 1e-9 * lambda.abs().powi(3) {
             return None;
@@ -373,8 +420,12 @@ mod tests {
         let best = sum_squared_residuals(&fit, &source, &target);
         assert!(best > 1e-3);
         for k in 0..200 {
-            let axis = Unit::new_normalize(Vector3::new((k as f64).sin(), (k as f64 * 0.7).cos(), 0.3));
-            let candidate = Isometry3::from_parts(fit.translation, UnitQuaternion::from_axis_angle(&axis, 0.01) * fit.rotation);
+            let axis =
+                Unit::new_normalize(Vector3::new((k as f64).sin(), (k as f64 * 0.7).cos(), 0.3));
+            let candidate = Isometry3::from_parts(
+                fit.translation,
+                UnitQuaternion::from_axis_angle(&axis, 0.01) * fit.rotation,
+            );
             assert!(sum_squared_residuals(&candidate, &source, &target) >= best - 1e-12);
         }
     }
@@ -401,7 +452,14 @@ mod tests {
             let target: Vec<_> = source
                 .iter()
                 .enumerate()
-                .map(|(i, p)| pose() * p + Vector3::new(0.01 * (i as f64 + k as f64).sin(), 0.02 * (k as f64).cos(), -0.01))
+                .map(|(i, p)| {
+                    pose() * p
+                        + Vector3::new(
+                            0.01 * (i as f64 + k as f64).sin(),
+                            0.02 * (k as f64).cos(),
+                            -0.01,
+                        )
+                })
                 .collect();
             let svd = kabsch(&source, &target).unwrap();
             let quaternion = quaternion_kabsch(&source, &target).unwrap();
@@ -427,24 +485,45 @@ mod tests {
         let fit = kabsch(&rectangle, &permuted).unwrap();
         let best = sum_squared_residuals(&fit, &rectangle, &permuted);
         for k in 0..100 {
-            let axis = Unit::new_normalize(Vector3::new((k as f64).cos(), (k as f64 * 1.3).sin(), 0.5));
-            let other = Isometry3::from_parts(fit.translation, UnitQuaternion::from_axis_angle(&axis, 0.02 * k as f64));
+            let axis =
+                Unit::new_normalize(Vector3::new((k as f64).cos(), (k as f64 * 1.3).sin(), 0.5));
+            let other = Isometry3::from_parts(
+                fit.translation,
+                UnitQuaternion::from_axis_angle(&axis, 0.02 * k as f64),
+            );
             assert!(sum_squared_residuals(&other, &rectangle, &permuted) >= best - 1e-12);
         }
     }
 
     #[test]
     fn degenerate_inputs_are_errors() {
-        let line: Vec<_> = (0..4).map(|i| Point3::new(i as f64, 2.0 * i as f64, 0.0)).collect();
+        let line: Vec<_> = (0..4)
+            .map(|i| Point3::new(i as f64, 2.0 * i as f64, 0.0))
+            .collect();
         let same = vec![Point3::new(1.0, 1.0, 1.0); 4];
         let good = cloud()[..4].to_vec();
-        assert_eq!(kabsch(&line, &good), Err(GeometryError::Degenerate("collinear points")));
-        assert_eq!(kabsch(&good, &same), Err(GeometryError::Degenerate("coincident points")));
-        assert!(matches!(kabsch(&good[..2], &good[..2]), Err(GeometryError::TooFewPoints { .. })));
-        assert!(matches!(kabsch(&good, &good[..3]), Err(GeometryError::ShapeMismatch { .. })));
+        assert_eq!(
+            kabsch(&line, &good),
+            Err(GeometryError::Degenerate("collinear points"))
+        );
+        assert_eq!(
+            kabsch(&good, &same),
+            Err(GeometryError::Degenerate("coincident points"))
+        );
+        assert!(matches!(
+            kabsch(&good[..2], &good[..2]),
+            Err(GeometryError::TooFewPoints { .. })
+        ));
+        assert!(matches!(
+            kabsch(&good, &good[..3]),
+            Err(GeometryError::ShapeMismatch { .. })
+        ));
         let mut nan = good.clone();
         nan[1].y = f64::NAN;
-        assert!(matches!(kabsch(&good, &nan), Err(GeometryError::NonFinite { .. })));
+        assert!(matches!(
+            kabsch(&good, &nan),
+            Err(GeometryError::NonFinite { .. })
+        ));
         assert!(matches!(
             kabsch_weighted(&good, &good, &[1.0, -1.0, 1.0, 1.0]),
             Err(GeometryError::InvalidParameter { .. })
@@ -457,11 +536,15 @@ mod tests {
         let target: Vec<_> = source
             .iter()
             .enumerate()
-            .map(|(i, p)| pose() * p + Vector3::new(0.05 * (i as f64).sin(), 0.03, -0.02 * i as f64))
+            .map(|(i, p)| {
+                pose() * p + Vector3::new(0.05 * (i as f64).sin(), 0.03, -0.02 * i as f64)
+            })
             .collect();
         let fit = kabsch(&source, &target).unwrap();
         let svd_sse = sum_squared_residuals(&fit, &source, &target);
-        let centroid = |pts: &[Point3<f64>]| pts.iter().map(|p| p.coords).sum::<Vector3<f64>>() / pts.len() as f64;
+        let centroid = |pts: &[Point3<f64>]| {
+            pts.iter().map(|p| p.coords).sum::<Vector3<f64>>() / pts.len() as f64
+        };
         let (ca, cb) = (centroid(&source), centroid(&target));
         let mut cross = Matrix3::zeros();
         let (mut na, mut nb) = (0.0, 0.0);

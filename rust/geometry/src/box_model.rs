@@ -56,7 +56,9 @@ impl BoxModel {
 
     /// The paper's model: a unit cube.
     pub fn unit() -> Self {
-        Self { size: Vector3::repeat(1.0) }
+        Self {
+            size: Vector3::repeat(1.0),
+        }
     }
 
     /// Side lengths (dx, dy, dz).
@@ -137,7 +139,13 @@ impl BoxModel {
         static TABLES: OnceLock<[Vec<[usize; CORNER_COUNT]>; 5]> = OnceLock::new();
         let tables = TABLES.get_or_init(|| {
             let representative = |size: [f64; 3]| {
-                BoxModel { size: Vector3::from(size) }.symmetries().iter().map(|g| g.corner_permutation).collect()
+                BoxModel {
+                    size: Vector3::from(size),
+                }
+                .symmetries()
+                .iter()
+                .map(|g| g.corner_permutation)
+                .collect()
             };
             [
                 representative([1.0, 2.0, 3.0]),
@@ -163,18 +171,31 @@ pub(crate) fn corner_signs(i: usize) -> Vector3<f64> {
 
 /// The corner index whose sign pattern matches the signs of `v`.
 fn corner_index_of_signs(v: &Vector3<f64>) -> usize {
-    (0..3).filter(|&axis| v[axis] > 0.0).map(|axis| 1 << axis).sum()
+    (0..3)
+        .filter(|&axis| v[axis] > 0.0)
+        .map(|axis| 1 << axis)
+        .sum()
 }
 
 /// The 24 proper signed permutation matrices (identity first), each with the axis each column maps
 /// to: column `i` is ±e_{axis_image[i]}.
 fn cube_rotations() -> impl Iterator<Item = (Matrix3<f64>, [usize; 3])> {
-    const PERMUTATIONS: [[usize; 3]; 6] =
-        [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    const PERMUTATIONS: [[usize; 3]; 6] = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
     PERMUTATIONS.into_iter().flat_map(|axis_image| {
         (0..8usize).filter_map(move |sign_bits| {
             let matrix = Matrix3::from_fn(|row, col| {
-                let sign = if (sign_bits >> col) & 1 == 1 { -1.0 } else { 1.0 };
+                let sign = if (sign_bits >> col) & 1 == 1 {
+                    -1.0
+                } else {
+                    1.0
+                };
                 if axis_image[col] == row { sign } else { 0.0 }
             });
             (matrix.determinant() > 0.0).then_some((matrix, axis_image))
@@ -215,7 +236,10 @@ mod tests {
     fn group_order_follows_shape_class() {
         assert_eq!(model(0.3, 0.2, 0.1).symmetries().len(), 4);
         assert_eq!(model(0.2, 0.2, 0.1).symmetries().len(), 8);
-        assert_eq!(model(0.2, 0.1, 0.1).shape_class(1e-6), ShapeClass::SquareFaced { axis: 0 });
+        assert_eq!(
+            model(0.2, 0.1, 0.1).shape_class(1e-6),
+            ShapeClass::SquareFaced { axis: 0 }
+        );
         assert_eq!(model(0.1, 0.1, 0.1).symmetries().len(), 24);
         assert_eq!(model(0.1, 0.1 + 1e-9, 0.1).symmetries().len(), 24);
         assert_eq!(model(0.1, 0.1 + 1e-3, 0.1).symmetries().len(), 8);
@@ -223,7 +247,11 @@ mod tests {
 
     #[test]
     fn symmetries_map_corners_onto_corners_and_form_a_group() {
-        for m in [model(0.3, 0.2, 0.1), model(0.1, 0.3, 0.3), model(0.2, 0.2, 0.2)] {
+        for m in [
+            model(0.3, 0.2, 0.1),
+            model(0.1, 0.3, 0.3),
+            model(0.2, 0.2, 0.2),
+        ] {
             let corners = m.corners();
             let group = m.symmetries();
             assert_eq!(group[0].rotation, Rotation3::identity());
@@ -235,7 +263,9 @@ mod tests {
                 }
                 for h in &group {
                     let product = g.rotation * h.rotation;
-                    let closed = group.iter().any(|k| (k.rotation.matrix() - product.matrix()).norm() < 1e-12);
+                    let closed = group
+                        .iter()
+                        .any(|k| (k.rotation.matrix() - product.matrix()).norm() < 1e-12);
                     assert!(closed, "group not closed under composition");
                 }
             }
@@ -244,17 +274,39 @@ mod tests {
 
     #[test]
     fn cached_permutations_match_the_group() {
-        for m in [model(0.3, 0.2, 0.1), model(0.3, 0.1, 0.3), model(0.2, 0.3, 0.3), model(0.1, 0.1, 0.3), model(0.2, 0.2, 0.2)] {
-            let computed: Vec<_> = m.symmetries().iter().map(|g| g.corner_permutation).collect();
+        for m in [
+            model(0.3, 0.2, 0.1),
+            model(0.3, 0.1, 0.3),
+            model(0.2, 0.3, 0.3),
+            model(0.1, 0.1, 0.3),
+            model(0.2, 0.2, 0.2),
+        ] {
+            let computed: Vec<_> = m
+                .symmetries()
+                .iter()
+                .map(|g| g.corner_permutation)
+                .collect();
             assert_eq!(m.symmetry_permutations(), computed.as_slice());
         }
-        assert_eq!(model(0.2, 0.2 + 1e-12, 0.2).symmetry_permutations().len(), 8);
+        assert_eq!(
+            model(0.2, 0.2 + 1e-12, 0.2).symmetry_permutations().len(),
+            8
+        );
     }
 
     #[test]
     fn rejects_bad_sizes() {
-        assert!(matches!(BoxModel::new(Vector3::new(1.0, f64::NAN, 1.0)), Err(GeometryError::NonFinite { .. })));
-        assert!(matches!(BoxModel::new(Vector3::new(1.0, 0.0, 1.0)), Err(GeometryError::InvalidParameter { .. })));
-        assert!(matches!(BoxModel::new(Vector3::new(1.0, -1.0, 1.0)), Err(GeometryError::InvalidParameter { .. })));
+        assert!(matches!(
+            BoxModel::new(Vector3::new(1.0, f64::NAN, 1.0)),
+            Err(GeometryError::NonFinite { .. })
+        ));
+        assert!(matches!(
+            BoxModel::new(Vector3::new(1.0, 0.0, 1.0)),
+            Err(GeometryError::InvalidParameter { .. })
+        ));
+        assert!(matches!(
+            BoxModel::new(Vector3::new(1.0, -1.0, 1.0)),
+            Err(GeometryError::InvalidParameter { .. })
+        ));
     }
 }

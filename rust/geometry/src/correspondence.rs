@@ -58,8 +58,14 @@ pub fn paper_exact_search(
         }
         Ok(())
     })?;
-    let (sum_squared_error, pose, corners) = best.expect("at least one assignment exists for m ≤ 8");
-    Ok(CorrespondenceFit { pose, peaks, corners, sum_squared_error })
+    let (sum_squared_error, pose, corners) =
+        best.expect("at least one assignment exists for m ≤ 8");
+    Ok(CorrespondenceFit {
+        pose,
+        peaks,
+        corners,
+        sum_squared_error,
+    })
 }
 
 /// Calls `visit` with every ordered injective map from `m` peaks to the 8 corners, in
@@ -123,14 +129,26 @@ pub fn fast_exact_search(
     // which then cuts far more: the two chiral halves of a box's corners cannot be told apart by
     // distances, and without it the wrong half may be searched first with a poor bound.
     for dive in [true, false] {
-        search.descend(0, 0, search.all_symmetries_active(), PartialSums::default(), &[[0.0; CORNER_COUNT]; CORNER_COUNT], dive);
+        search.descend(
+            0,
+            0,
+            search.all_symmetries_active(),
+            PartialSums::default(),
+            &[[0.0; CORNER_COUNT]; CORNER_COUNT],
+            dive,
+        );
     }
     let corners = search.best_corners[..m].to_vec();
     let model_corners = model.corners();
     let sources: Vec<_> = corners.iter().map(|&c| model_corners[c]).collect();
     let pose = kabsch(&sources, targets)?;
     let sum_squared_error = sum_squared_residuals(&pose, &sources, targets);
-    Ok(CorrespondenceFit { pose, peaks, corners, sum_squared_error })
+    Ok(CorrespondenceFit {
+        pose,
+        peaks,
+        corners,
+        sum_squared_error,
+    })
 }
 
 /// Running sums over the pairs assigned so far, from which the centred cross-covariance and the
@@ -192,7 +210,8 @@ struct BranchAndBound {
 
 impl BranchAndBound {
     fn new(model: &BoxModel, targets: &[Point3<f64>]) -> Self {
-        let centroid = targets.iter().map(|p| p.coords).sum::<Vector3<f64>>() / targets.len() as f64;
+        let centroid =
+            targets.iter().map(|p| p.coords).sum::<Vector3<f64>>() / targets.len() as f64;
         let mut peaks = [Vector3::zeros(); CORNER_COUNT];
         for (peak, target) in peaks.iter_mut().zip(targets) {
             *peak = target.coords - centroid;
@@ -258,7 +277,8 @@ impl BranchAndBound {
         let mut candidates: [(f64, usize, u32); CORNER_COUNT] = [(0.0, 0, 0); CORNER_COUNT];
         let mut candidate_count = 0;
         'corners: for corner in 0..CORNER_COUNT {
-            if self.corner_used[corner] || worst_pair[peak][corner] >= self.best_error + self.margin {
+            if self.corner_used[corner] || worst_pair[peak][corner] >= self.best_error + self.margin
+            {
                 continue;
             }
             let mut still_fixing = 0u32;
@@ -278,7 +298,11 @@ impl BranchAndBound {
         let candidates = &mut candidates[..candidate_count];
         candidates.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
         // Below the first peak a dive follows only the most consistent candidate.
-        let candidates = if dive && depth > 0 { &candidates[..candidates.len().min(1)] } else { candidates };
+        let candidates = if dive && depth > 0 {
+            &candidates[..candidates.len().min(1)]
+        } else {
+            candidates
+        };
 
         self.order[depth] = peak;
         self.peak_placed[peak] = true;
@@ -306,7 +330,9 @@ impl BranchAndBound {
             if promising {
                 self.assignment[depth] = corner;
                 match next {
-                    Some(next) => self.descend(depth + 1, next, still_fixing, sums, &tightened, dive),
+                    Some(next) => {
+                        self.descend(depth + 1, next, still_fixing, sums, &tightened, dive)
+                    }
                     None => {
                         let error = sums.fit().min_error();
                         if error < self.best_error {
@@ -337,7 +363,11 @@ fn highest_scoring(points: &[Point3<f64>], scores: &[f64], m: usize) -> Result<V
         });
     }
     if points.len() < m {
-        return Err(GeometryError::TooFewPoints { what: "correspondence search", needed: m, got: points.len() });
+        return Err(GeometryError::TooFewPoints {
+            what: "correspondence search",
+            needed: m,
+            got: points.len(),
+        });
     }
     let mut order: Vec<usize> = (0..points.len()).collect();
     order.sort_by(|&a, &b| scores[b].total_cmp(&scores[a]).then(a.cmp(&b)));
@@ -350,7 +380,9 @@ fn highest_scoring(points: &[Point3<f64>], scores: &[f64], m: usize) -> Result<V
 /// Fails unless the points span at least a plane, without which no rotation is determined.
 pub(crate) fn ensure_spread_in_two_directions(points: &[Point3<f64>]) -> Result<()> {
     let centroid = points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / points.len() as f64;
-    let scatter: Matrix3<f64> =
-        points.iter().map(|p| (p.coords - centroid) * (p.coords - centroid).transpose()).sum();
+    let scatter: Matrix3<f64> = points
+        .iter()
+        .map(|p| (p.coords - centroid) * (p.coords - centroid).transpose())
+        .sum();
     ensure_scatter_spans_a_plane(&scatter)
 }

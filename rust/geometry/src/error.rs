@@ -10,7 +10,11 @@ pub enum GeometryError {
 
     /// Fewer points than the computation needs.
     #[error("{what}: need at least {needed} points, got {got}")]
-    TooFewPoints { what: &'static str, needed: usize, got: usize },
+    TooFewPoints {
+        what: &'static str,
+        needed: usize,
+        got: usize,
+    },
 
     /// Points whose configuration does not determine the result (coincident or collinear).
     #[error("degenerate input: {0}")]
@@ -18,7 +22,11 @@ pub enum GeometryError {
 
     /// Two inputs that must agree in length (or a buffer and its dimensions) do not.
     #[error("{what}: expected {expected}, got {got}")]
-    ShapeMismatch { what: &'static str, expected: usize, got: usize },
+    ShapeMismatch {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
 
     /// A heatmap with no positive voxel: there is no peak to take.
     #[error("heatmap has no positive voxel")]
@@ -26,7 +34,10 @@ pub enum GeometryError {
 
     /// A parameter outside its valid range (for example a non-positive sigma or box side).
     #[error("invalid parameter {name}: {reason}")]
-    InvalidParameter { name: &'static str, reason: &'static str },
+    InvalidParameter {
+        name: &'static str,
+        reason: &'static str,
+    },
 
     /// A robust fit found no pose supported by at least three points.
     #[error("no pose hypothesis is supported by at least {needed} points")]
@@ -60,6 +71,10 @@ pub(crate) fn ensure_len(what: &'static str, expected: usize, got: usize) -> Res
     if expected == got {
         Ok(())
     } else {
-        Err(GeometryError::ShapeMismatch { what, expected, got })
+        Err(GeometryError::ShapeMismatch {
+            what,
+            expected,
+            got,
+        })
     }
 }

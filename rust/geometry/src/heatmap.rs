@@ -55,14 +55,21 @@ pub struct NmsParams {
 
 impl Default for NmsParams {
     fn default() -> Self {
-        Self { count: 8, sigma: 2.0, refine_radius: 0 }
+        Self {
+            count: 8,
+            sigma: 2.0,
+            refine_radius: 0,
+        }
     }
 }
 
 impl HeatmapDims {
     /// Number of voxels, or an error if it overflows or any dimension is zero.
     pub fn voxel_count(&self) -> Result<usize> {
-        let count = self.depth.checked_mul(self.height).and_then(|n| n.checked_mul(self.width));
+        let count = self
+            .depth
+            .checked_mul(self.height)
+            .and_then(|n| n.checked_mul(self.width));
         match count {
             Some(n) if n > 0 => Ok(n),
             _ => Err(GeometryError::InvalidParameter {
@@ -99,7 +106,10 @@ pub fn non_maximum_suppression(
     }
     ensure_positive("sigma", params.sigma)?;
     if params.count == 0 {
-        return Err(GeometryError::InvalidParameter { name: "count", reason: "must be at least 1" });
+        return Err(GeometryError::InvalidParameter {
+            name: "count",
+            reason: "must be at least 1",
+        });
     }
 
     let mut work = volume.to_vec();
@@ -131,7 +141,9 @@ pub fn non_maximum_suppression(
         let (z, v) = (row / dims.height, row % dims.height);
         let voxel = [z, v, u];
 
-        let span = |centre: usize, len: usize| centre.saturating_sub(radius)..(centre + radius + 1).min(len);
+        let span = |centre: usize, len: usize| {
+            centre.saturating_sub(radius)..(centre + radius + 1).min(len)
+        };
         for zz in span(z, dims.depth) {
             let wz = kernel[zz.abs_diff(z)] * score;
             for vv in span(v, dims.height) {
@@ -146,11 +158,19 @@ pub fn non_maximum_suppression(
         }
 
         let coord = if params.refine_radius == 0 {
-            VoxelCoord { z_bin: z as f64, v: v as f64, u: u as f64 }
+            VoxelCoord {
+                z_bin: z as f64,
+                v: v as f64,
+                u: u as f64,
+            }
         } else {
             soft_argmax_around(volume, dims, voxel, params.refine_radius)
         };
-        peaks.push(Peak { voxel, coord, score });
+        peaks.push(Peak {
+            voxel,
+            coord,
+            score,
+        });
     }
     if peaks.is_empty() {
         return Err(GeometryError::EmptyHeatmap);
@@ -176,7 +196,9 @@ fn row_max_and_finiteness(row: &[f32]) -> (f32, bool) {
         max[0] = if x > max[0] { x } else { max[0] };
         nan_probe[0] += x * 0.0;
     }
-    let max = max.into_iter().fold(f32::NEG_INFINITY, |m, x| if x > m { x } else { m });
+    let max = max
+        .into_iter()
+        .fold(f32::NEG_INFINITY, |m, x| if x > m { x } else { m });
     (max, nan_probe.iter().all(|&p| p == 0.0))
 }
 
@@ -193,8 +215,14 @@ fn first_argmax(values: &[f32]) -> usize {
 /// Mean position of the positive values of `volume` within `radius` voxels (per axis) of `voxel`,
 /// weighted by value: a local soft-argmax, on the original heatmap so that earlier suppressions do
 /// not bias it.
-fn soft_argmax_around(volume: &[f32], dims: HeatmapDims, voxel: [usize; 3], radius: usize) -> VoxelCoord {
-    let span = |centre: usize, len: usize| centre.saturating_sub(radius)..(centre + radius + 1).min(len);
+fn soft_argmax_around(
+    volume: &[f32],
+    dims: HeatmapDims,
+    voxel: [usize; 3],
+    radius: usize,
+) -> VoxelCoord {
+    let span =
+        |centre: usize, len: usize| centre.saturating_sub(radius)..(centre + radius + 1).min(len);
     let (mut total, mut sum) = (0.0f64, [0.0f64; 3]);
     for z in span(voxel[0], dims.depth) {
         for v in span(voxel[1], dims.height) {
@@ -208,23 +236,38 @@ fn soft_argmax_around(volume: &[f32], dims: HeatmapDims, voxel: [usize; 3], radi
         }
     }
     // The peak voxel itself is positive, so the total is too.
-    VoxelCoord { z_bin: sum[0] / total, v: sum[1] / total, u: sum[2] / total }
+    VoxelCoord {
+        z_bin: sum[0] / total,
+        v: sum[1] / total,
+        u: sum[2] / total,
+    }
 }
 
 /// Renders a training target: at each voxel, the maximum over `centres` of
 /// exp(−‖voxel − centre‖² / (2·sigma²)) (distances in voxels), zero beyond
 /// [`GAUSSIAN_TRUNCATION_SIGMAS`] sigmas. Centres outside the volume contribute their tails.
-pub fn render_target_heatmap(dims: HeatmapDims, centres: &[VoxelCoord], sigma: f64) -> Result<Vec<f32>> {
+pub fn render_target_heatmap(
+    dims: HeatmapDims,
+    centres: &[VoxelCoord],
+    sigma: f64,
+) -> Result<Vec<f32>> {
     let voxel_count = dims.voxel_count()?;
     ensure_positive("sigma", sigma)?;
-    ensure_finite("target centres", centres.iter().flat_map(|c| [&c.z_bin, &c.v, &c.u]))?;
+    ensure_finite(
+        "target centres",
+        centres.iter().flat_map(|c| [&c.z_bin, &c.v, &c.u]),
+    )?;
     let mut volume = vec![0.0f32; voxel_count];
     let reach = GAUSSIAN_TRUNCATION_SIGMAS * sigma;
     // Voxel indices within `reach` of `centre` along one axis of length `len` (empty when none).
     let span = |centre: f64, len: usize| {
         let lo = (centre - reach).ceil().max(0.0);
         let hi = (centre + reach).floor().min(len as f64 - 1.0);
-        if lo > hi { 0..0 } else { lo as usize..hi as usize + 1 }
+        if lo > hi {
+            0..0
+        } else {
+            lo as usize..hi as usize + 1
+        }
     };
     let gauss = |d: f64| (-(d * d) / (2.0 * sigma * sigma)).exp();
     for c in centres {
@@ -297,7 +340,11 @@ impl VoxelGrid {
         ensure_in_front(z)?;
         let u_img = c.x0 + (coord.u + 0.5) * c.sx - 0.5;
         let v_img = c.y0 + (coord.v + 0.5) * c.sy - 0.5;
-        Ok(Point3::new((u_img - k.cx) * z / k.fx, (v_img - k.cy) * z / k.fy, z))
+        Ok(Point3::new(
+            (u_img - k.cx) * z / k.fx,
+            (v_img - k.cy) * z / k.fy,
+            z,
+        ))
     }
 
     /// The continuous voxel position of a camera-frame point: the inverse of
@@ -319,7 +366,10 @@ impl VoxelGrid {
 
     fn validate(&self) -> Result<()> {
         let (k, c, d) = (&self.intrinsics, &self.crop, &self.depth);
-        ensure_finite("voxel grid", [&k.fx, &k.fy, &k.cx, &k.cy, &c.x0, &c.y0, &c.sx, &c.sy])?;
+        ensure_finite(
+            "voxel grid",
+            [&k.fx, &k.fy, &k.cx, &k.cy, &c.x0, &c.y0, &c.sx, &c.sy],
+        )?;
         ensure_finite("depth bins", [&d.z_ref, &d.z_min, &d.bin_size])?;
         ensure_positive("fx", k.fx)?;
         ensure_positive("fy", k.fy)?;
@@ -333,7 +383,10 @@ fn ensure_positive(name: &'static str, value: f64) -> Result<()> {
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
-        Err(GeometryError::InvalidParameter { name, reason: "must be finite and positive" })
+        Err(GeometryError::InvalidParameter {
+            name,
+            reason: "must be finite and positive",
+        })
     }
 }
 
@@ -341,6 +394,9 @@ fn ensure_in_front(z: f64) -> Result<()> {
     if z > 0.0 {
         Ok(())
     } else {
-        Err(GeometryError::InvalidParameter { name: "depth", reason: "point must be in front of the camera (z > 0)" })
+        Err(GeometryError::InvalidParameter {
+            name: "depth",
+            reason: "point must be in front of the camera (z > 0)",
+        })
     }
 }

@@ -16,18 +16,29 @@ use crate::error::{GeometryError, Result, ensure_finite, ensure_finite_points};
 /// box and calls an error above 0.005 a counterexample). Nearest-neighbour matching makes it blind
 /// to the box's symmetries; it is not a distance between poses (two transformed corners may share
 /// one ground-truth corner).
-pub fn paper_error(model: &BoxModel, estimate: &Isometry3<f64>, truth_corners: &[Point3<f64>]) -> Result<f64> {
+pub fn paper_error(
+    model: &BoxModel,
+    estimate: &Isometry3<f64>,
+    truth_corners: &[Point3<f64>],
+) -> Result<f64> {
     ensure_pose("estimate", estimate)?;
     ensure_finite_points("ground-truth corners", truth_corners)?;
     if truth_corners.is_empty() {
-        return Err(GeometryError::TooFewPoints { what: "ground-truth corners", needed: 1, got: 0 });
+        return Err(GeometryError::TooFewPoints {
+            what: "ground-truth corners",
+            needed: 1,
+            got: 0,
+        });
     }
     let sum: f64 = model
         .corners()
         .iter()
         .map(|m| {
             let placed = estimate * m;
-            truth_corners.iter().map(|s| (placed - s).norm_squared()).fold(f64::INFINITY, f64::min)
+            truth_corners
+                .iter()
+                .map(|s| (placed - s).norm_squared())
+                .fold(f64::INFINITY, f64::min)
         })
         .sum();
     Ok(sum / CORNER_COUNT as f64)
@@ -48,7 +59,10 @@ pub fn add_s(model: &BoxModel, estimate: &Isometry3<f64>, truth: &Isometry3<f64>
         .iter()
         .map(|x| {
             let placed = estimate * x;
-            truth_corners.iter().map(|y| (placed - y).norm()).fold(f64::INFINITY, f64::min)
+            truth_corners
+                .iter()
+                .map(|y| (placed - y).norm())
+                .fold(f64::INFINITY, f64::min)
         })
         .sum();
     Ok(sum / CORNER_COUNT as f64)
@@ -83,7 +97,11 @@ pub fn mssd(model: &BoxModel, estimate: &Isometry3<f64>, truth: &Isometry3<f64>)
 ///
 /// with R̂, R the rotations of `estimate` and `truth`, G the box's rotation group and angle(Q) =
 /// arccos((tr Q − 1)/2) ∈ [0°, 180°].
-pub fn rotation_error_deg(model: &BoxModel, estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> Result<f64> {
+pub fn rotation_error_deg(
+    model: &BoxModel,
+    estimate: &Isometry3<f64>,
+    truth: &Isometry3<f64>,
+) -> Result<f64> {
     ensure_pose("estimate", estimate)?;
     ensure_pose("truth", truth)?;
     let relative = estimate.rotation.inverse() * truth.rotation;
@@ -117,21 +135,29 @@ pub fn translation_error(estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> R
 /// divergence theorem, vol = (1/3) Σ_faces (n·x) · area, with n the outward normal and x any point
 /// of the face. A face of B lying in the plane of a face of A with the same outward normal is the
 /// same face of the intersection and is counted once.
-pub fn iou_3d(box_a: &BoxModel, pose_a: &Isometry3<f64>, box_b: &BoxModel, pose_b: &Isometry3<f64>) -> Result<f64> {
+pub fn iou_3d(
+    box_a: &BoxModel,
+    pose_a: &Isometry3<f64>,
+    box_b: &BoxModel,
+    pose_b: &Isometry3<f64>,
+) -> Result<f64> {
     ensure_pose("pose_a", pose_a)?;
     ensure_pose("pose_b", pose_b)?;
     // Work in A's frame: A is axis-aligned at the origin, which keeps the arithmetic well scaled.
     let b_in_a = pose_a.inverse() * pose_b;
     let faces_a = faces(box_a, &Isometry3::identity());
     let faces_b = faces(box_b, &b_in_a);
-    let tolerance = 1e-12 * (box_a.diameter() + box_b.diameter() + b_in_a.translation.vector.norm());
+    let tolerance =
+        1e-12 * (box_a.diameter() + box_b.diameter() + b_in_a.translation.vector.norm());
 
     let mut volume = 0.0;
     for face in &faces_a {
         volume += face.clipped_volume_term(&faces_b, tolerance);
     }
     for face in &faces_b {
-        let shared = faces_a.iter().any(|a| a.normal.dot(&face.normal) > 1.0 - 1e-12 && (a.offset - face.offset).abs() <= tolerance);
+        let shared = faces_a.iter().any(|a| {
+            a.normal.dot(&face.normal) > 1.0 - 1e-12 && (a.offset - face.offset).abs() <= tolerance
+        });
         if !shared {
             volume += face.clipped_volume_term(&faces_a, tolerance);
         }
@@ -158,8 +184,11 @@ impl Face {
             }
         }
         let origin = polygon[0];
-        let doubled_area: Vector3<f64> =
-            polygon.windows(2).skip(1).map(|w| (w[0] - origin).cross(&(w[1] - origin))).sum();
+        let doubled_area: Vector3<f64> = polygon
+            .windows(2)
+            .skip(1)
+            .map(|w| (w[0] - origin).cross(&(w[1] - origin)))
+            .sum();
         self.offset * 0.5 * doubled_area.norm()
     }
 }
@@ -177,18 +206,29 @@ fn faces(model: &BoxModel, pose: &Isometry3<f64>) -> Vec<Face> {
                 local[c] = sc * half[c];
                 pose * Point3::from(local)
             };
-            let polygon: Vec<Vector3<f64>> =
-                [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)].iter().map(|&(sb, sc)| corner(sb, sc).coords).collect();
+            let polygon: Vec<Vector3<f64>> = [(-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)]
+                .iter()
+                .map(|&(sb, sc)| corner(sb, sc).coords)
+                .collect();
             let normal = pose.rotation * (Vector3::ith(axis, sign));
             let offset = normal.dot(&polygon[0]);
-            faces.push(Face { polygon, normal, offset });
+            faces.push(Face {
+                polygon,
+                normal,
+                offset,
+            });
         }
     }
     faces
 }
 
 /// Sutherland–Hodgman: the part of a convex polygon where n·x ≤ offset (within `tolerance`).
-fn clip(polygon: &[Vector3<f64>], normal: &Vector3<f64>, offset: f64, tolerance: f64) -> Vec<Vector3<f64>> {
+fn clip(
+    polygon: &[Vector3<f64>],
+    normal: &Vector3<f64>,
+    offset: f64,
+    tolerance: f64,
+) -> Vec<Vector3<f64>> {
     let mut out = Vec::with_capacity(polygon.len() + 2);
     for (i, current) in polygon.iter().enumerate() {
         let next = &polygon[(i + 1) % polygon.len()];
@@ -206,5 +246,11 @@ fn clip(polygon: &[Vector3<f64>], normal: &Vector3<f64>, offset: f64, tolerance:
 }
 
 fn ensure_pose(what: &'static str, pose: &Isometry3<f64>) -> Result<()> {
-    ensure_finite(what, pose.translation.vector.iter().chain(pose.rotation.coords.iter()))
+    ensure_finite(
+        what,
+        pose.translation
+            .vector
+            .iter()
+            .chain(pose.rotation.coords.iter()),
+    )
 }

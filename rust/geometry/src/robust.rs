@@ -25,7 +25,10 @@ impl RobustParams {
     /// A threshold of a quarter of the box's shortest side: above the noise of a useful detector,
     /// and below half the smallest corner spacing, so that no peak is an inlier of two corners.
     pub fn for_box(model: &BoxModel) -> Self {
-        Self { inlier_threshold: 0.25 * model.size().min(), max_refinements: 20 }
+        Self {
+            inlier_threshold: 0.25 * model.size().min(),
+            max_refinements: 20,
+        }
     }
 }
 
@@ -61,13 +64,24 @@ pub struct RobustFit {
 /// Four inliers in one plane (a face, or a diagonal section) fit the box and its mirror image
 /// through that plane equally well: the result is then one of the two, and only the outliers'
 /// positions, if any fall near a corner of one of them, can tell them apart.
-pub fn robust_fit(model: &BoxModel, points: &[Point3<f64>], params: &RobustParams) -> Result<RobustFit> {
+pub fn robust_fit(
+    model: &BoxModel,
+    points: &[Point3<f64>],
+    params: &RobustParams,
+) -> Result<RobustFit> {
     ensure_finite_points("points", points)?;
     if !(params.inlier_threshold.is_finite() && params.inlier_threshold > 0.0) {
-        return Err(GeometryError::InvalidParameter { name: "inlier_threshold", reason: "must be finite and positive" });
+        return Err(GeometryError::InvalidParameter {
+            name: "inlier_threshold",
+            reason: "must be finite and positive",
+        });
     }
     if points.len() < 3 {
-        return Err(GeometryError::TooFewPoints { what: "robust fit", needed: 3, got: points.len() });
+        return Err(GeometryError::TooFewPoints {
+            what: "robust fit",
+            needed: 3,
+            got: points.len(),
+        });
     }
     ensure_spread_in_two_directions(points)?;
 
@@ -92,7 +106,9 @@ pub fn robust_fit(model: &BoxModel, points: &[Point3<f64>], params: &RobustParam
                         continue;
                     }
                     // A collinear point triple determines no pose: skip the hypothesis.
-                    let Ok(pose) = quaternion_kabsch(&[corners[a], corners[b], corners[c]], &[*p, *q, *r]) else {
+                    let Ok(pose) =
+                        quaternion_kabsch(&[corners[a], corners[b], corners[c]], &[*p, *q, *r])
+                    else {
                         continue;
                     };
                     let bound = best.as_ref().map_or(f64::INFINITY, |(cost, _)| *cost);
@@ -113,7 +129,9 @@ pub fn robust_fit(model: &BoxModel, points: &[Point3<f64>], params: &RobustParam
             .map(|i| (corners[best.nearest_corners[i]], points[i]))
             .unzip();
         // Fewer than 3 inliers, or inliers on a line, leave nothing to refine.
-        let Ok(pose) = kabsch(&sources, &targets) else { break };
+        let Ok(pose) = kabsch(&sources, &targets) else {
+            break;
+        };
         let refined = Scored::new(pose, &corners, points, threshold);
         if !refined.is_better_than(&best) {
             break;
@@ -125,8 +143,13 @@ pub fn robust_fit(model: &BoxModel, points: &[Point3<f64>], params: &RobustParam
     if inlier_count < 3 {
         return Err(GeometryError::NoConsensus { needed: 3 });
     }
-    let inlier_sse: f64 =
-        best.residuals.iter().zip(&best.inliers).filter(|(_, inlier)| **inlier).map(|(r, _)| r * r).sum();
+    let inlier_sse: f64 = best
+        .residuals
+        .iter()
+        .zip(&best.inliers)
+        .filter(|(_, inlier)| **inlier)
+        .map(|(r, _)| r * r)
+        .sum();
     Ok(RobustFit {
         pose: best.pose,
         inliers: best.inliers,
@@ -151,7 +174,10 @@ fn truncated_cost_below(
     let cap = threshold * threshold;
     let mut cost = 0.0;
     for p in points {
-        cost += placed.iter().map(|c| (c - p).norm_squared()).fold(cap, f64::min);
+        cost += placed
+            .iter()
+            .map(|c| (c - p).norm_squared())
+            .fold(cap, f64::min);
         if cost >= bound {
             break;
         }
@@ -169,7 +195,12 @@ struct Scored {
 }
 
 impl Scored {
-    fn new(pose: Isometry3<f64>, corners: &[Point3<f64>; CORNER_COUNT], points: &[Point3<f64>], threshold: f64) -> Self {
+    fn new(
+        pose: Isometry3<f64>,
+        corners: &[Point3<f64>; CORNER_COUNT],
+        points: &[Point3<f64>],
+        threshold: f64,
+    ) -> Self {
         let placed: [Point3<f64>; CORNER_COUNT] = std::array::from_fn(|c| pose * corners[c]);
         let (nearest_corners, residuals): (Vec<usize>, Vec<f64>) = points
             .iter()
@@ -184,8 +215,17 @@ impl Scored {
             })
             .unzip();
         let inliers: Vec<bool> = residuals.iter().map(|&r| r < threshold).collect();
-        let cost = residuals.iter().map(|&r| (r * r).min(threshold * threshold)).sum();
-        Self { pose, nearest_corners, residuals, inliers, cost }
+        let cost = residuals
+            .iter()
+            .map(|&r| (r * r).min(threshold * threshold))
+            .sum();
+        Self {
+            pose,
+            nearest_corners,
+            residuals,
+            inliers,
+            cost,
+        }
     }
 
     /// Lower truncated cost wins; strict, so that refinement stops once it stops gaining.

@@ -19,7 +19,10 @@ pub struct SizeFitParams {
 
 impl Default for SizeFitParams {
     fn default() -> Self {
-        Self { truncation: f64::INFINITY, max_iterations: 50 }
+        Self {
+            truncation: f64::INFINITY,
+            max_iterations: 50,
+        }
     }
 }
 
@@ -64,14 +67,23 @@ pub struct SizedBoxFit {
 pub fn fit_pose_and_size(points: &[Point3<f64>], params: &SizeFitParams) -> Result<SizedBoxFit> {
     ensure_finite_points("points", points)?;
     if params.truncation.is_nan() || params.truncation <= 0.0 {
-        return Err(GeometryError::InvalidParameter { name: "truncation", reason: "must be positive (or infinite)" });
+        return Err(GeometryError::InvalidParameter {
+            name: "truncation",
+            reason: "must be positive (or infinite)",
+        });
     }
     if points.len() < 4 {
-        return Err(GeometryError::TooFewPoints { what: "pose and size fit", needed: 4, got: points.len() });
+        return Err(GeometryError::TooFewPoints {
+            what: "pose and size fit",
+            needed: 4,
+            got: points.len(),
+        });
     }
     let centroid = points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / points.len() as f64;
-    let scatter: Matrix3<f64> =
-        points.iter().map(|p| (p.coords - centroid) * (p.coords - centroid).transpose()).sum();
+    let scatter: Matrix3<f64> = points
+        .iter()
+        .map(|p| (p.coords - centroid) * (p.coords - centroid).transpose())
+        .sum();
     let eigen = scatter.symmetric_eigen();
     let largest = eigen.eigenvalues.max();
     if largest <= 0.0 {
@@ -93,13 +105,21 @@ pub fn fit_pose_and_size(points: &[Point3<f64>], params: &SizeFitParams) -> Resu
         for &ry in &TURNS {
             for &rz in &TURNS {
                 let rotation = principal
-                    * Rotation3::from_euler_angles(rx.to_radians(), ry.to_radians(), rz.to_radians());
+                    * Rotation3::from_euler_angles(
+                        rx.to_radians(),
+                        ry.to_radians(),
+                        rz.to_radians(),
+                    );
                 let half_size = points
                     .iter()
                     .map(|p| (rotation.inverse() * (p.coords - centroid)).abs())
                     .sum::<Vector3<f64>>()
                     / points.len() as f64;
-                starts.push(Start { rotation, centre: centroid, half_size });
+                starts.push(Start {
+                    rotation,
+                    centre: centroid,
+                    half_size,
+                });
             }
         }
     }
@@ -116,12 +136,16 @@ pub fn fit_pose_and_size(points: &[Point3<f64>], params: &SizeFitParams) -> Resu
 
     let mut best: Option<Alternation> = None;
     for (_, start) in scored {
-        let Some(fit) = Alternation::run(points, start, params) else { continue };
+        let Some(fit) = Alternation::run(points, start, params) else {
+            continue;
+        };
         if best.as_ref().is_none_or(|b| fit.cost < b.cost) {
             best = Some(fit);
         }
     }
-    let best = best.ok_or(GeometryError::Degenerate("no start reached a box with positive sides"))?;
+    let best = best.ok_or(GeometryError::Degenerate(
+        "no start reached a box with positive sides",
+    ))?;
     best.into_result(points, params.truncation)
 }
 
@@ -145,7 +169,12 @@ impl Start {
     /// The truncated cost of the start as it is, with the truncation widened to twice the median
     /// residual as in the alternation's first round.
     fn cost(&self, points: &[Point3<f64>], truncation: f64) -> f64 {
-        let state = Alternation { rotation: self.rotation, centre: self.centre, half_size: self.half_size, cost: 0.0 };
+        let state = Alternation {
+            rotation: self.rotation,
+            centre: self.centre,
+            half_size: self.half_size,
+            cost: 0.0,
+        };
         let (_, residuals) = state.nearest_corners(points);
         truncated_cost(&residuals, truncation.max(2.0 * median(&residuals)))
     }
@@ -160,10 +189,18 @@ fn right_angle_starts(points: &[Point3<f64>]) -> Vec<Start> {
     let mut starts = Vec::new();
     for (ia, a) in points.iter().enumerate() {
         for (ib, b) in points.iter().enumerate().filter(|&(ib, _)| ib != ia) {
-            for (ic, c) in points.iter().enumerate().skip(ib + 1).filter(|&(ic, _)| ic != ia) {
+            for (ic, c) in points
+                .iter()
+                .enumerate()
+                .skip(ib + 1)
+                .filter(|&(ic, _)| ic != ia)
+            {
                 let (edge_b, edge_c) = (b - a, c - a);
                 let (len_b, len_c) = (edge_b.norm(), edge_c.norm());
-                if len_b == 0.0 || len_c == 0.0 || (edge_b.dot(&edge_c) / (len_b * len_c)).abs() > 0.15 {
+                if len_b == 0.0
+                    || len_c == 0.0
+                    || (edge_b.dot(&edge_c) / (len_b * len_c)).abs() > 0.15
+                {
                     continue;
                 }
                 let x = edge_b / len_b;
@@ -185,7 +222,11 @@ fn right_angle_starts(points: &[Point3<f64>]) -> Vec<Start> {
                 let rotation = Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
                 let half_size = Vector3::new(0.5 * len_b, 0.5 * len_c, 0.5 * depth);
                 for side in [-0.5, 0.5] {
-                    starts.push(Start { rotation, centre: face_centre + z * (side * depth), half_size });
+                    starts.push(Start {
+                        rotation,
+                        centre: face_centre + z * (side * depth),
+                        half_size,
+                    });
                 }
             }
         }
@@ -195,8 +236,17 @@ fn right_angle_starts(points: &[Point3<f64>]) -> Vec<Start> {
 
 impl Alternation {
     fn run(points: &[Point3<f64>], start: Start, params: &SizeFitParams) -> Option<Self> {
-        let Start { rotation, centre, half_size } = start;
-        let mut state = Self { rotation, centre, half_size, cost: f64::INFINITY };
+        let Start {
+            rotation,
+            centre,
+            half_size,
+        } = start;
+        let mut state = Self {
+            rotation,
+            centre,
+            half_size,
+            cost: f64::INFINITY,
+        };
         let mut previous = (Vec::new(), Vec::new());
         for _ in 0..params.max_iterations {
             let (assignment, residuals) = state.nearest_corners(points);
@@ -204,14 +254,20 @@ impl Alternation {
             // final truncation, so the cutoff starts at twice the median residual and tightens
             // with it down to the truncation asked for.
             let cutoff = params.truncation.max(2.0 * median(&residuals));
-            let inliers: Vec<usize> = (0..points.len()).filter(|&i| residuals[i] < cutoff).collect();
+            let inliers: Vec<usize> = (0..points.len())
+                .filter(|&i| residuals[i] < cutoff)
+                .collect();
             let cost = truncated_cost(&residuals, cutoff);
-            let settled = (&assignment, &inliers) == (&previous.0, &previous.1) && cost >= state.cost * (1.0 - 1e-12);
+            let settled = (&assignment, &inliers) == (&previous.0, &previous.1)
+                && cost >= state.cost * (1.0 - 1e-12);
             state.cost = cost;
             if settled || inliers.len() < 4 {
                 break;
             }
-            let sources: Vec<Point3<f64>> = inliers.iter().map(|&i| state.corner(assignment[i])).collect();
+            let sources: Vec<Point3<f64>> = inliers
+                .iter()
+                .map(|&i| state.corner(assignment[i]))
+                .collect();
             let targets: Vec<Point3<f64>> = inliers.iter().map(|&i| points[i]).collect();
             let pose = kabsch(&sources, &targets).ok()?;
             state.rotation = pose.rotation.to_rotation_matrix();
@@ -250,7 +306,12 @@ impl Alternation {
     /// over the half side h_a and the centre offset c_a, where q are the points in the rotated
     /// frame and s_k the sign pattern of point k's corner. When all points sit on one side of an
     /// axis that side is undetermined, and is kept.
-    fn solve_size_and_centre(&mut self, inliers: &[usize], assignment: &[usize], points: &[Point3<f64>]) {
+    fn solve_size_and_centre(
+        &mut self,
+        inliers: &[usize],
+        assignment: &[usize],
+        points: &[Point3<f64>],
+    ) {
         let n = inliers.len() as f64;
         let frame_centre = self.rotation.inverse() * self.centre;
         let mut new_centre = frame_centre;
@@ -281,7 +342,12 @@ impl Alternation {
         let (nearest_corners, residuals) = self.nearest_corners(points);
         let inliers: Vec<bool> = residuals.iter().map(|&r| r < truncation).collect();
         let count = inliers.iter().filter(|&&b| b).count();
-        let sse: f64 = residuals.iter().zip(&inliers).filter(|(_, b)| **b).map(|(r, _)| r * r).sum();
+        let sse: f64 = residuals
+            .iter()
+            .zip(&inliers)
+            .filter(|(_, b)| **b)
+            .map(|(r, _)| r * r)
+            .sum();
         Ok(SizedBoxFit {
             model: BoxModel::new(self.half_size * 2.0)?,
             pose: Isometry3::from_parts(
@@ -291,7 +357,11 @@ impl Alternation {
             nearest_corners,
             residuals,
             inliers,
-            inlier_rms: if count > 0 { (sse / count as f64).sqrt() } else { f64::INFINITY },
+            inlier_rms: if count > 0 {
+                (sse / count as f64).sqrt()
+            } else {
+                f64::INFINITY
+            },
             cost: self.cost,
         })
     }
@@ -304,5 +374,8 @@ fn median(values: &[f64]) -> f64 {
 }
 
 fn truncated_cost(residuals: &[f64], truncation: f64) -> f64 {
-    residuals.iter().map(|&r| (r * r).min(truncation * truncation)).sum()
+    residuals
+        .iter()
+        .map(|&r| (r * r).min(truncation * truncation))
+        .sum()
 }

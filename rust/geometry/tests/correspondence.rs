@@ -70,19 +70,45 @@ fn bad_inputs_are_errors_not_panics() {
     let good: Vec<Point3<f64>> = model.corners().to_vec();
     let scores = [1.0; 8];
     for search in [paper_exact_search, fast_exact_search] {
-        assert!(matches!(search(&model, &good[..4], &scores[..4], 5), Err(GeometryError::TooFewPoints { .. })));
-        assert!(matches!(search(&model, &good, &scores[..7], 5), Err(GeometryError::ShapeMismatch { .. })));
-        assert!(matches!(search(&model, &good, &scores, 2), Err(GeometryError::InvalidParameter { .. })));
-        assert!(matches!(search(&model, &good, &scores, 9), Err(GeometryError::InvalidParameter { .. })));
+        assert!(matches!(
+            search(&model, &good[..4], &scores[..4], 5),
+            Err(GeometryError::TooFewPoints { .. })
+        ));
+        assert!(matches!(
+            search(&model, &good, &scores[..7], 5),
+            Err(GeometryError::ShapeMismatch { .. })
+        ));
+        assert!(matches!(
+            search(&model, &good, &scores, 2),
+            Err(GeometryError::InvalidParameter { .. })
+        ));
+        assert!(matches!(
+            search(&model, &good, &scores, 9),
+            Err(GeometryError::InvalidParameter { .. })
+        ));
         let mut nan = good.clone();
         nan[3].x = f64::NAN;
-        assert!(matches!(search(&model, &nan, &scores, 5), Err(GeometryError::NonFinite { .. })));
+        assert!(matches!(
+            search(&model, &nan, &scores, 5),
+            Err(GeometryError::NonFinite { .. })
+        ));
         let mut bad_scores = scores;
         bad_scores[0] = f64::INFINITY;
-        assert!(matches!(search(&model, &good, &bad_scores, 5), Err(GeometryError::NonFinite { .. })));
-        let line: Vec<_> = (0..8).map(|i| Point3::new(0.0, 0.0, 1.0 + i as f64)).collect();
-        assert_eq!(search(&model, &line, &scores, 5), Err(GeometryError::Degenerate("collinear points")));
+        assert!(matches!(
+            search(&model, &good, &bad_scores, 5),
+            Err(GeometryError::NonFinite { .. })
+        ));
+        let line: Vec<_> = (0..8)
+            .map(|i| Point3::new(0.0, 0.0, 1.0 + i as f64))
+            .collect();
+        assert_eq!(
+            search(&model, &line, &scores, 5),
+            Err(GeometryError::Degenerate("collinear points"))
+        );
         let same = vec![Point3::new(0.0, 0.0, 1.0); 8];
-        assert_eq!(search(&model, &same, &scores, 5), Err(GeometryError::Degenerate("coincident points")));
+        assert_eq!(
+            search(&model, &same, &scores, 5),
+            Err(GeometryError::Degenerate("coincident points"))
+        );
     }
 }

@@ -19,10 +19,17 @@ fn turned(pose: &Isometry3<f64>, axis: Vector3<f64>, degrees: f64) -> Isometry3<
 
 #[test]
 fn symmetric_poses_have_zero_error() {
-    for model in [generic(), BoxModel::new(Vector3::new(0.2, 0.2, 0.1)).unwrap(), BoxModel::unit()] {
+    for model in [
+        generic(),
+        BoxModel::new(Vector3::new(0.2, 0.2, 0.1)).unwrap(),
+        BoxModel::unit(),
+    ] {
         let truth_corners: Vec<Point3<f64>> = model.corners().iter().map(|c| truth() * c).collect();
         for symmetry in model.symmetries() {
-            let estimate = Isometry3::from_parts(truth().translation, truth().rotation * UnitQuaternion::from_rotation_matrix(&symmetry.rotation));
+            let estimate = Isometry3::from_parts(
+                truth().translation,
+                truth().rotation * UnitQuaternion::from_rotation_matrix(&symmetry.rotation),
+            );
             assert!(paper_error(&model, &estimate, &truth_corners).unwrap() < 1e-24);
             assert!(add_s(&model, &estimate, &truth()).unwrap() < 1e-12);
             assert!(mssd(&model, &estimate, &truth()).unwrap() < 1e-12);
@@ -35,10 +42,16 @@ fn symmetric_poses_have_zero_error() {
 fn a_shift_shows_up_as_its_length() {
     let model = generic();
     let shift = Vector3::new(0.01, -0.02, 0.005);
-    let estimate = Isometry3::from_parts(Translation3::from(truth().translation.vector + shift), truth().rotation);
+    let estimate = Isometry3::from_parts(
+        Translation3::from(truth().translation.vector + shift),
+        truth().rotation,
+    );
     let truth_corners: Vec<Point3<f64>> = model.corners().iter().map(|c| truth() * c).collect();
     // Each corner moves by `shift`, less than half an edge, so its nearest true corner is its own.
-    assert!((paper_error(&model, &estimate, &truth_corners).unwrap() - shift.norm_squared()).abs() < 1e-15);
+    assert!(
+        (paper_error(&model, &estimate, &truth_corners).unwrap() - shift.norm_squared()).abs()
+            < 1e-15
+    );
     assert!((add_s(&model, &estimate, &truth()).unwrap() - shift.norm()).abs() < 1e-12);
     assert!((mssd(&model, &estimate, &truth()).unwrap() - shift.norm()).abs() < 1e-12);
     assert!((translation_error(&estimate, &truth()).unwrap() - shift.norm()).abs() < 1e-12);
@@ -72,11 +85,28 @@ fn iou_of_known_configurations() {
     assert!(iou_3d(&cube, &at(0.0), &cube, &at(1.0)).unwrap().abs() < 1e-12);
     // Nested boxes: the small one's volume over the big one's.
     let small = BoxModel::new(Vector3::new(0.5, 0.4, 0.2)).unwrap();
-    assert!((iou_3d(&cube, &at(0.0), &small, &turned(&at(0.1), Vector3::x(), 30.0)).unwrap() - 0.04).abs() < 1e-12);
+    assert!(
+        (iou_3d(
+            &cube,
+            &at(0.0),
+            &small,
+            &turned(&at(0.1), Vector3::x(), 30.0)
+        )
+        .unwrap()
+            - 0.04)
+            .abs()
+            < 1e-12
+    );
     // A unit square and the same square turned 45° overlap in a regular octagon of area
     // 2(√2 − 1); as prisms of height 1, IoU = a / (2 − a).
     let octagon = 2.0 * (2f64.sqrt() - 1.0);
-    let iou = iou_3d(&cube, &at(0.0), &cube, &turned(&at(0.0), Vector3::z(), 45.0)).unwrap();
+    let iou = iou_3d(
+        &cube,
+        &at(0.0),
+        &cube,
+        &turned(&at(0.0), Vector3::z(), 45.0),
+    )
+    .unwrap();
     assert!((iou - octagon / (2.0 - octagon)).abs() < 1e-12);
 }
 
@@ -86,11 +116,15 @@ fn iou_of_known_configurations() {
 fn iou_matches_monte_carlo() {
     let mut rng = ChaCha8Rng::seed_from_u64(7);
     for _ in 0..12 {
-        let mut random_box = || BoxModel::new(Vector3::from_fn(|_, _| rng.random_range(0.2..1.0))).unwrap();
+        let mut random_box =
+            || BoxModel::new(Vector3::from_fn(|_, _| rng.random_range(0.2..1.0))).unwrap();
         let (a, b) = (random_box(), random_box());
         let mut random_pose = || {
             let axis = Vector3::from_fn(|_, _| rng.random_range(-1.0..1.0));
-            Isometry3::new(Vector3::from_fn(|_, _| rng.random_range(-0.3..0.3)), axis * 2.0)
+            Isometry3::new(
+                Vector3::from_fn(|_, _| rng.random_range(-0.3..0.3)),
+                axis * 2.0,
+            )
         };
         let (pose_a, pose_b) = (random_pose(), random_pose());
         let exact = iou_3d(&a, &pose_a, &b, &pose_b).unwrap();
@@ -104,7 +138,9 @@ fn iou_matches_monte_carlo() {
         };
         let hits = (0..samples)
             .filter(|_| {
-                let local = Point3::from(Vector3::from_fn(|i, _| rng.random_range(-0.5..0.5) * a.size()[i]));
+                let local = Point3::from(Vector3::from_fn(|i, _| {
+                    rng.random_range(-0.5..0.5) * a.size()[i]
+                }));
                 inside_b(&(pose_a * local))
             })
             .count();
@@ -112,7 +148,10 @@ fn iou_matches_monte_carlo() {
         // whose binomial standard error is at most 0.0025: allow four of them.
         let exact_fraction = exact * (a.volume() + b.volume()) / (1.0 + exact) / a.volume();
         let hit_rate = hits as f64 / samples as f64;
-        assert!((exact_fraction - hit_rate).abs() < 0.01, "{exact_fraction} vs {hit_rate}");
+        assert!(
+            (exact_fraction - hit_rate).abs() < 0.01,
+            "{exact_fraction} vs {hit_rate}"
+        );
     }
 }
 
@@ -121,11 +160,32 @@ fn bad_inputs_are_errors() {
     let model = generic();
     let mut broken = truth();
     broken.translation.vector.x = f64::NAN;
-    assert!(matches!(add_s(&model, &broken, &truth()), Err(GeometryError::NonFinite { .. })));
-    assert!(matches!(mssd(&model, &truth(), &broken), Err(GeometryError::NonFinite { .. })));
-    assert!(matches!(rotation_error_deg(&model, &broken, &truth()), Err(GeometryError::NonFinite { .. })));
-    assert!(matches!(translation_error(&broken, &truth()), Err(GeometryError::NonFinite { .. })));
-    assert!(matches!(iou_3d(&model, &broken, &model, &truth()), Err(GeometryError::NonFinite { .. })));
-    assert!(matches!(paper_error(&model, &truth(), &[]), Err(GeometryError::TooFewPoints { .. })));
-    assert!(matches!(paper_error(&model, &truth(), &[Point3::new(f64::INFINITY, 0.0, 0.0)]), Err(GeometryError::NonFinite { .. })));
+    assert!(matches!(
+        add_s(&model, &broken, &truth()),
+        Err(GeometryError::NonFinite { .. })
+    ));
+    assert!(matches!(
+        mssd(&model, &truth(), &broken),
+        Err(GeometryError::NonFinite { .. })
+    ));
+    assert!(matches!(
+        rotation_error_deg(&model, &broken, &truth()),
+        Err(GeometryError::NonFinite { .. })
+    ));
+    assert!(matches!(
+        translation_error(&broken, &truth()),
+        Err(GeometryError::NonFinite { .. })
+    ));
+    assert!(matches!(
+        iou_3d(&model, &broken, &model, &truth()),
+        Err(GeometryError::NonFinite { .. })
+    ));
+    assert!(matches!(
+        paper_error(&model, &truth(), &[]),
+        Err(GeometryError::TooFewPoints { .. })
+    ));
+    assert!(matches!(
+        paper_error(&model, &truth(), &[Point3::new(f64::INFINITY, 0.0, 0.0)]),
+        Err(GeometryError::NonFinite { .. })
+    ));
 }

@@ -33,13 +33,26 @@ fn hand_built_peaks(outliers: usize) -> (Vec<Point3<f64>>, Vec<f64>, Vec<bool>) 
     let is_outlier = |i: usize| OUTLIER_CORNERS[..outliers].contains(&i);
     let mut points = true_corners(&model, &pose);
     for (i, p) in points.iter_mut().enumerate() {
-        let jitter = 0.003 * Vector3::new((3.1 * i as f64).sin(), (1.7 * i as f64).cos(), (0.9 * i as f64).sin());
+        let jitter = 0.003
+            * Vector3::new(
+                (3.1 * i as f64).sin(),
+                (1.7 * i as f64).cos(),
+                (0.9 * i as f64).sin(),
+            );
         *p = match OUTLIER_CORNERS[..outliers].iter().position(|&c| c == i) {
             Some(k) => Point3::from(pose.translation.vector + misplaced[k]),
             None => *p + jitter,
         };
     }
-    let scores = (0..8).map(|i| if is_outlier(i) { 1.0 } else { 0.9 - 0.01 * i as f64 }).collect();
+    let scores = (0..8)
+        .map(|i| {
+            if is_outlier(i) {
+                1.0
+            } else {
+                0.9 - 0.01 * i as f64
+            }
+        })
+        .collect();
     let inliers = (0..8).map(|i| !is_outlier(i)).collect();
     (points, scores, inliers)
 }
@@ -57,7 +70,12 @@ fn robust_fit_survives_one_to_four_outliers() {
         assert!(translation_error(&fit.pose, &pose).unwrap() < 0.004);
         assert!(fit.inlier_rms < 0.006);
         assert!(paper_error(&model, &fit.pose, &truth).unwrap() < 2e-5);
-        assert!(fit.residuals.iter().zip(&fit.inliers).all(|(&r, &inlier)| inlier == (r < 0.03)));
+        assert!(
+            fit.residuals
+                .iter()
+                .zip(&fit.inliers)
+                .all(|(&r, &inlier)| inlier == (r < 0.03))
+        );
     }
 }
 
@@ -73,10 +91,15 @@ fn paper_search_fails_where_robust_fit_does_not() {
         let robust = robust_fit(&model, &points, &RobustParams::for_box(&model)).unwrap();
         let paper_err = paper_error(&model, &paper.pose, &truth).unwrap();
         let robust_err = paper_error(&model, &robust.pose, &truth).unwrap();
-        assert!(paper_err > 1e-3, "{outliers} outliers: paper search error {paper_err}");
+        assert!(
+            paper_err > 1e-3,
+            "{outliers} outliers: paper search error {paper_err}"
+        );
         assert!(paper_err > 100.0 * robust_err);
-        assert!(rotation_error_deg(&model, &paper.pose, &pose).unwrap() > 5.0
-            || translation_error(&paper.pose, &pose).unwrap() > 0.02);
+        assert!(
+            rotation_error_deg(&model, &paper.pose, &pose).unwrap() > 5.0
+                || translation_error(&paper.pose, &pose).unwrap() > 0.02
+        );
     }
 }
 
@@ -85,17 +108,39 @@ fn bad_inputs_are_errors() {
     let model = BoxModel::unit();
     let params = RobustParams::for_box(&model);
     let corners = model.corners();
-    assert!(matches!(robust_fit(&model, &corners[..2], &params), Err(GeometryError::TooFewPoints { .. })));
+    assert!(matches!(
+        robust_fit(&model, &corners[..2], &params),
+        Err(GeometryError::TooFewPoints { .. })
+    ));
     let line: Vec<_> = (0..5).map(|i| Point3::new(i as f64, 0.0, 1.0)).collect();
-    assert_eq!(robust_fit(&model, &line, &params), Err(GeometryError::Degenerate("collinear points")));
+    assert_eq!(
+        robust_fit(&model, &line, &params),
+        Err(GeometryError::Degenerate("collinear points"))
+    );
     let mut nan = corners.to_vec();
     nan[0].z = f64::NAN;
-    assert!(matches!(robust_fit(&model, &nan, &params), Err(GeometryError::NonFinite { .. })));
-    let zero = RobustParams { inlier_threshold: 0.0, ..params };
-    assert!(matches!(robust_fit(&model, &corners, &zero), Err(GeometryError::InvalidParameter { .. })));
+    assert!(matches!(
+        robust_fit(&model, &nan, &params),
+        Err(GeometryError::NonFinite { .. })
+    ));
+    let zero = RobustParams {
+        inlier_threshold: 0.0,
+        ..params
+    };
+    assert!(matches!(
+        robust_fit(&model, &corners, &zero),
+        Err(GeometryError::InvalidParameter { .. })
+    ));
     // Three points that match no corner triple of the box.
-    let far = [Point3::new(0.0, 0.0, 1.0), Point3::new(10.0, 0.0, 1.0), Point3::new(0.0, 10.0, 1.0)];
-    assert_eq!(robust_fit(&model, &far, &params), Err(GeometryError::NoConsensus { needed: 3 }));
+    let far = [
+        Point3::new(0.0, 0.0, 1.0),
+        Point3::new(10.0, 0.0, 1.0),
+        Point3::new(0.0, 10.0, 1.0),
+    ];
+    assert_eq!(
+        robust_fit(&model, &far, &params),
+        Err(GeometryError::NoConsensus { needed: 3 })
+    );
 }
 
 proptest! {

@@ -17,7 +17,12 @@ fn corner_mismatch(truth: &[Point3<f64>], fit: &boxpose_geometry::size_fit::Size
     let fitted: Vec<_> = fit.model.corners().iter().map(|c| fit.pose * c).collect();
     truth
         .iter()
-        .map(|t| fitted.iter().map(|f| (f - t).norm()).fold(f64::INFINITY, f64::min))
+        .map(|t| {
+            fitted
+                .iter()
+                .map(|f| (f - t).norm())
+                .fold(f64::INFINITY, f64::min)
+        })
         .fold(0.0, f64::max)
 }
 
@@ -82,15 +87,30 @@ fn a_missing_corner_still_determines_the_box() {
 fn bad_inputs_are_errors() {
     let params = SizeFitParams::default();
     let corners = BoxModel::unit().corners();
-    assert!(matches!(fit_pose_and_size(&corners[..3], &params), Err(GeometryError::TooFewPoints { .. })));
+    assert!(matches!(
+        fit_pose_and_size(&corners[..3], &params),
+        Err(GeometryError::TooFewPoints { .. })
+    ));
     // The four corners of one face leave the third side undetermined.
     let face = [corners[0], corners[1], corners[2], corners[3]];
-    assert_eq!(fit_pose_and_size(&face, &params), Err(GeometryError::Degenerate("coplanar points")));
+    assert_eq!(
+        fit_pose_and_size(&face, &params),
+        Err(GeometryError::Degenerate("coplanar points"))
+    );
     let mut nan = corners.to_vec();
     nan[2].x = f64::INFINITY;
-    assert!(matches!(fit_pose_and_size(&nan, &params), Err(GeometryError::NonFinite { .. })));
+    assert!(matches!(
+        fit_pose_and_size(&nan, &params),
+        Err(GeometryError::NonFinite { .. })
+    ));
     for truncation in [0.0, -1.0, f64::NAN] {
-        let bad = SizeFitParams { truncation, ..params };
-        assert!(matches!(fit_pose_and_size(&corners, &bad), Err(GeometryError::InvalidParameter { .. })));
+        let bad = SizeFitParams {
+            truncation,
+            ..params
+        };
+        assert!(matches!(
+            fit_pose_and_size(&corners, &bad),
+            Err(GeometryError::InvalidParameter { .. })
+        ));
     }
 }

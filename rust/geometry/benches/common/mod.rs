@@ -22,7 +22,11 @@ pub fn scenes(count: usize, seed: u64, outliers: std::ops::RangeInclusive<usize>
         .map(|_| {
             let model = BoxModel::new(Vector3::from_fn(|_, _| rng.random_range(0.1..0.5))).unwrap();
             let truth = Isometry3::new(
-                Vector3::new(rng.random_range(-0.3..0.3), rng.random_range(-0.3..0.3), rng.random_range(0.8..2.0)),
+                Vector3::new(
+                    rng.random_range(-0.3..0.3),
+                    rng.random_range(-0.3..0.3),
+                    rng.random_range(0.8..2.0),
+                ),
                 Vector3::from_fn(|_, _| rng.random_range(-3.0..3.0)),
             );
             let outliers = rng.random_range(outliers.clone());
@@ -40,7 +44,11 @@ pub fn scenes(count: usize, seed: u64, outliers: std::ops::RangeInclusive<usize>
                 })
                 .collect();
             let scores = (0..8).map(|_| rng.random_range(0.2..1.0)).collect();
-            Scene { model, points, scores }
+            Scene {
+                model,
+                points,
+                scores,
+            }
         })
         .collect()
 }

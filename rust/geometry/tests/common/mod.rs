@@ -30,9 +30,12 @@ pub fn arb_pose() -> impl Strategy<Value = Isometry3<f64>> {
         -0.5f64..0.5,
         0.8f64..2.5,
     )
-        .prop_filter("quaternion must not vanish", |(q, ..)| q.iter().map(|x| x * x).sum::<f64>() > 1e-3)
+        .prop_filter("quaternion must not vanish", |(q, ..)| {
+            q.iter().map(|x| x * x).sum::<f64>() > 1e-3
+        })
         .prop_map(|(q, x, y, z)| {
-            let rotation = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
+            let rotation =
+                UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]));
             Isometry3::from_parts(Translation3::new(x, y, z), rotation)
         })
 }
