@@ -14,8 +14,9 @@ Benchmark Drake's drop-and-settle on freshly sampled scenes with a fixed number 
 For each N in --boxes and each k < --scenes: sample a scene of the recipe with exactly N boxes,
 project it to non-penetration, settle it with Drake, and print one JSON line
   {"boxes": N, "scene": k, "scene_id": id, "drake_settle_s": wall seconds, "stable": bool,
-   "settle_time_s": simulated seconds}
-("drake_settle_s" is null and "error" says why when the projection failed).
+   "settle_time_s": simulated seconds[, "reason": why not stable]}
+"drake_settle_s" is the wall time of plant construction plus simulation on this machine; it is
+null, and "error" says why, when the projection failed (such scenes are not written).
 
 Every projected scene is written to --out as a dataset (scenes/ and objects/ shard 0 of 1):
 objects.initial_world_box_* hold the drop poses to settle from, objects.world_box_* Drake's
@@ -63,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
                 object_rows.extend(outcome.object_rows)
                 line.update(drake_settle_s=round(outcome.settle_s, 4), stable=outcome.rejection is None,
                             settle_time_s=outcome.scene_row["settle_time_s"])
+                if outcome.rejection:
+                    line["reason"] = outcome.rejection
             print(json.dumps(line), flush=True)
             scene_id += 1
     for name, rows in (("scenes", scene_rows), ("objects", object_rows)):
