@@ -101,7 +101,8 @@ def project(boxes: list[BoxBody], recipe: Recipe, jitter_rng: np.random.Generato
         # A box stacked by the sampler may start above the drop layer: never push it higher.
         upper[2] = max(upper[2], box.translation_m[2])
         prog.AddBoundingBoxConstraint(lower, upper, q[start + 4 : start + 7])
-        # Quaternion components lie in [-1, 1]: bounds help both solvers stay in range.
+        # Unit quaternion components lie in [-1, 1]; bounding them keeps IPOPT (an interior-point
+        # method that warns about unbounded variables) from wandering.
         prog.AddBoundingBoxConstraint(-np.ones(4), np.ones(4), q[start : start + 4])
     prog.AddQuadraticErrorCost(np.diag(weights), q_sampled, q)
 

@@ -68,19 +68,16 @@ class _RestMonitor:
         self.history.append((t, linear, angular))
         while self.history[0][0] < t - self.window_s:
             self.history.popleft()
-        if linear <= self.max_v and angular <= self.max_w:
-            if self.rest_since is None:
-                self.rest_since = t
-            # The first steps start from rest (v = 0): do not count a box that has not fallen.
-            if t - self.rest_since >= self.window_s and self.rest_since > 0:
-                return EventStatus.ReachedTermination(None, "at rest")
-        else:
+        if linear > self.max_v or angular > self.max_w:
             self.rest_since = None
-        return EventStatus.DidNothing()
+        elif self.rest_since is None:
+            self.rest_since = t
+        return EventStatus.ReachedTermination(None, "at rest") if self.at_rest else EventStatus.DidNothing()
 
     @property
     def at_rest(self) -> bool:
-        return self.rest_since is not None and self.history[-1][0] - self.rest_since >= self.window_s
+        # rest_since > 0: the boxes start at rest (v = 0) before they fall; that does not count.
+        return bool(self.rest_since) and self.history[-1][0] - self.rest_since >= self.window_s
 
     def window_max(self) -> tuple[float, float]:
         return max(h[1] for h in self.history), max(h[2] for h in self.history)
