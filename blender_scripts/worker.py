@@ -63,6 +63,7 @@ def render_scenes(scenes: list[dict], by_scene: dict[int, list[dict]], threads: 
     frames, instances = [], []
     for scene in scenes:
         sid = int(scene["scene_id"])
+        _emit(event="scene", scene_id=sid)
         if crash_at is not None and int(crash_at) == sid:
             os.abort()
         session.load(scene, by_scene[sid])

@@ -1,0 +1,250 @@
+#!/usr/bin/env python
+"""`make scenes`: generate a dataset from a recipe — Drake scenes, then Blender renders — shard
+by shard, resumable, and validate it with `boxpose inspect` at the end.
+
+    python scripts/make_scenes.py --recipe clutter [--dataset DIR] [--num-shards N]
+
+For each shard i of N:
+  1. scene stage, unless `scenes/` and `objects/` already hold shard i:
+     `python -m drake_scenes --recipe R --out DIR --shard i --num-shards N`;
+  2. render stage, unless `frames/` and `instances/` already hold shard i: Blender worker
+     processes (`python -m blender_scripts.worker`) render the shard's scenes in chunks of
+     --scenes-per-worker scenes, a fresh process per chunk (Blender's memory never grows for
+     long), into `DIR/.partial/shard-i-of-N/`; once every chunk is there the shard's
+     `instances` and `frames` files are written (each atomically, frames last) and the chunks
+     deleted.
+Interrupted runs resume: complete shards and complete chunks are skipped. A failure (bpy missing,
+scene/object rows that do not fit, a crashed or failing render) stops with one error message and
+leaves no partial shard in the dataset's tables.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from collections import deque
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path[:0] = [str(REPO / "python"), str(REPO)]
+
+import pyarrow as pa  # noqa: E402
+import pyarrow.parquet as pq  # noqa: E402
+from tqdm import tqdm  # noqa: E402
+
+from blender_scripts.worker import PROGRESS  # noqa: E402 (no bpy needed)
+
+PARTIAL = ".partial"
+
+
+class DriverError(RuntimeError):
+    pass
+
+
+def shard_file(dataset: Path, table: str, shard: int, num_shards: int) -> Path:
+    # Same naming as boxpose_io.shard_path / the Rust writer (imported lazily there).
+    return dataset / table / f"part-{shard:05d}-of-{num_shards:05d}.parquet"
+
+
+def resolve_recipe(recipe: str) -> Path:
+    path = Path(recipe)
+    if path.suffix != ".toml":
+        path = REPO / "datasets" / "recipes" / f"{recipe}.toml"
+    if not path.is_file():
+        known = ", ".join(sorted(p.stem for p in (REPO / "datasets" / "recipes").glob("*.toml")))
+        raise DriverError(f"recipe {recipe}: no file {path} (known recipes: {known})")
+    return path
+
+
+def check_bpy(python: str) -> None:
+    """bpy must import in the worker interpreter; checked once, up front, in a subprocess."""
+    r = subprocess.run([python, "-c", "import bpy"], capture_output=True, text=True)
+    if r.returncode != 0:
+        last = (r.stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise DriverError(f"bpy is not importable by {python}: {last}\n  install it with `make setup` (bpy==5.0.1 needs Python 3.11)")
+
+
+def _tail(path: Path, n: int = 15) -> str:
+    try:
+        lines = path.read_text(errors="replace").splitlines()
+    except OSError:
+        return ""
+    lines = [line for line in lines if "CUEW initialization failed" not in line]
+    return "\n".join("    " + line for line in lines[-n:])
+
+
+def run_scene_stage(args, shard: int, log: Path) -> None:
+    cmd = [args.python, "-m", "drake_scenes", "--recipe", str(args.recipe_path), "--out", str(args.dataset), "--shard", str(shard), "--num-shards", str(args.num_shards), "--no-progress"]
+    if args.num_scenes is not None:
+        cmd += ["--num-scenes", str(args.num_scenes)]
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "ab") as out:
+        r = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
+    if r.returncode != 0:
+        raise DriverError(f"scene stage failed on shard {shard} of {args.num_shards} (exit {r.returncode}): {' '.join(cmd)}\n{_tail(log)}")
+    for table in ("scenes", "objects"):
+        if not shard_file(args.dataset, table, shard, args.num_shards).is_file():
+            raise DriverError(f"scene stage exited 0 but wrote no {table} shard {shard} of {args.num_shards} under {args.dataset}")
+
+
+def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: tqdm) -> None:
+    log = chunk_dir / "worker.log"
+    cmd = [
+        args.python, "-m", "blender_scripts.worker", "--dataset", str(args.dataset), "--shard", str(shard),
+        "--num-shards", str(args.num_shards), "--scenes", f"{start}:{stop}", "--out", str(chunk_dir), "--threads", str(args.threads),
+    ]  # fmt: skip
+    current_scene = None
+    with open(log, "ab") as err:
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, cwd=REPO, text=True, start_new_session=True)
+        recent = deque(maxlen=20)
+        try:
+            for line in proc.stdout:
+                if not line.startswith(PROGRESS):
+                    recent.append(line.rstrip())
+                    continue
+                event = json.loads(line[len(PROGRESS) :])
+                if event["event"] == "scene":
+                    current_scene = event["scene_id"]
+                elif event["event"] == "frame":
+                    pbar.update(1)
+            proc.wait()
+        except BaseException:
+            os.killpg(proc.pid, signal.SIGTERM)
+            proc.wait()
+            raise
+    if recent:
+        with open(log, "a") as f:
+            f.write("\n".join(recent) + "\n")
+    if proc.returncode == 0:
+        return
+    where = f"shard {shard} of {args.num_shards}" + (f", scene {current_scene}" if current_scene is not None else "")
+    if proc.returncode < 0:
+        name = signal.Signals(-proc.returncode).name
+        raise DriverError(f"Blender worker crashed ({name}) while rendering {where}; no shard was written. Log: {log}\n{_tail(log)}")
+    messages = [line for line in log.read_text(errors="replace").splitlines() if line.startswith("error:")]
+    message = messages[-1][len("error: ") :] if messages else f"exit status {proc.returncode}"
+    raise DriverError(f"rendering {where} failed: {message}\n  log: {log}")
+
+
+def render_shard(args, shard: int, pbar: tqdm) -> int:
+    """Renders shard `shard` through chunked worker processes, then writes its two tables."""
+    import boxpose_io
+
+    scenes_path = shard_file(args.dataset, "scenes", shard, args.num_shards)
+    num_scenes = pq.ParquetFile(scenes_path).metadata.num_rows
+    chunk_dir = args.dataset / PARTIAL / f"shard-{shard:05d}-of-{args.num_shards:05d}"
+    chunk_dir.mkdir(parents=True, exist_ok=True)
+    per = max(args.scenes_per_worker, 1)
+    chunks = [(a, min(a + per, num_scenes)) for a in range(0, num_scenes, per)]
+    names = {c: {t: chunk_dir / f"{t}-{c[0]:06d}-{c[1]:06d}.parquet" for t in ("frames", "instances")} for c in chunks}
+    for chunk in chunks:
+        if all(p.is_file() for p in names[chunk].values()):
+            pbar.update(pq.ParquetFile(names[chunk]["frames"]).metadata.num_rows)
+            continue
+        pbar.set_postfix_str(f"shard {shard + 1}/{args.num_shards}, scenes {chunk[0]}–{chunk[1] - 1} of {num_scenes}")
+        run_worker(args, shard, chunk[0], chunk[1], chunk_dir, pbar)
+    tables = {}
+    for table in ("instances", "frames"):
+        parts = [pq.read_table(names[c][table]) for c in chunks]
+        schema = boxpose_io.arrow_schema(table)
+        merged = pa.concat_tables([p.cast(schema) for p in parts]) if parts else schema.empty_table()
+        tables[table] = merged.replace_schema_metadata(schema.metadata)
+    for table in ("instances", "frames"):  # frames last: its presence marks a complete shard
+        boxpose_io.write_shard(boxpose_io.shard_path(args.dataset, table, shard, args.num_shards), tables[table])
+    shutil.rmtree(chunk_dir)
+    return tables["frames"].num_rows
+
+
+def shard_complete(args, shard: int) -> bool:
+    return all(shard_file(args.dataset, t, shard, args.num_shards).is_file() for t in ("frames", "instances"))
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[2])
+    ap.add_argument("--recipe", default=os.environ.get("RECIPE", "clutter"), help="recipe name (datasets/recipes/NAME.toml) or path (default: $RECIPE or clutter)")
+    ap.add_argument("--dataset", type=Path, help="output folder (default: datasets/generated/<recipe>)")
+    ap.add_argument("--num-shards", type=int, default=int(os.environ.get("SHARDS", "1")), help="shards (default: $SHARDS or 1)")
+    ap.add_argument("--num-scenes", type=int, help="override the recipe's num_scenes (passed to the scene stage)")
+    ap.add_argument("--shards", help="only these shard indices, e.g. 0,2 (default: all)")
+    ap.add_argument("--scenes-per-worker", type=int, default=25, help="scenes a Blender worker process renders before it is replaced (default 25)")
+    ap.add_argument("--threads", type=int, default=0, help="Cycles threads per worker (default 0 = all cores)")
+    ap.add_argument("--python", default=sys.executable, help="interpreter of the stage processes (default: this one)")
+    ap.add_argument("--boxpose", type=Path, default=REPO / "target" / "release" / "boxpose", help="boxpose binary for the final `inspect`")
+    ap.add_argument("--no-inspect", action="store_true", help="skip `boxpose inspect` at the end")
+    args = ap.parse_args(argv)
+    try:
+        return run(args)
+    except DriverError as e:
+        tqdm.write(f"error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        tqdm.write("interrupted: run the same command again to resume (complete shards and chunks are kept)", file=sys.stderr)
+        return 130
+
+
+def run(args) -> int:
+    from blender_scripts.recipe import RecipeError, parse_render_recipe
+
+    args.recipe_path = resolve_recipe(args.recipe)
+    text = args.recipe_path.read_text()
+    try:
+        recipe = parse_render_recipe(text, str(args.recipe_path))
+        num_scenes = int(tomllib.loads(text)["num_scenes"]) if args.num_scenes is None else args.num_scenes
+    except (RecipeError, KeyError, ValueError) as e:
+        raise DriverError(str(e)) from e
+    args.dataset = (args.dataset or REPO / "datasets" / "generated" / args.recipe_path.stem).resolve()
+    if args.num_shards < 1:
+        raise DriverError("--num-shards must be >= 1")
+    shards = range(args.num_shards) if args.shards is None else [int(s) for s in args.shards.split(",")]
+    if any(not 0 <= s < args.num_shards for s in shards):
+        raise DriverError(f"--shards {args.shards}: indices must lie in 0..{args.num_shards - 1}")
+    check_bpy(args.python)
+
+    frames_per_scene = recipe.camera.frames_per_scene
+    total = num_scenes * frames_per_scene * len(shards) // args.num_shards
+    print(f"recipe {recipe.name}: {num_scenes} scenes × {frames_per_scene} views at {recipe.camera.width}×{recipe.camera.height}, "
+          f"{recipe.render.samples} samples{' + denoise' if recipe.render.denoise else ''}; {args.num_shards} shard(s) → {args.dataset}")  # fmt: skip
+    start = time.perf_counter()
+    rendered = 0
+    estimate = num_scenes * frames_per_scene / args.num_shards  # per shard, until it is known
+    with tqdm(total=total, unit="img", desc=recipe.name, dynamic_ncols=True, smoothing=0.1) as pbar:
+
+        def known(table: str, shard: int, per_row: int) -> int:
+            rows = pq.ParquetFile(shard_file(args.dataset, table, shard, args.num_shards)).metadata.num_rows * per_row
+            pbar.total = max(round(pbar.total - estimate + rows), pbar.n)
+            pbar.refresh()
+            return rows
+
+        for shard in shards:
+            if shard_complete(args, shard):
+                pbar.update(known("frames", shard, 1))
+                continue
+            if not all(shard_file(args.dataset, t, shard, args.num_shards).is_file() for t in ("scenes", "objects")):
+                pbar.set_postfix_str(f"shard {shard + 1}/{args.num_shards}: scenes (Drake)")
+                run_scene_stage(args, shard, args.dataset / PARTIAL / f"drake-{shard:05d}-of-{args.num_shards:05d}.log")
+            known("scenes", shard, frames_per_scene)
+            rendered += render_shard(args, shard, pbar)
+    partial = args.dataset / PARTIAL
+    if partial.is_dir() and not any(p.suffix == ".parquet" for p in partial.rglob("*")):
+        shutil.rmtree(partial)
+    elapsed = time.perf_counter() - start
+    print(f"dataset: {args.dataset} ({rendered} new frames in {elapsed:.0f} s)")
+    if args.no_inspect:
+        return 0
+    if not args.boxpose.is_file():
+        raise DriverError(f"{args.boxpose} is missing: build it with `cargo build --release -p boxpose-cli` (or pass --no-inspect)")
+    r = subprocess.run([str(args.boxpose), "inspect", str(args.dataset)])
+    if r.returncode != 0:
+        raise DriverError(f"`boxpose inspect {args.dataset}` found problems (exit {r.returncode})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
