@@ -1,0 +1,20 @@
+"""The boxpose dataset contract for the Python stages (Drake, Blender).
+
+The schema is defined once, in Rust (`rust/data/src/schema.rs`); `schema.json` beside this file
+is generated from it (`make schema`) and a Rust test fails when the two disagree.
+"""
+
+from boxpose_io.schema import SCHEMA_VERSION, TABLES, arrow_schema, column_names
+from boxpose_io.shards import ShardError, shard_file_name, shard_path, table_from_rows, write_shard
+
+__all__ = [
+    "SCHEMA_VERSION",
+    "TABLES",
+    "ShardError",
+    "arrow_schema",
+    "column_names",
+    "shard_file_name",
+    "shard_path",
+    "table_from_rows",
+    "write_shard",
+]

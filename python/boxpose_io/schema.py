@@ -1,0 +1,32 @@
+"""pyarrow schemas built from the generated contract in schema.json."""
+
+import json
+from pathlib import Path
+
+import pyarrow as pa
+
+_CONTRACT = json.loads((Path(__file__).parent / "schema.json").read_text())
+
+SCHEMA_VERSION: int = _CONTRACT["schema_version"]
+VERSION_KEY: str = _CONTRACT["version_key"]
+TABLE_KEY: str = _CONTRACT["table_key"]
+TABLES: dict[str, dict] = {t["name"]: t for t in _CONTRACT["tables"]}
+
+
+def _arrow_type(column: dict) -> pa.DataType:
+    scalar = getattr(pa, column["type"])()
+    if column["list_size"] is None:
+        return scalar
+    # A plain list (Parquet has no fixed-size list); its length is checked by table_from_rows.
+    return pa.list_(pa.field("item", scalar, nullable=True))
+
+
+def arrow_schema(table: str) -> pa.Schema:
+    """The pyarrow schema of `table`, with the schema version and table name in its metadata."""
+    spec = TABLES[table]
+    fields = [pa.field(c["name"], _arrow_type(c), nullable=c["nullable"]) for c in spec["columns"]]
+    return pa.schema(fields, metadata={VERSION_KEY: str(SCHEMA_VERSION), TABLE_KEY: table})
+
+
+def column_names(table: str) -> list[str]:
+    return [c["name"] for c in TABLES[table]["columns"]]

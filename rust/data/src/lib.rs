@@ -1,0 +1,19 @@
+//! The boxpose dataset contract: a dataset is a folder with one sub-folder of Parquet shards per
+//! table (`scenes/`, `objects/`, `frames/`, `instances/`). [`schema`] defines every column once;
+//! [`write_shard`] writes a shard atomically; [`Dataset`] opens a folder, validates every shard
+//! against the schema and yields decoded frames joined with their instances.
+
+mod error;
+mod reader;
+mod rows;
+pub mod schema;
+mod writer;
+
+pub use error::{DataError, Result};
+pub use reader::{Dataset, FrameIter, ShardBatch, read_shard};
+pub use rows::{Frame, Instance, Intrinsics, Object, Pose, Scene, Visibility};
+pub use writer::{shard_file_name, write_shard};
+
+/// Markers around the generated column reference in `docs/dataset.md`.
+pub const DOC_BEGIN: &str = "<!-- BEGIN GENERATED COLUMNS: `make schema` rewrites this part -->";
+pub const DOC_END: &str = "<!-- END GENERATED COLUMNS -->";

@@ -1,0 +1,378 @@
+//! The dataset contract: every table, column, type, unit and frame, written once.
+//!
+//! Everything else derives from [`TABLES`]: the Arrow schemas used by the Rust reader and
+//! writers, the JSON definition the Python writers load (`python/boxpose_io/schema.json`), and
+//! the column reference in `docs/dataset.md`. Tests fail when either generated file drifts.
+//!
+//! Conventions (see DESIGN.md): metres, radians, seconds; poses `T_a_b` map points in frame b
+//! into frame a and are stored as a unit quaternion (w, x, y, z) plus a translation; camera
+//! frames follow OpenCV (x right, y down, z forward); pixel coordinates put the centre of the
+//! top-left pixel at (0, 0); box corner i has sign pattern bit0 → x, bit1 → y, bit2 → z
+//! (0 = −, 1 = +).
+
+
+use arrow::datatypes::{DataType, Field, Schema};
+
+/// Version of the contract. Bump it on any change to [`TABLES`]; readers refuse other versions.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// Parquet key-value metadata key holding [`SCHEMA_VERSION`].
+pub const VERSION_KEY: &str = "boxpose.schema_version";
+/// Parquet key-value metadata key holding the table name, so a misplaced shard is caught.
+pub const TABLE_KEY: &str = "boxpose.table";
+
+/// Element types a column can hold.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Scalar {
+    Bool,
+    Int8,
+    Int32,
+    Int64,
+    Float32,
+    Float64,
+    Utf8,
+    Binary,
+}
+
+impl Scalar {
+    fn arrow(self) -> DataType {
+        match self {
+            Scalar::Bool => DataType::Boolean,
+            Scalar::Int8 => DataType::Int8,
+            Scalar::Int32 => DataType::Int32,
+            Scalar::Int64 => DataType::Int64,
+            Scalar::Float32 => DataType::Float32,
+            Scalar::Float64 => DataType::Float64,
+            Scalar::Utf8 => DataType::Utf8,
+            Scalar::Binary => DataType::Binary,
+        }
+    }
+
+    /// The type's name in the JSON definition; Python maps it with `getattr(pyarrow, name)()`.
+    fn name(self) -> &'static str {
+        match self {
+            Scalar::Bool => "bool_",
+            Scalar::Int8 => "int8",
+            Scalar::Int32 => "int32",
+            Scalar::Int64 => "int64",
+            Scalar::Float32 => "float32",
+            Scalar::Float64 => "float64",
+            Scalar::Utf8 => "string",
+            Scalar::Binary => "binary",
+        }
+    }
+}
+
+/// One column of one table.
+#[derive(Debug, Clone, Copy)]
+pub struct Column {
+    pub name: &'static str,
+    pub scalar: Scalar,
+    /// `Some(n)`: a list of exactly n elements (a vector, quaternion or flattened matrix).
+    pub list_size: Option<i32>,
+    pub nullable: bool,
+    /// Unit and frame, e.g. "m, camera frame"; empty where none applies.
+    pub unit: &'static str,
+    pub doc: &'static str,
+}
+
+impl Column {
+    /// Vectors are variable-length Arrow lists holding exactly `list_size` elements: Parquet has no
+    /// fixed-size list, and pyarrow cannot write a null fixed-size list. The reader checks lengths.
+    pub fn arrow_type(&self) -> DataType {
+        match self.list_size {
+            None => self.scalar.arrow(),
+            Some(_) => DataType::new_list(self.scalar.arrow(), true),
+        }
+    }
+
+    pub fn field(&self) -> Field {
+        Field::new(self.name, self.arrow_type(), self.nullable)
+    }
+}
+
+/// One table of the dataset: a folder of Parquet shards named after it.
+#[derive(Debug, Clone, Copy)]
+pub struct Table {
+    pub name: &'static str,
+    pub doc: &'static str,
+    /// Columns that identify a row; rows of other tables join on them.
+    pub key: &'static [&'static str],
+    pub columns: &'static [Column],
+}
+
+impl Table {
+    pub fn column(&self, name: &str) -> Option<&'static Column> {
+        self.columns.iter().find(|c| c.name == name)
+    }
+
+    /// The Arrow schema of this table's shards, with the version and table name in its metadata.
+    pub fn arrow_schema(&self) -> Schema {
+        let metadata: std::collections::HashMap<String, String> = [
+            (VERSION_KEY.to_string(), SCHEMA_VERSION.to_string()),
+            (TABLE_KEY.to_string(), self.name.to_string()),
+        ]
+        .into();
+        Schema::new(self.columns.iter().map(Column::field).collect::<Vec<_>>()).with_metadata(metadata)
+    }
+}
+
+const fn col(name: &'static str, scalar: Scalar, unit: &'static str, doc: &'static str) -> Column {
+    Column { name, scalar, list_size: None, nullable: false, unit, doc }
+}
+
+const fn list(name: &'static str, scalar: Scalar, n: i32, unit: &'static str, doc: &'static str) -> Column {
+    Column { name, scalar, list_size: Some(n), nullable: false, unit, doc }
+}
+
+const fn nullable(c: Column) -> Column {
+    Column { nullable: true, ..c }
+}
+
+use Scalar::*;
+
+const SCENE_ID: Column = col("scene_id", Int64, "", "Scene index within the dataset (0-based, unique across shards).");
+const FRAME_ID: Column = col("frame_id", Int32, "", "View index within the scene (0-based).");
+const OBJECT_ID: Column = col(
+    "object_id",
+    Int32,
+    "",
+    "Box index within the scene (0-based). Its pixels in `instance_mask_png` hold object_id + 1.",
+);
+const SIZE: Column = list("size_m", Float64, 3, "m, box frame", "Edge lengths (dx, dy, dz) along the box axes.");
+
+pub const SCENES: Table = Table {
+    name: "scenes",
+    doc: "One row per physically stable scene, with everything needed to regenerate it.",
+    key: &["scene_id"],
+    columns: &[
+        SCENE_ID,
+        col("seed", Int64, "", "Seed of this scene, derived from the recipe seed and scene_id."),
+        col("recipe", Utf8, "", "Recipe name (file stem under datasets/recipes/)."),
+        col("recipe_toml", Utf8, "", "Full text of the recipe the scene was generated from."),
+        col("tool_versions", Utf8, "", "JSON object of tool versions, e.g. {\"drake\": \"1.51.1\", \"python\": \"3.11.7\"}."),
+        col("physics_backend", Utf8, "", "Simulator that settled the scene: \"drake\" or \"mujoco\"."),
+        col("support", Utf8, "", "Support surface: \"floor\", \"bin\" or \"pallet\"."),
+        col("num_objects", Int32, "", "Number of boxes in the scene (rows in `objects`)."),
+        col("solver", Utf8, "", "Solver of the non-penetration projection: \"SNOPT\" or \"IPOPT\"."),
+        col("solver_status", Utf8, "", "Solver result of the accepted projection."),
+        col("solve_attempts", Int32, "", "Projection attempts used (jittered retries after a failure)."),
+        col("settle_time_s", Float64, "s", "Simulated time until the scene was certified at rest."),
+        col("max_linear_speed_mps", Float64, "m/s", "Largest body linear speed over the final rest window."),
+        col("max_angular_speed_radps", Float64, "rad/s", "Largest body angular speed over the final rest window."),
+        col(
+            "min_signed_distance_m",
+            Float64,
+            "m",
+            "Smallest signed distance between any two bodies (support included) in the settled scene; negative = penetration.",
+        ),
+        col("stable", Bool, "", "True when every stability check passed. Only stable scenes are written."),
+    ],
+};
+
+pub const OBJECTS: Table = Table {
+    name: "objects",
+    doc: "One row per box per scene: its size, settled pose, physical and material parameters.",
+    key: &["scene_id", "object_id"],
+    columns: &[
+        SCENE_ID,
+        OBJECT_ID,
+        SIZE,
+        list("world_box_quat_wxyz", Float64, 4, "world frame", "Rotation of T_world_box (settled pose), unit quaternion."),
+        list("world_box_translation_m", Float64, 3, "m, world frame", "Translation of T_world_box: the box centre."),
+        list(
+            "initial_world_box_quat_wxyz",
+            Float64,
+            4,
+            "world frame",
+            "Rotation of T_world_box before the drop (after the non-penetration projection).",
+        ),
+        list("initial_world_box_translation_m", Float64, 3, "m, world frame", "Translation of T_world_box before the drop."),
+        col("mass_kg", Float64, "kg", "Mass (uniform density)."),
+        col("friction", Float64, "", "Coulomb friction coefficient (static = dynamic)."),
+        list("base_color_rgb", Float32, 3, "linear RGB in [0, 1]", "Cardboard base colour."),
+        col("roughness", Float32, "", "Principled BSDF roughness in [0, 1]."),
+        col("texture_seed", Int64, "", "Seed of the procedural cardboard texture, tape and label placement."),
+        col("has_tape", Bool, "", "Whether tape strips are drawn on the box."),
+        col("has_label", Bool, "", "Whether a printed label is drawn on the box's +z face."),
+    ],
+};
+
+pub const FRAMES: Table = Table {
+    name: "frames",
+    doc: "One row per rendered view: camera, render settings and the images themselves.",
+    key: &["scene_id", "frame_id"],
+    columns: &[
+        SCENE_ID,
+        FRAME_ID,
+        col("width", Int32, "px", "Image width."),
+        col("height", Int32, "px", "Image height."),
+        col("fx", Float64, "px", "Focal length along x (pinhole, no distortion)."),
+        col("fy", Float64, "px", "Focal length along y."),
+        col("cx", Float64, "px", "Principal point x (top-left pixel centre = 0)."),
+        col("cy", Float64, "px", "Principal point y."),
+        list("world_camera_quat_wxyz", Float64, 4, "world frame", "Rotation of T_world_camera (OpenCV camera axes)."),
+        list("world_camera_translation_m", Float64, 3, "m, world frame", "Camera centre in the world."),
+        col("render_seed", Int64, "", "Seed of the Cycles sampler and of the lighting draw."),
+        col("samples", Int32, "", "Cycles samples per pixel."),
+        col("denoise", Bool, "", "Whether OpenImageDenoise was applied."),
+        col("blender_version", Utf8, "", "Blender (bpy) version that rendered the frame."),
+        col(
+            "render_settings",
+            Utf8,
+            "",
+            "JSON object of everything else the render depends on (lights, world colour, exposure), for exact re-rendering.",
+        ),
+        col("render_time_s", Float64, "s", "Wall time of the render on the generating machine."),
+        col("rgb_png", Binary, "", "8-bit sRGB PNG, height × width × 3."),
+        col(
+            "depth_m_f32le",
+            Binary,
+            "m, camera frame",
+            "Depth along the optical axis (planar z, not ray length): little-endian float32, height × width, row-major; 0 where no surface.",
+        ),
+        col(
+            "instance_mask_png",
+            Binary,
+            "",
+            "16-bit grayscale PNG, height × width: object_id + 1 of the box seen at each pixel, 0 for support and background.",
+        ),
+        nullable(col(
+            "sensor_depth_m_f32le",
+            Binary,
+            "m, camera frame",
+            "Optional simulated structured-light depth, same layout as depth_m_f32le; 0 where the sensor returns nothing.",
+        )),
+    ],
+};
+
+pub const INSTANCES: Table = Table {
+    name: "instances",
+    doc: "One row per box per frame, including boxes that are fully hidden or outside the image.",
+    key: &["scene_id", "frame_id", "object_id"],
+    columns: &[
+        SCENE_ID,
+        FRAME_ID,
+        OBJECT_ID,
+        SIZE,
+        list("camera_box_quat_wxyz", Float64, 4, "camera frame", "Rotation of T_camera_box."),
+        list("camera_box_translation_m", Float64, 3, "m, camera frame", "Box centre in the camera frame."),
+        list("corners_camera_m", Float64, 24, "m, camera frame", "The 8 corners, 8 × 3 row-major, in corner order."),
+        list("corners_px", Float64, 16, "px", "The 8 corners projected, 8 × (u, v) row-major."),
+        list(
+            "corner_visibility",
+            Int8,
+            8,
+            "",
+            "Per corner: 0 visible, 1 occluded by another object, 2 self-occluded, 3 outside the image (or behind the camera).",
+        ),
+        nullable(list(
+            "label_keypoints_camera_m",
+            Float64,
+            12,
+            "m, camera frame",
+            "Corners of the printed label (4 × 3), null when the box has no label.",
+        )),
+        nullable(list("label_keypoints_px", Float64, 8, "px", "Label corners projected, 4 × (u, v).")),
+        nullable(list(
+            "visible_bbox_px",
+            Int32,
+            4,
+            "px",
+            "Bounding box of the visible mask: (x_min, y_min, x_max, y_max), max exclusive; null when no pixel is visible.",
+        )),
+        col("visible_pixels", Int32, "px", "Pixels of this box in the instance mask."),
+        col(
+            "visible_fraction",
+            Float32,
+            "",
+            "visible_pixels / pixels the box would cover in the image were nothing in front of it.",
+        ),
+    ],
+};
+
+/// Every table of the contract, in pipeline order.
+pub const TABLES: [Table; 4] = [SCENES, OBJECTS, FRAMES, INSTANCES];
+
+pub fn table(name: &str) -> Option<&'static Table> {
+    TABLES.iter().find(|t| t.name == name)
+}
+
+/// The contract as JSON, the form the Python writers load.
+pub fn to_json() -> serde_json::Value {
+    let tables = TABLES
+        .iter()
+        .map(|t| {
+            let columns = t
+                .columns
+                .iter()
+                .map(|c| {
+                    serde_json::json!({
+                        "name": c.name,
+                        "type": c.scalar.name(),
+                        "list_size": c.list_size,
+                        "nullable": c.nullable,
+                        "unit": c.unit,
+                        "doc": c.doc,
+                    })
+                })
+                .collect::<Vec<_>>();
+            serde_json::json!({ "name": t.name, "doc": t.doc, "key": t.key, "columns": columns })
+        })
+        .collect::<Vec<_>>();
+    serde_json::json!({ "schema_version": SCHEMA_VERSION, "version_key": VERSION_KEY, "table_key": TABLE_KEY, "tables": tables })
+}
+
+/// The column reference of `docs/dataset.md`, one Markdown table per dataset table.
+pub fn to_markdown() -> String {
+    let mut out = format!("Schema version {SCHEMA_VERSION}.\n");
+    for t in TABLES {
+        out += &format!("\n### `{}`\n\n{} Key: {}.\n\n", t.name, t.doc, t.key.join(", "));
+        out += "| column | type | unit / frame | description |\n|---|---|---|---|\n";
+        for c in t.columns {
+            let ty = match c.list_size {
+                None => c.scalar.name().trim_end_matches('_').to_string(),
+                Some(n) => format!("{}[{n}]", c.scalar.name().trim_end_matches('_')),
+            };
+            let ty = if c.nullable { format!("{ty}, nullable") } else { ty };
+            out += &format!("| `{}` | {} | {} | {} |\n", c.name, ty, c.unit, c.doc.replace('|', "\\|"));
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashSet;
+
+    #[test]
+    fn column_names_are_unique_per_table_and_keys_exist() {
+        for t in TABLES {
+            let names: HashSet<_> = t.columns.iter().map(|c| c.name).collect();
+            assert_eq!(names.len(), t.columns.len(), "duplicate column in {}", t.name);
+            for k in t.key {
+                assert!(t.column(k).is_some(), "key {k} missing from {}", t.name);
+            }
+        }
+    }
+
+    /// The Python writers load `python/boxpose_io/schema.json`; it must be this module, verbatim.
+    #[test]
+    fn python_schema_json_matches_this_module() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../python/boxpose_io/schema.json");
+        let on_disk: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(path).expect("read schema.json")).expect("parse schema.json");
+        assert!(on_disk == to_json(), "{path} is stale: regenerate it with `make schema`");
+    }
+
+    /// `docs/dataset.md` embeds the column reference between two markers.
+    #[test]
+    fn dataset_doc_matches_this_module() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/dataset.md");
+        let doc = std::fs::read_to_string(path).expect("read docs/dataset.md");
+        let begin = doc.find(crate::DOC_BEGIN).expect("begin marker") + crate::DOC_BEGIN.len();
+        let end = doc.find(crate::DOC_END).expect("end marker");
+        assert!(doc[begin..end].trim() == to_markdown().trim(), "{path} is stale: regenerate it with `make schema`");
+    }
+}

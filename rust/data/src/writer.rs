@@ -1,0 +1,50 @@
+use std::fs;
+use std::path::{Path, PathBuf};
+
+use arrow::record_batch::RecordBatch;
+use parquet::arrow::ArrowWriter;
+use parquet::basic::{Compression, ZstdLevel};
+use parquet::file::properties::WriterProperties;
+
+use crate::error::{DataError, Result};
+use crate::schema::Table;
+
+/// File name of shard `shard` of `num_shards`. Shards of a run with another shard count get
+/// other names, so they never overwrite each other.
+pub fn shard_file_name(shard: usize, num_shards: usize) -> String {
+    format!("part-{shard:05}-of-{num_shards:05}.parquet")
+}
+
+/// Writes `batches` as `<dataset>/<table>/<file_name>`: first under a `.tmp` name, then renamed
+/// once complete and synced, so an interrupted job never leaves a half shard that looks valid.
+/// The batches must carry the table's schema (see [`Table::arrow_schema`]).
+pub fn write_shard(dataset: &Path, table: &Table, file_name: &str, batches: &[RecordBatch]) -> Result<PathBuf> {
+    let dir = dataset.join(table.name);
+    fs::create_dir_all(&dir).map_err(|source| DataError::Io { path: dir.clone(), source })?;
+    let path = dir.join(file_name);
+    let tmp = dir.join(format!("{file_name}.tmp"));
+    let io = |source| DataError::Io { path: tmp.clone(), source };
+    let parquet = |source| DataError::Parquet { path: tmp.clone(), source };
+
+    let schema = std::sync::Arc::new(table.arrow_schema());
+    let props = WriterProperties::builder()
+        .set_compression(Compression::ZSTD(ZstdLevel::try_new(3).map_err(parquet)?))
+        .build();
+    let file = fs::File::create(&tmp).map_err(io)?;
+    let mut writer = ArrowWriter::try_new(file, schema.clone(), Some(props)).map_err(parquet)?;
+    for batch in batches {
+        if batch.schema().fields() != schema.fields() {
+            return Err(DataError::WrongType {
+                path: tmp.clone(),
+                column: "*",
+                found: format!("{:?}", batch.schema().fields()),
+                expected: format!("{:?}", schema.fields()),
+            });
+        }
+        writer.write(batch).map_err(parquet)?;
+    }
+    let file = writer.into_inner().map_err(parquet)?;
+    file.sync_all().map_err(io)?;
+    fs::rename(&tmp, &path).map_err(|source| DataError::Io { path: path.clone(), source })?;
+    Ok(path)
+}

@@ -1,0 +1,327 @@
+"""The Parquet contract across the Python/Rust boundary: Python writes with pyarrow through
+boxpose_io, Rust reads back every field; pandas alone reads the same files; bad input gets one
+clear error naming the file and the problem."""
+
+import io
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from PIL import Image
+
+import boxpose_io
+from conftest import run_boxpose
+
+WIDTH, HEIGHT = 8, 6
+NUM_SHARDS = 2
+
+
+def unit_quaternion(rng) -> list[float]:
+    q = rng.normal(size=4)
+    return (q / np.linalg.norm(q)).tolist()
+
+
+def png_bytes(array: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    Image.fromarray(array).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def mask_png(mask: np.ndarray) -> bytes:
+    """16-bit grayscale PNG, as the contract stores instance masks."""
+    buffer = io.BytesIO()
+    Image.fromarray(mask.astype(np.uint16)).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def synthetic_rows(rng) -> dict[str, list[dict]]:
+    """Two scenes, two boxes each, two frames each: random but valid values in every column,
+    including nulls where the contract allows them."""
+    tables = {name: [] for name in boxpose_io.TABLES}
+    for scene_id in range(2):
+        tables["scenes"].append(
+            dict(
+                scene_id=scene_id,
+                seed=int(rng.integers(1 << 40)),
+                recipe="synthetic",
+                recipe_toml='name = "synthetic"\n',
+                tool_versions=json.dumps({"python": "3.11"}),
+                physics_backend="drake",
+                support="floor",
+                num_objects=2,
+                solver="SNOPT",
+                solver_status="SolutionFound",
+                solve_attempts=int(rng.integers(1, 4)),
+                settle_time_s=float(rng.uniform(0.5, 2)),
+                max_linear_speed_mps=float(rng.uniform(0, 1e-3)),
+                max_angular_speed_radps=float(rng.uniform(0, 1e-2)),
+                min_signed_distance_m=float(rng.uniform(-1e-4, 1e-2)),
+                stable=True,
+            )
+        )
+        for object_id in range(2):
+            tables["objects"].append(
+                dict(
+                    scene_id=scene_id,
+                    object_id=object_id,
+                    size_m=rng.uniform(0.05, 0.2, 3).tolist(),
+                    world_box_quat_wxyz=unit_quaternion(rng),
+                    world_box_translation_m=rng.normal(size=3).tolist(),
+                    initial_world_box_quat_wxyz=unit_quaternion(rng),
+                    initial_world_box_translation_m=rng.normal(size=3).tolist(),
+                    mass_kg=float(rng.uniform(0.1, 2)),
+                    friction=float(rng.uniform(0.4, 1)),
+                    base_color_rgb=rng.uniform(0, 1, 3).astype(np.float32).tolist(),
+                    roughness=float(np.float32(rng.uniform(0, 1))),
+                    texture_seed=int(rng.integers(1 << 40)),
+                    has_tape=bool(object_id),
+                    has_label=not object_id,
+                )
+            )
+        for frame_id in range(2):
+            tables["frames"].append(
+                dict(
+                    scene_id=scene_id,
+                    frame_id=frame_id,
+                    width=WIDTH,
+                    height=HEIGHT,
+                    fx=float(rng.uniform(50, 80)),
+                    fy=float(rng.uniform(50, 80)),
+                    cx=(WIDTH - 1) / 2,
+                    cy=(HEIGHT - 1) / 2,
+                    world_camera_quat_wxyz=unit_quaternion(rng),
+                    world_camera_translation_m=rng.normal(size=3).tolist(),
+                    render_seed=int(rng.integers(1 << 40)),
+                    samples=1,
+                    denoise=bool(frame_id),
+                    blender_version="5.0.1",
+                    render_settings=json.dumps({"world_strength": 0.5}),
+                    render_time_s=float(rng.uniform(0.1, 1)),
+                    rgb_png=png_bytes(rng.integers(0, 256, (HEIGHT, WIDTH, 3), dtype=np.uint8)),
+                    depth_m_f32le=rng.uniform(0.3, 2, (HEIGHT, WIDTH)).astype("<f4").tobytes(),
+                    instance_mask_png=mask_png(rng.integers(0, 3, (HEIGHT, WIDTH))),
+                    sensor_depth_m_f32le=(
+                        rng.uniform(0.3, 2, (HEIGHT, WIDTH)).astype("<f4").tobytes() if frame_id else None
+                    ),
+                )
+            )
+            for object_id in range(2):
+                labelled = object_id == 0
+                tables["instances"].append(
+                    dict(
+                        scene_id=scene_id,
+                        frame_id=frame_id,
+                        object_id=object_id,
+                        size_m=tables["objects"][2 * scene_id + object_id]["size_m"],
+                        camera_box_quat_wxyz=unit_quaternion(rng),
+                        camera_box_translation_m=rng.normal(size=3).tolist(),
+                        corners_camera_m=rng.normal(size=24).tolist(),
+                        corners_px=rng.uniform(0, WIDTH, 16).tolist(),
+                        corner_visibility=rng.integers(0, 4, 8).tolist(),
+                        label_keypoints_camera_m=rng.normal(size=12).tolist() if labelled else None,
+                        label_keypoints_px=rng.uniform(0, WIDTH, 8).tolist() if labelled else None,
+                        visible_bbox_px=[1, 1, 5, 4] if labelled else None,
+                        visible_pixels=12 if labelled else 0,
+                        visible_fraction=float(np.float32(rng.uniform(0, 1))),
+                    )
+                )
+    return tables
+
+
+def write_dataset(root, tables: dict[str, list[dict]]) -> None:
+    """Splits every table into NUM_SHARDS shards by scene, as the generators do."""
+    for name, rows in tables.items():
+        for shard in range(NUM_SHARDS):
+            part = [r for r in rows if r["scene_id"] % NUM_SHARDS == shard]
+            path = boxpose_io.shard_path(root, name, shard, NUM_SHARDS)
+            boxpose_io.write_shard(path, boxpose_io.table_from_rows(name, part))
+
+
+@pytest.fixture()
+def dataset(tmp_path):
+    tables = synthetic_rows(np.random.default_rng(0))
+    write_dataset(tmp_path / "ds", tables)
+    return tmp_path / "ds", tables
+
+
+def same(rust_value, python_value, path=""):
+    """Exact equality, except that float32 values are compared after rounding to float32 (JSON
+    prints the shortest float32 representation)."""
+    if isinstance(python_value, (list, tuple)):
+        flat = np.asarray(rust_value, dtype=float).ravel() if rust_value is not None else None
+        assert flat is not None and len(flat) == len(python_value), path
+        for i, (r, p) in enumerate(zip(flat, python_value)):
+            same(float(r), p, f"{path}[{i}]")
+    elif isinstance(python_value, float):
+        assert rust_value == python_value or np.float32(rust_value) == np.float32(python_value), (
+            f"{path}: {rust_value} != {python_value}"
+        )
+    else:
+        assert rust_value == python_value, f"{path}: {rust_value!r} != {python_value!r}"
+
+
+def test_rust_reads_back_every_field(dataset, boxpose_bin):
+    root, tables = dataset
+    dumped = [json.loads(line) for line in run_boxpose(boxpose_bin, "dump", root).stdout.splitlines()]
+    by_table = {name: [d for d in dumped if d["table"] == name] for name in ("scenes", "objects", "frames")}
+    assert len(by_table["scenes"]) == 2 and len(by_table["objects"]) == 4 and len(by_table["frames"]) == 4
+
+    for written, read in zip(sorted(tables["scenes"], key=lambda r: r["scene_id"]), by_table["scenes"]):
+        for column, value in written.items():
+            same(read[column], value, f"scenes.{column}")
+
+    objects = {(o["scene_id"], o["object_id"]): o for o in by_table["objects"]}
+    for written in tables["objects"]:
+        read = objects[(written["scene_id"], written["object_id"])]
+        for column, value in written.items():
+            if column.endswith("_quat_wxyz") or column.endswith("_translation_m"):
+                pose = read[column.rsplit("_", 2)[0]]  # "world_box_quat_wxyz" → "world_box"
+                key = "quat_wxyz" if column.endswith("_quat_wxyz") else "translation_m"
+                same(pose[key], value, f"objects.{column}")
+            else:
+                same(read[column], value, f"objects.{column}")
+
+    frames = {(f["scene_id"], f["frame_id"]): f for f in by_table["frames"]}
+    for written in tables["frames"]:
+        read = frames[(written["scene_id"], written["frame_id"])]
+        rgb = np.asarray(Image.open(io.BytesIO(written["rgb_png"])))
+        assert np.array_equal(np.asarray(read["rgb"], np.uint8).reshape(rgb.shape), rgb)
+        depth = np.frombuffer(written["depth_m_f32le"], "<f4")
+        assert np.array_equal(np.asarray(read["depth_m"], np.float32), depth)
+        mask = np.asarray(Image.open(io.BytesIO(written["instance_mask_png"]))).ravel()
+        assert np.array_equal(np.asarray(read["instance_mask"]), mask)
+        if written["sensor_depth_m_f32le"] is None:
+            assert read["sensor_depth_m"] is None
+        else:
+            assert np.array_equal(np.asarray(read["sensor_depth_m"], np.float32), np.frombuffer(written["sensor_depth_m_f32le"], "<f4"))
+        same(read["intrinsics"], [written[k] for k in ("fx", "fy", "cx", "cy")], "frames.intrinsics")
+        same(read["world_camera"]["quat_wxyz"], written["world_camera_quat_wxyz"], "frames.world_camera_quat_wxyz")
+        same(read["world_camera"]["translation_m"], written["world_camera_translation_m"], "frames.world_camera_translation_m")
+        for column in ("width", "height", "samples", "denoise", "render_seed", "blender_version"):
+            same(read[column], written[column], f"frames.{column}")
+
+        written_instances = [i for i in tables["instances"] if (i["scene_id"], i["frame_id"]) == (written["scene_id"], written["frame_id"])]
+        assert [i["object_id"] for i in read["instances"]] == [i["object_id"] for i in written_instances]
+        for w, r in zip(written_instances, read["instances"]):
+            same(r["camera_box"]["quat_wxyz"], w["camera_box_quat_wxyz"], "instances.camera_box_quat_wxyz")
+            same(r["camera_box"]["translation_m"], w["camera_box_translation_m"], "instances.camera_box_translation_m")
+            for column in ("size_m", "corners_camera_m", "corners_px", "corner_visibility", "visible_pixels", "visible_fraction"):
+                same(r[column], w[column], f"instances.{column}")
+            for column in ("label_keypoints_camera_m", "label_keypoints_px", "visible_bbox_px"):
+                if w[column] is None:
+                    assert r[column] is None, column
+                else:
+                    same(r[column], w[column], f"instances.{column}")
+
+
+def test_pandas_alone_reads_the_dataset(dataset):
+    """What docs/dataset.md promises: pandas + numpy + Pillow, no boxpose import."""
+    root, tables = dataset
+    frames = pd.read_parquet(root / "frames")
+    instances = pd.read_parquet(root / "instances")
+    assert len(frames) == 4 and len(instances) == 8
+    f = frames.sort_values(["scene_id", "frame_id"]).iloc[0]
+    rgb = np.asarray(Image.open(io.BytesIO(f.rgb_png)))
+    assert rgb.shape == (HEIGHT, WIDTH, 3) and rgb.dtype == np.uint8
+    depth = np.frombuffer(f.depth_m_f32le, "<f4").reshape(f.height, f.width)
+    assert np.array_equal(depth.ravel(), np.frombuffer(tables["frames"][0]["depth_m_f32le"], "<f4"))
+    corners = np.stack(instances.corners_camera_m.to_numpy()).reshape(-1, 8, 3)
+    assert corners.shape == (8, 8, 3)
+    assert pq.read_metadata(next((root / "frames").glob("*.parquet"))).metadata[b"boxpose.schema_version"] == str(
+        boxpose_io.SCHEMA_VERSION
+    ).encode()
+
+
+def test_duckdb_reads_the_dataset(dataset):
+    import duckdb
+    root, _ = dataset
+    count = duckdb.sql(f"SELECT count(*) FROM '{root}/instances/*.parquet' WHERE len(corner_visibility) = 8").fetchall()[0][0]
+    assert count == 8
+
+
+def test_inspect_accepts_a_valid_dataset(dataset, boxpose_bin):
+    result = run_boxpose(boxpose_bin, "inspect", dataset[0])
+    assert "4 frames, 8 instances" in result.stdout and "all shards valid" in result.stdout
+
+
+# --- bad input: one clear error naming the file and the problem -----------------------------
+
+
+def expect_error(boxpose_bin, root, *fragments):
+    result = run_boxpose(boxpose_bin, "inspect", root, check=False)
+    assert result.returncode != 0, result.stdout
+    message = result.stderr
+    for fragment in fragments:
+        assert str(fragment) in message, f"{fragment!r} not in {message!r}"
+    assert "panicked" not in message and "RUST_BACKTRACE" not in message
+    return message
+
+
+def rewrite(path, transform):
+    """Rewrites a shard with pyarrow after `transform(table) -> table`, keeping its metadata
+    unless the transform replaces it."""
+    table = transform(pq.read_table(path))
+    pq.write_table(table, path)
+
+
+def test_missing_folder(tmp_path, boxpose_bin):
+    expect_error(boxpose_bin, tmp_path / "nope", tmp_path / "nope", "does not exist")
+
+
+def test_shard_of_another_schema_version(dataset, boxpose_bin):
+    root, _ = dataset
+    shard = boxpose_io.shard_path(root, "objects", 1, NUM_SHARDS)
+    rewrite(shard, lambda t: t.replace_schema_metadata({**t.schema.metadata, b"boxpose.schema_version": b"999"}))
+    expect_error(boxpose_bin, root, shard, "schema version 999", f"version {boxpose_io.SCHEMA_VERSION}")
+
+
+def test_missing_column(dataset, boxpose_bin):
+    root, _ = dataset
+    shard = boxpose_io.shard_path(root, "scenes", 0, NUM_SHARDS)
+    rewrite(shard, lambda t: t.drop(["settle_time_s"]))
+    expect_error(boxpose_bin, root, shard, "missing column `settle_time_s`")
+
+
+def test_truncated_file(dataset, boxpose_bin):
+    root, _ = dataset
+    shard = boxpose_io.shard_path(root, "frames", 1, NUM_SHARDS)
+    data = shard.read_bytes()
+    shard.write_bytes(data[: len(data) // 2])
+    expect_error(boxpose_bin, root, shard, "not a readable Parquet file")
+
+
+def test_nan_in_a_pose(dataset, boxpose_bin):
+    root, _ = dataset
+    shard = boxpose_io.shard_path(root, "objects", 0, NUM_SHARDS)
+
+    def poison(table):
+        column = table.column("world_box_translation_m").to_pylist()
+        column[1] = [0.0, math.nan, 0.0]
+        index = table.schema.get_field_index("world_box_translation_m")
+        return table.set_column(index, table.schema.field(index), pa.array(column, table.schema.field(index).type))
+
+    rewrite(shard, poison)
+    expect_error(boxpose_bin, root, shard, "row 1", "world_box_translation_m", "non-finite")
+
+
+def test_leftover_tmp_file_is_not_a_shard(dataset, boxpose_bin):
+    """A killed writer leaves `*.parquet.tmp`; readers must ignore it, not choke on it."""
+    root, _ = dataset
+    (root / "frames" / "part-00009-of-00010.parquet.tmp").write_bytes(b"PAR1 half a shard")
+    assert "all shards valid" in run_boxpose(boxpose_bin, "inspect", root).stdout
+
+
+def test_python_writer_rejects_nan_and_unknown_columns(tmp_path):
+    rows = synthetic_rows(np.random.default_rng(1))["objects"]
+    rows[0]["mass_kg"] = math.nan
+    with pytest.raises(boxpose_io.ShardError, match="row 0, column mass_kg"):
+        boxpose_io.table_from_rows("objects", rows)
+    rows[0]["mass_kg"] = 1.0
+    rows[1]["colour"] = "red"
+    with pytest.raises(boxpose_io.ShardError, match="unknown columns \\['colour'\\]"):
+        boxpose_io.table_from_rows("objects", rows)
+    assert not list(tmp_path.iterdir())
