@@ -1,0 +1,287 @@
+//! `import boxpose`: the geometry core on numpy arrays.
+//!
+//! Conventions: metres; points are (N, 3) float64 arrays in the camera frame; a pose is a 4 × 4
+//! homogeneous matrix mapping box-frame points into the camera frame; a box is given by its size
+//! (dx, dy, dz). Heatmaps are (D, H, W) float32 arrays over (z-bin, v, u). Invalid input (NaN,
+//! too few or degenerate points, empty heatmaps) raises `ValueError` with the reason.
+
+use boxpose_geometry::heatmap::{
+    self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord, VoxelGrid,
+};
+use boxpose_geometry::{BoxModel, GeometryError, align, correspondence, metrics, robust, size_fit};
+use nalgebra::{Isometry3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+fn value_error(e: GeometryError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+fn points(array: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<Point3<f64>>> {
+    let view = array.as_array();
+    if view.ncols() != 3 {
+        return Err(PyValueError::new_err(format!("{what} must have shape (N, 3), got {:?}", view.shape())));
+    }
+    Ok(view.rows().into_iter().map(|r| Point3::new(r[0], r[1], r[2])).collect())
+}
+
+fn box_model(size: [f64; 3]) -> PyResult<BoxModel> {
+    BoxModel::new(Vector3::from(size)).map_err(value_error)
+}
+
+fn isometry(matrix: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Isometry3<f64>> {
+    let view = matrix.as_array();
+    if view.shape() != [4, 4] {
+        return Err(PyValueError::new_err(format!("{what} must be a 4 × 4 matrix, got {:?}", view.shape())));
+    }
+    let m = Matrix4::from_fn(|r, c| view[[r, c]]);
+    if m.iter().any(|v| !v.is_finite()) {
+        return Err(PyValueError::new_err(format!("{what} has non-finite entries")));
+    }
+    let rotation = Rotation3::from_matrix(&m.fixed_view::<3, 3>(0, 0).into_owned());
+    Ok(Isometry3::from_parts(Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]), UnitQuaternion::from_rotation_matrix(&rotation)))
+}
+
+fn matrix<'py>(py: Python<'py>, pose: &Isometry3<f64>) -> Bound<'py, PyArray2<f64>> {
+    let m = pose.to_homogeneous();
+    numpy::ndarray::Array2::from_shape_fn((4, 4), |(r, c)| m[(r, c)]).into_pyarray(py)
+}
+
+fn points_array<'py>(py: Python<'py>, points: &[Point3<f64>]) -> Bound<'py, PyArray2<f64>> {
+    numpy::ndarray::Array2::from_shape_fn((points.len(), 3), |(i, k)| points[i][k]).into_pyarray(py)
+}
+
+/// The 8 corners of a box of `size` in its own frame, (8, 3), in boxpose corner order
+/// (bit 0 → x, bit 1 → y, bit 2 → z; 0 = −, 1 = +).
+#[pyfunction]
+fn box_corners<'py>(py: Python<'py>, size: [f64; 3]) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    Ok(points_array(py, &box_model(size)?.corners()))
+}
+
+/// Peaks of a (D, H, W) heatmap by the paper's NMS: take the arg-max voxel, subtract a Gaussian
+/// of width `sigma` voxels centred there, repeat `count` times. `refine_radius` > 0 adds a local
+/// soft-argmax. Returns (coords (N, 3) as (z_bin, v, u), scores (N,)).
+#[pyfunction]
+#[pyo3(signature = (heatmap, count = 8, sigma = 2.0, refine_radius = 0))]
+fn nms<'py>(
+    py: Python<'py>,
+    heatmap: PyReadonlyArray3<f32>,
+    count: usize,
+    sigma: f64,
+    refine_radius: usize,
+) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f32>>)> {
+    let view = heatmap.as_array();
+    let (depth, height, width) = view.dim();
+    let volume: Vec<f32> = view.iter().copied().collect();
+    let dims = HeatmapDims { depth, height, width };
+    let params = NmsParams { count, sigma, refine_radius };
+    let peaks = py.detach(|| heatmap::non_maximum_suppression(&volume, dims, &params)).map_err(value_error)?;
+    let coords = numpy::ndarray::Array2::from_shape_fn((peaks.len(), 3), |(i, k)| {
+        let c = peaks[i].coord;
+        [c.z_bin, c.v, c.u][k]
+    });
+    let scores: Vec<f32> = peaks.iter().map(|p| p.score).collect();
+    Ok((coords.into_pyarray(py), scores.into_pyarray(py)))
+}
+
+/// A (D, H, W) float32 training target: a 3D Gaussian (peak 1, `sigma` voxels) at each centre
+/// given as (z_bin, v, u), max-combined.
+#[pyfunction]
+fn render_target_heatmap<'py>(
+    py: Python<'py>,
+    shape: (usize, usize, usize),
+    centres: PyReadonlyArray2<f64>,
+    sigma: f64,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let centres: Vec<VoxelCoord> =
+        points(&centres, "centres")?.iter().map(|p| VoxelCoord { z_bin: p[0], v: p[1], u: p[2] }).collect();
+    let dims = HeatmapDims { depth: shape.0, height: shape.1, width: shape.2 };
+    let volume = heatmap::render_target_heatmap(dims, &centres, sigma).map_err(value_error)?;
+    let array = numpy::ndarray::Array3::from_shape_vec(shape, volume).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    Ok(array.into_pyarray(py))
+}
+
+fn voxel_grid(intrinsics: [f64; 4], crop: [f64; 4], depth_bins: [f64; 3]) -> VoxelGrid {
+    VoxelGrid {
+        intrinsics: PinholeIntrinsics { fx: intrinsics[0], fy: intrinsics[1], cx: intrinsics[2], cy: intrinsics[3] },
+        crop: CropTransform { x0: crop[0], y0: crop[1], sx: crop[2], sy: crop[3] },
+        depth: DepthBins { z_ref: depth_bins[0], z_min: depth_bins[1], bin_size: depth_bins[2] },
+    }
+}
+
+/// Camera-frame points (N, 3) of voxel coordinates (N, 3) as (z_bin, v, u) in a crop.
+/// `intrinsics` = (fx, fy, cx, cy) of the full image; `crop` = (x0, y0, sx, sy) maps crop pixels
+/// to image pixels; `depth_bins` = (z_ref, z_min, bin_size) in metres.
+#[pyfunction]
+fn back_project<'py>(
+    py: Python<'py>,
+    coords: PyReadonlyArray2<f64>,
+    intrinsics: [f64; 4],
+    crop: [f64; 4],
+    depth_bins: [f64; 3],
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let grid = voxel_grid(intrinsics, crop, depth_bins);
+    let out = points(&coords, "coords")?
+        .iter()
+        .map(|p| grid.back_project(&VoxelCoord { z_bin: p[0], v: p[1], u: p[2] }))
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(value_error)?;
+    Ok(points_array(py, &out))
+}
+
+/// Least-squares rigid transform (4 × 4, proper rotation) mapping `source` onto `target`.
+#[pyfunction]
+fn kabsch<'py>(py: Python<'py>, source: PyReadonlyArray2<f64>, target: PyReadonlyArray2<f64>) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let pose = align::kabsch(&points(&source, "source")?, &points(&target, "target")?).map_err(value_error)?;
+    Ok(matrix(py, &pose))
+}
+
+/// Least-squares similarity transform: returns (scale, 4 × 4 rigid part) with
+/// target ≈ scale · R · source + t.
+#[pyfunction]
+fn umeyama<'py>(py: Python<'py>, source: PyReadonlyArray2<f64>, target: PyReadonlyArray2<f64>) -> PyResult<(f64, Bound<'py, PyArray2<f64>>)> {
+    let similarity = align::umeyama(&points(&source, "source")?, &points(&target, "target")?).map_err(value_error)?;
+    Ok((similarity.scaling(), matrix(py, &similarity.isometry)))
+}
+
+fn correspondence_dict<'py>(py: Python<'py>, fit: &correspondence::CorrespondenceFit) -> PyResult<Bound<'py, PyDict>> {
+    let dict = PyDict::new(py);
+    dict.set_item("pose", matrix(py, &fit.pose))?;
+    dict.set_item("peaks", fit.peaks.clone())?;
+    dict.set_item("corners", fit.corners.clone())?;
+    dict.set_item("sum_squared_error", fit.sum_squared_error)?;
+    Ok(dict)
+}
+
+type Search = fn(&BoxModel, &[Point3<f64>], &[f64], usize) -> boxpose_geometry::Result<correspondence::CorrespondenceFit>;
+
+fn search<'py>(py: Python<'py>, run: Search, size: [f64; 3], points_: PyReadonlyArray2<f64>, scores: PyReadonlyArray1<f64>, m: usize) -> PyResult<Bound<'py, PyDict>> {
+    let model = box_model(size)?;
+    let pts = points(&points_, "points")?;
+    let scores = scores.as_array().to_vec();
+    let fit = py.detach(|| run(&model, &pts, &scores, m)).map_err(value_error)?;
+    correspondence_dict(py, &fit)
+}
+
+/// The paper's search: the `m` highest-scoring points tried against every ordered assignment
+/// to the 8 corners (6720 for m = 5), each fitted with Kabsch; the least-squares best wins.
+/// Returns {"pose", "peaks", "corners", "sum_squared_error"}.
+#[pyfunction]
+#[pyo3(signature = (size, points, scores, m = 5))]
+fn paper_exact_search<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64>, scores: PyReadonlyArray1<f64>, m: usize) -> PyResult<Bound<'py, PyDict>> {
+    search(py, correspondence::paper_exact_search, size, points, scores, m)
+}
+
+/// Same optimum as `paper_exact_search`, found with symmetry reduction and branch-and-bound.
+#[pyfunction]
+#[pyo3(signature = (size, points, scores, m = 5))]
+fn fast_exact_search<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64>, scores: PyReadonlyArray1<f64>, m: usize) -> PyResult<Bound<'py, PyDict>> {
+    search(py, correspondence::fast_exact_search, size, points, scores, m)
+}
+
+/// Pose that survives up to half the points being outliers (minimal hypotheses, truncated
+/// least squares, inlier refinement). Returns {"pose", "inliers", "nearest_corners",
+/// "residuals", "inlier_count", "inlier_rms", "truncated_cost"}.
+#[pyfunction]
+#[pyo3(signature = (size, points, inlier_threshold = None))]
+fn robust_fit<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64>, inlier_threshold: Option<f64>) -> PyResult<Bound<'py, PyDict>> {
+    let model = box_model(size)?;
+    let pts = self::points(&points, "points")?;
+    let mut params = robust::RobustParams::for_box(&model);
+    if let Some(threshold) = inlier_threshold {
+        params.inlier_threshold = threshold;
+    }
+    let fit = py.detach(|| robust::robust_fit(&model, &pts, &params)).map_err(value_error)?;
+    let dict = PyDict::new(py);
+    dict.set_item("pose", matrix(py, &fit.pose))?;
+    dict.set_item("inliers", fit.inliers)?;
+    dict.set_item("nearest_corners", fit.nearest_corners)?;
+    dict.set_item("residuals", fit.residuals)?;
+    dict.set_item("inlier_count", fit.inlier_count)?;
+    dict.set_item("inlier_rms", fit.inlier_rms)?;
+    dict.set_item("truncated_cost", fit.truncated_cost)?;
+    Ok(dict)
+}
+
+/// Pose and box size together, for boxes of unknown size. Returns {"size", "pose",
+/// "nearest_corners", "residuals", "inliers", "inlier_rms"}.
+#[pyfunction]
+fn fit_pose_and_size<'py>(py: Python<'py>, points: PyReadonlyArray2<f64>) -> PyResult<Bound<'py, PyDict>> {
+    let pts = self::points(&points, "points")?;
+    let fit = py.detach(|| size_fit::fit_pose_and_size(&pts, &size_fit::SizeFitParams::default())).map_err(value_error)?;
+    let dict = PyDict::new(py);
+    let size = fit.model.size();
+    dict.set_item("size", [size.x, size.y, size.z])?;
+    dict.set_item("pose", matrix(py, &fit.pose))?;
+    dict.set_item("nearest_corners", fit.nearest_corners)?;
+    dict.set_item("residuals", fit.residuals)?;
+    dict.set_item("inliers", fit.inliers)?;
+    dict.set_item("inlier_rms", fit.inlier_rms)?;
+    Ok(dict)
+}
+
+/// The paper's error: (1/8) Σ_i ‖R m_{c_i} + t − s_i‖², s_i the ground-truth corner nearest to
+/// each transformed model corner. `truth_corners` is (8, 3).
+#[pyfunction]
+fn paper_error(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth_corners: PyReadonlyArray2<f64>) -> PyResult<f64> {
+    metrics::paper_error(&box_model(size)?, &isometry(&estimate, "estimate")?, &points(&truth_corners, "truth_corners")?).map_err(value_error)
+}
+
+type PoseMetric = fn(&BoxModel, &Isometry3<f64>, &Isometry3<f64>) -> boxpose_geometry::Result<f64>;
+
+fn pose_metric(metric: PoseMetric, size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
+    metric(&box_model(size)?, &isometry(&estimate, "estimate")?, &isometry(&truth, "truth")?).map_err(value_error)
+}
+
+/// ADD-S: mean distance from each estimated corner to the nearest true corner (metres).
+#[pyfunction]
+fn add_s(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
+    pose_metric(metrics::add_s, size, estimate, truth)
+}
+
+/// MSSD: maximum corner distance, minimised over the box's symmetry group (metres, as in BOP).
+#[pyfunction]
+fn mssd(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
+    pose_metric(metrics::mssd, size, estimate, truth)
+}
+
+/// Rotation error in degrees, minimised over the box's symmetry group.
+#[pyfunction]
+fn rotation_error_deg(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
+    pose_metric(metrics::rotation_error_deg, size, estimate, truth)
+}
+
+/// Distance between the two box centres (metres).
+#[pyfunction]
+fn translation_error(estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
+    metrics::translation_error(&isometry(&estimate, "estimate")?, &isometry(&truth, "truth")?).map_err(value_error)
+}
+
+/// Intersection over union of two oriented boxes.
+#[pyfunction]
+fn iou_3d(size_a: [f64; 3], pose_a: PyReadonlyArray2<f64>, size_b: [f64; 3], pose_b: PyReadonlyArray2<f64>) -> PyResult<f64> {
+    metrics::iou_3d(&box_model(size_a)?, &isometry(&pose_a, "pose_a")?, &box_model(size_b)?, &isometry(&pose_b, "pose_b")?).map_err(value_error)
+}
+
+#[pymodule]
+fn boxpose(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(box_corners, m)?)?;
+    m.add_function(wrap_pyfunction!(nms, m)?)?;
+    m.add_function(wrap_pyfunction!(render_target_heatmap, m)?)?;
+    m.add_function(wrap_pyfunction!(back_project, m)?)?;
+    m.add_function(wrap_pyfunction!(kabsch, m)?)?;
+    m.add_function(wrap_pyfunction!(umeyama, m)?)?;
+    m.add_function(wrap_pyfunction!(paper_exact_search, m)?)?;
+    m.add_function(wrap_pyfunction!(fast_exact_search, m)?)?;
+    m.add_function(wrap_pyfunction!(robust_fit, m)?)?;
+    m.add_function(wrap_pyfunction!(fit_pose_and_size, m)?)?;
+    m.add_function(wrap_pyfunction!(paper_error, m)?)?;
+    m.add_function(wrap_pyfunction!(add_s, m)?)?;
+    m.add_function(wrap_pyfunction!(mssd, m)?)?;
+    m.add_function(wrap_pyfunction!(rotation_error_deg, m)?)?;
+    m.add_function(wrap_pyfunction!(translation_error, m)?)?;
+    m.add_function(wrap_pyfunction!(iou_3d, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,138 @@
+"""The `boxpose` extension module (rust/python, built by maturin into .venv) on numpy arrays."""
+
+import numpy as np
+import pytest
+
+import boxpose  # installed into .venv by `make setup` (maturin develop)
+
+SIZE = [0.3, 0.2, 0.1]
+
+
+def random_pose(rng) -> np.ndarray:
+    q = rng.normal(size=4)
+    w, x, y, z = q / np.linalg.norm(q)
+    rotation = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    pose = np.eye(4)
+    pose[:3, :3] = rotation
+    pose[:3, 3] = [rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), rng.uniform(0.8, 1.2)]
+    return pose
+
+
+def transform(pose, points):
+    return points @ pose[:3, :3].T + pose[:3, 3]
+
+
+def test_corner_order_follows_the_convention():
+    corners = boxpose.box_corners(SIZE)
+    for i, corner in enumerate(corners):
+        signs = [1 if i >> axis & 1 else -1 for axis in range(3)]
+        assert np.allclose(corner, np.multiply(signs, SIZE) / 2)
+
+
+def test_kabsch_recovers_a_rigid_transform():
+    rng = np.random.default_rng(0)
+    truth = random_pose(rng)
+    source = rng.normal(size=(10, 3))
+    assert np.allclose(boxpose.kabsch(source, transform(truth, source)), truth, atol=1e-9)
+    scale, rigid = boxpose.umeyama(source, 2.5 * transform(truth, source))
+    assert scale == pytest.approx(2.5)
+
+
+def test_nms_finds_the_gaussians_of_a_target_heatmap():
+    centres = np.array([[5.0, 10.0, 12.0], [20.0, 30.0, 40.0], [40.0, 8.0, 50.0]])
+    heatmap = boxpose.render_target_heatmap((48, 48, 64), centres, 1.5)
+    assert heatmap.shape == (48, 48, 64) and heatmap.dtype == np.float32
+    coords, scores = boxpose.nms(heatmap, count=3, sigma=1.5)
+    found = sorted(map(tuple, np.round(coords)))
+    assert found == sorted(map(tuple, centres))
+    assert np.all(scores > 0.9)
+
+
+def test_back_projection_inverts_the_pinhole_model():
+    # Crop starting at (100, 50) at scale 2: crop pixel (u, v) is image pixel ≈ 100 + 2u, 50 + 2v.
+    coords = np.array([[10.0, 20.0, 30.0]])
+    point = boxpose.back_project(coords, (500.0, 500.0, 320.0, 240.0), (100.0, 50.0, 2.0, 2.0), (1.0, -0.5, 0.01))[0]
+    u = 500 * point[0] / point[2] + 320
+    v = 500 * point[1] / point[2] + 240
+    assert 100 + 2 * 30 - 2 < u < 100 + 2 * 30 + 2 and 50 + 2 * 20 - 2 < v < 50 + 2 * 20 + 2
+    assert point[2] == pytest.approx(1.0 - 0.5 + 10.5 * 0.01)
+
+
+def test_fast_exact_search_matches_the_paper_search_and_recovers_the_pose():
+    rng = np.random.default_rng(1)
+    truth = random_pose(rng)
+    points = transform(truth, boxpose.box_corners(SIZE)) + rng.normal(scale=0.003, size=(8, 3))
+    points = points[rng.permutation(8)]
+    scores = rng.uniform(0.5, 1.0, 8)
+    paper = boxpose.paper_exact_search(SIZE, points, scores, m=5)
+    fast = boxpose.fast_exact_search(SIZE, points, scores, m=5)
+    assert fast["sum_squared_error"] == pytest.approx(paper["sum_squared_error"], rel=1e-9)
+    assert boxpose.mssd(SIZE, fast["pose"], truth) < 0.02
+
+
+def test_robust_fit_survives_four_outliers_that_break_the_paper_search():
+    rng = np.random.default_rng(2)
+    truth = random_pose(rng)
+    corners = transform(truth, boxpose.box_corners(SIZE))
+    outliers = truth[:3, 3] + rng.uniform(-0.4, 0.4, (4, 3))
+    points = np.vstack([corners[:4], outliers])
+    scores = np.array([0.5, 0.5, 0.5, 0.5, 1.0, 1.0, 1.0, 1.0])  # the outliers score highest
+    paper = boxpose.paper_exact_search(SIZE, points, scores, m=5)
+    robust = boxpose.robust_fit(SIZE, points)
+    assert boxpose.mssd(SIZE, robust["pose"], truth) < 1e-6
+    assert robust["inliers"] == [True] * 4 + [False] * 4
+    assert boxpose.mssd(SIZE, paper["pose"], truth) > 0.05
+
+
+def test_pose_and_size_fit_recovers_an_unknown_box():
+    rng = np.random.default_rng(3)
+    truth = random_pose(rng)
+    size = [0.25, 0.15, 0.08]
+    points = transform(truth, boxpose.box_corners(size)) + rng.normal(scale=0.001, size=(8, 3))
+    fit = boxpose.fit_pose_and_size(points)
+    assert np.allclose(sorted(fit["size"]), sorted(size), atol=0.005)
+
+
+def test_metrics_agree_with_their_definitions():
+    rng = np.random.default_rng(4)
+    truth = random_pose(rng)
+    assert boxpose.mssd(SIZE, truth, truth) == pytest.approx(0, abs=1e-12)
+    assert boxpose.iou_3d(SIZE, truth, SIZE, truth) == pytest.approx(1)
+    shifted = truth.copy()
+    shifted[:3, 3] += truth[:3, 0] * 0.15  # half the box along its own x axis
+    assert boxpose.iou_3d(SIZE, truth, SIZE, shifted) == pytest.approx(1 / 3, rel=1e-6)
+    assert boxpose.translation_error(shifted, truth) == pytest.approx(0.15)
+    # The paper's error: mean squared distance to the nearest true corner.
+    truth_corners = transform(truth, boxpose.box_corners(SIZE))
+    estimated = transform(shifted, boxpose.box_corners(SIZE))
+    expected = np.mean([np.min(np.sum((truth_corners - c) ** 2, axis=1)) for c in estimated])
+    assert boxpose.paper_error(SIZE, shifted, truth_corners) == pytest.approx(expected)
+    # A 180° turn about the box's z axis is a symmetry: no rotation error.
+    flipped = truth.copy()
+    flipped[:3, :2] *= -1
+    assert boxpose.rotation_error_deg(SIZE, flipped, truth) == pytest.approx(0, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        lambda: boxpose.kabsch(np.full((4, 3), np.nan), np.zeros((4, 3))),
+        lambda: boxpose.kabsch(np.zeros((2, 3)), np.zeros((2, 3))),
+        lambda: boxpose.kabsch(np.zeros((5, 3)), np.zeros((5, 3))),
+        lambda: boxpose.nms(np.zeros((0, 4, 4), np.float32)),
+        lambda: boxpose.robust_fit(SIZE, np.zeros((2, 3))),
+        lambda: boxpose.box_corners([0.1, -0.1, 0.1]),
+        lambda: boxpose.mssd(SIZE, np.eye(3), np.eye(4)),
+    ],
+    ids=["nan", "too-few", "coincident", "empty-heatmap", "robust-too-few", "negative-size", "bad-matrix"],
+)
+def test_bad_input_raises_value_error(call):
+    with pytest.raises(ValueError):
+        call()
+
