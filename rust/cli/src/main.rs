@@ -1,7 +1,9 @@
 //! `boxpose`: the command-line entry point of every Rust stage.
 
 mod dump;
+mod eval_geometry;
 mod inspect;
+mod render;
 mod settle;
 
 use std::path::PathBuf;
@@ -38,7 +40,15 @@ enum Command {
         /// Dataset folder.
         dataset: PathBuf,
     },
+    /// Evaluate the heatmap → pose stage on a dataset's ground truth (no network involved).
+    ///
+    /// Draws, for each instance, the heatmap a perfect network would output (a Gaussian at each
+    /// true corner, jittered by --noise-m), optionally with confident spurious peaks (the paper's
+    /// failure mode), then runs NMS, back-projection and every pose fit (paper-exact search, fast
+    /// exact search, robust fit, pose-and-size fit) and scores them against the true pose.
+    EvalGeometry(eval_geometry::Args),
     Settle(settle::Args),
+    Render(render::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -49,7 +59,9 @@ fn main() -> anyhow::Result<()> {
         }
         Command::Inspect { dataset } => inspect::run(&dataset)?,
         Command::Dump { dataset } => dump::run(&dataset)?,
+        Command::EvalGeometry(args) => eval_geometry::run(&args)?,
         Command::Settle(args) => settle::run(&args)?,
+        Command::Render(args) => render::run(&args)?,
     }
     Ok(())
 }
