@@ -9,23 +9,58 @@ pub enum DataError {
     #[error("{0}: no `{1}` shards in this dataset folder")]
     MissingTable(PathBuf, &'static str),
     #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
-    #[error("{path}: not a readable Parquet file, probably truncated or corrupt ({source}); delete it and regenerate the shard")]
-    Parquet { path: PathBuf, source: parquet::errors::ParquetError },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error(
+        "{path}: not a readable Parquet file, probably truncated or corrupt ({source}); delete it and regenerate the shard"
+    )]
+    Parquet {
+        path: PathBuf,
+        source: parquet::errors::ParquetError,
+    },
     #[error("{path}: reading Arrow data failed: {source}")]
-    Arrow { path: PathBuf, source: arrow::error::ArrowError },
+    Arrow {
+        path: PathBuf,
+        source: arrow::error::ArrowError,
+    },
     #[error("{path}: not a boxpose shard (no `{key}` in its Parquet metadata)")]
     NotAShard { path: PathBuf, key: &'static str },
-    #[error("{path}: schema version {found}, but this boxpose reads version {expected}; regenerate the dataset with this boxpose")]
-    SchemaVersion { path: PathBuf, found: String, expected: u32 },
+    #[error(
+        "{path}: schema version {found}, but this boxpose reads version {expected}; regenerate the dataset with this boxpose"
+    )]
+    SchemaVersion {
+        path: PathBuf,
+        found: String,
+        expected: u32,
+    },
     #[error("{path}: shard of table `{found}` found among `{expected}` shards")]
-    WrongTable { path: PathBuf, found: String, expected: &'static str },
+    WrongTable {
+        path: PathBuf,
+        found: String,
+        expected: &'static str,
+    },
     #[error("{path}: missing column `{column}` of table `{table}`")]
-    MissingColumn { path: PathBuf, table: &'static str, column: &'static str },
+    MissingColumn {
+        path: PathBuf,
+        table: &'static str,
+        column: &'static str,
+    },
     #[error("{path}: column `{column}` has type {found}, the schema says {expected}")]
-    WrongType { path: PathBuf, column: &'static str, found: String, expected: String },
+    WrongType {
+        path: PathBuf,
+        column: &'static str,
+        found: String,
+        expected: String,
+    },
     #[error("{path}: row {row}, column `{column}`: {problem}")]
-    BadValue { path: PathBuf, row: usize, column: &'static str, problem: String },
+    BadValue {
+        path: PathBuf,
+        row: usize,
+        column: &'static str,
+        problem: String,
+    },
 }
 
 pub type Result<T, E = DataError> = std::result::Result<T, E>;

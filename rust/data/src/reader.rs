@@ -46,10 +46,18 @@ impl Dataset {
         if !dir.is_dir() {
             return Err(DataError::MissingTable(self.root.clone(), table.name));
         }
-        let entries = fs::read_dir(&dir).map_err(|source| DataError::Io { path: dir.clone(), source })?;
+        let entries = fs::read_dir(&dir).map_err(|source| DataError::Io {
+            path: dir.clone(),
+            source,
+        })?;
         let mut shards = Vec::new();
         for entry in entries {
-            let path = entry.map_err(|source| DataError::Io { path: dir.clone(), source })?.path();
+            let path = entry
+                .map_err(|source| DataError::Io {
+                    path: dir.clone(),
+                    source,
+                })?
+                .path();
             if path.extension().is_some_and(|e| e == "parquet") {
                 shards.push(path);
             }
@@ -67,7 +75,10 @@ impl Dataset {
         let mut out = Vec::new();
         for path in self.shards(table)? {
             for batch in read_shard(&path, table)? {
-                out.push(ShardBatch { path: path.clone(), batch });
+                out.push(ShardBatch {
+                    path: path.clone(),
+                    batch,
+                });
             }
         }
         Ok(out)
@@ -75,7 +86,11 @@ impl Dataset {
 
     /// Total number of rows of `table`.
     pub fn count(&self, table: &'static Table) -> Result<usize> {
-        Ok(self.read_table(table)?.iter().map(|b| b.batch.num_rows()).sum())
+        Ok(self
+            .read_table(table)?
+            .iter()
+            .map(|b| b.batch.num_rows())
+            .sum())
     }
 
     /// Every scene, in shard order.
@@ -88,7 +103,11 @@ impl Dataset {
         self.rows(&schema::OBJECTS, Object::from_row)
     }
 
-    fn rows<T>(&self, table: &'static Table, from_row: fn(&Path, &RecordBatch, usize) -> Result<T>) -> Result<Vec<T>> {
+    fn rows<T>(
+        &self,
+        table: &'static Table,
+        from_row: fn(&Path, &RecordBatch, usize) -> Result<T>,
+    ) -> Result<Vec<T>> {
         let mut out = Vec::new();
         for sb in self.read_table(table)? {
             for row in 0..sb.batch.num_rows() {
@@ -103,12 +122,20 @@ impl Dataset {
     pub fn frames(&self) -> Result<FrameIter> {
         let mut instances: HashMap<(i64, i32), Vec<Instance>> = HashMap::new();
         for instance in self.rows(&schema::INSTANCES, Instance::from_row)? {
-            instances.entry((instance.scene_id, instance.frame_id)).or_default().push(instance);
+            instances
+                .entry((instance.scene_id, instance.frame_id))
+                .or_default()
+                .push(instance);
         }
         for list in instances.values_mut() {
             list.sort_by_key(|i| i.object_id);
         }
-        Ok(FrameIter { batches: self.read_table(&schema::FRAMES)?, batch: 0, row: 0, instances })
+        Ok(FrameIter {
+            batches: self.read_table(&schema::FRAMES)?,
+            batch: 0,
+            row: 0,
+            instances,
+        })
     }
 }
 
@@ -124,7 +151,9 @@ impl Iterator for FrameIter {
     type Item = Result<Frame>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        while self.batch < self.batches.len() && self.row >= self.batches[self.batch].batch.num_rows() {
+        while self.batch < self.batches.len()
+            && self.row >= self.batches[self.batch].batch.num_rows()
+        {
             self.batch += 1;
             self.row = 0;
         }
@@ -132,7 +161,10 @@ impl Iterator for FrameIter {
         let row = self.row;
         self.row += 1;
         Some(Frame::from_row(&sb.path, &sb.batch, row).map(|mut frame| {
-            frame.instances = self.instances.remove(&(frame.scene_id, frame.frame_id)).unwrap_or_default();
+            frame.instances = self
+                .instances
+                .remove(&(frame.scene_id, frame.frame_id))
+                .unwrap_or_default();
             frame
         }))
     }
@@ -140,17 +172,30 @@ impl Iterator for FrameIter {
 
 /// Reads and validates one shard of `table`.
 pub fn read_shard(path: &Path, table: &'static Table) -> Result<Vec<RecordBatch>> {
-    let file = fs::File::open(path).map_err(|source| DataError::Io { path: path.to_path_buf(), source })?;
-    let parquet = |source| DataError::Parquet { path: path.to_path_buf(), source };
+    let file = fs::File::open(path).map_err(|source| DataError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let parquet = |source| DataError::Parquet {
+        path: path.to_path_buf(),
+        source,
+    };
     let builder = ParquetRecordBatchReaderBuilder::try_new(file).map_err(parquet)?;
-    check_metadata(path, table, builder.metadata().file_metadata().key_value_metadata())?;
+    check_metadata(
+        path,
+        table,
+        builder.metadata().file_metadata().key_value_metadata(),
+    )?;
     check_columns(path, table, builder.schema())?;
     let expected_rows = builder.metadata().file_metadata().num_rows() as usize;
     let reader = builder.build().map_err(parquet)?;
     let mut batches = Vec::new();
     let mut first_row = 0;
     for batch in reader {
-        let batch = batch.map_err(|source| DataError::Arrow { path: path.to_path_buf(), source })?;
+        let batch = batch.map_err(|source| DataError::Arrow {
+            path: path.to_path_buf(),
+            source,
+        })?;
         check_values(path, table, &batch, first_row)?;
         first_row += batch.num_rows();
         batches.push(batch);
@@ -166,15 +211,36 @@ pub fn read_shard(path: &Path, table: &'static Table) -> Result<Vec<RecordBatch>
     Ok(batches)
 }
 
-fn check_metadata(path: &Path, table: &'static Table, kv: Option<&Vec<parquet::file::metadata::KeyValue>>) -> Result<()> {
-    let get = |key: &str| kv.and_then(|kv| kv.iter().find(|e| e.key == key)).and_then(|e| e.value.clone());
-    let version = get(VERSION_KEY).ok_or(DataError::NotAShard { path: path.to_path_buf(), key: VERSION_KEY })?;
+fn check_metadata(
+    path: &Path,
+    table: &'static Table,
+    kv: Option<&Vec<parquet::file::metadata::KeyValue>>,
+) -> Result<()> {
+    let get = |key: &str| {
+        kv.and_then(|kv| kv.iter().find(|e| e.key == key))
+            .and_then(|e| e.value.clone())
+    };
+    let version = get(VERSION_KEY).ok_or(DataError::NotAShard {
+        path: path.to_path_buf(),
+        key: VERSION_KEY,
+    })?;
     if version != SCHEMA_VERSION.to_string() {
-        return Err(DataError::SchemaVersion { path: path.to_path_buf(), found: version, expected: SCHEMA_VERSION });
+        return Err(DataError::SchemaVersion {
+            path: path.to_path_buf(),
+            found: version,
+            expected: SCHEMA_VERSION,
+        });
     }
-    let found = get(TABLE_KEY).ok_or(DataError::NotAShard { path: path.to_path_buf(), key: TABLE_KEY })?;
+    let found = get(TABLE_KEY).ok_or(DataError::NotAShard {
+        path: path.to_path_buf(),
+        key: TABLE_KEY,
+    })?;
     if found != table.name {
-        return Err(DataError::WrongTable { path: path.to_path_buf(), found, expected: table.name });
+        return Err(DataError::WrongTable {
+            path: path.to_path_buf(),
+            found,
+            expected: table.name,
+        });
     }
     Ok(())
 }
@@ -188,13 +254,20 @@ fn same_type(found: &DataType, expected: &DataType) -> bool {
     }
 }
 
-fn check_columns(path: &Path, table: &'static Table, arrow_schema: &arrow::datatypes::Schema) -> Result<()> {
+fn check_columns(
+    path: &Path,
+    table: &'static Table,
+    arrow_schema: &arrow::datatypes::Schema,
+) -> Result<()> {
     for column in table.columns {
-        let field = arrow_schema.field_with_name(column.name).map_err(|_| DataError::MissingColumn {
-            path: path.to_path_buf(),
-            table: table.name,
-            column: column.name,
-        })?;
+        let field =
+            arrow_schema
+                .field_with_name(column.name)
+                .map_err(|_| DataError::MissingColumn {
+                    path: path.to_path_buf(),
+                    table: table.name,
+                    column: column.name,
+                })?;
         let expected = column.arrow_type();
         if !same_type(field.data_type(), &expected) {
             return Err(DataError::WrongType {
@@ -210,7 +283,12 @@ fn check_columns(path: &Path, table: &'static Table, arrow_schema: &arrow::datat
 
 /// Rejects nulls in non-nullable columns, non-finite floats anywhere, and quaternions that are
 /// not of unit norm: a pose with NaN in it must never reach training or evaluation.
-fn check_values(path: &Path, table: &'static Table, batch: &RecordBatch, first_row: usize) -> Result<()> {
+fn check_values(
+    path: &Path,
+    table: &'static Table,
+    batch: &RecordBatch,
+    first_row: usize,
+) -> Result<()> {
     let bad = |row: usize, column: &'static str, problem: String| DataError::BadValue {
         path: path.to_path_buf(),
         row: first_row + row,
@@ -218,15 +296,25 @@ fn check_values(path: &Path, table: &'static Table, batch: &RecordBatch, first_r
         problem,
     };
     for column in table.columns {
-        let array = batch.column_by_name(column.name).expect("columns were checked");
+        let array = batch
+            .column_by_name(column.name)
+            .expect("columns were checked");
         if !column.nullable && array.null_count() > 0 {
             let row = (0..array.len()).find(|&r| array.is_null(r)).unwrap_or(0);
-            return Err(bad(row, column.name, "null in a column that must have a value".into()));
+            return Err(bad(
+                row,
+                column.name,
+                "null in a column that must have a value".into(),
+            ));
         }
         let Some(width) = column.list_size else {
             if let Some(values) = floats(array.as_ref()) {
                 if let Some(row) = values.iter().position(|v| !v.is_finite()) {
-                    return Err(bad(row, column.name, format!("non-finite value {}", values[row])));
+                    return Err(bad(
+                        row,
+                        column.name,
+                        format!("non-finite value {}", values[row]),
+                    ));
                 }
             }
             continue;
@@ -239,7 +327,11 @@ fn check_values(path: &Path, table: &'static Table, batch: &RecordBatch, first_r
         for row in (0..list.len()).filter(|&r| list.is_valid(r)) {
             let (start, end) = (offsets[row] as usize, offsets[row + 1] as usize);
             if end - start != width {
-                return Err(bad(row, column.name, format!("{} values, the schema says {width}", end - start)));
+                return Err(bad(
+                    row,
+                    column.name,
+                    format!("{} values, the schema says {width}", end - start),
+                ));
             }
             if (start..end).any(|i| elements.is_null(i)) {
                 return Err(bad(row, column.name, "null element inside a list".into()));
@@ -247,12 +339,20 @@ fn check_values(path: &Path, table: &'static Table, batch: &RecordBatch, first_r
             let Some(values) = &floats else { continue };
             let item = &values[start..end];
             if let Some(v) = item.iter().find(|v| !v.is_finite()) {
-                return Err(bad(row, column.name, format!("non-finite value {v} in {item:?}")));
+                return Err(bad(
+                    row,
+                    column.name,
+                    format!("non-finite value {v} in {item:?}"),
+                ));
             }
             if column.name.ends_with("_quat_wxyz") {
                 let norm = item.iter().map(|v| v * v).sum::<f64>().sqrt();
                 if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
-                    return Err(bad(row, column.name, format!("quaternion {item:?} has norm {norm}, not 1")));
+                    return Err(bad(
+                        row,
+                        column.name,
+                        format!("quaternion {item:?} has norm {norm}, not 1"),
+                    ));
                 }
             }
         }
@@ -264,7 +364,14 @@ fn check_values(path: &Path, table: &'static Table, batch: &RecordBatch, first_r
 fn floats(array: &dyn Array) -> Option<Vec<f64>> {
     match array.data_type() {
         DataType::Float64 => Some(array.as_primitive::<Float64Type>().values().to_vec()),
-        DataType::Float32 => Some(array.as_primitive::<Float32Type>().values().iter().map(|&v| v as f64).collect()),
+        DataType::Float32 => Some(
+            array
+                .as_primitive::<Float32Type>()
+                .values()
+                .iter()
+                .map(|&v| v as f64)
+                .collect(),
+        ),
         _ => None,
     }
 }

@@ -3,7 +3,9 @@
 use std::path::Path;
 
 use arrow::array::{Array, AsArray};
-use arrow::datatypes::{ArrowPrimitiveType, Float32Type, Float64Type, Int8Type, Int32Type, Int64Type};
+use arrow::datatypes::{
+    ArrowPrimitiveType, Float32Type, Float64Type, Int8Type, Int32Type, Int64Type,
+};
 use arrow::record_batch::RecordBatch;
 
 use crate::error::{DataError, Result};
@@ -20,7 +22,10 @@ pub struct Intrinsics {
 impl Intrinsics {
     /// Projects a camera-frame point (OpenCV axes) to pixel coordinates.
     pub fn project(&self, p: [f64; 3]) -> [f64; 2] {
-        [self.fx * p[0] / p[2] + self.cx, self.fy * p[1] / p[2] + self.cy]
+        [
+            self.fx * p[0] / p[2] + self.cx,
+            self.fy * p[1] / p[2] + self.cy,
+        ]
     }
 }
 
@@ -144,11 +149,19 @@ struct Row<'a> {
 
 impl Row<'_> {
     fn bad(&self, column: &'static str, problem: impl Into<String>) -> DataError {
-        DataError::BadValue { path: self.path.to_path_buf(), row: self.row, column, problem: problem.into() }
+        DataError::BadValue {
+            path: self.path.to_path_buf(),
+            row: self.row,
+            column,
+            problem: problem.into(),
+        }
     }
 
     fn array(&self, column: &'static str) -> &dyn Array {
-        self.batch.column_by_name(column).expect("columns were validated on read").as_ref()
+        self.batch
+            .column_by_name(column)
+            .expect("columns were validated on read")
+            .as_ref()
     }
 
     fn scalar<T: ArrowPrimitiveType>(&self, column: &'static str) -> T::Native {
@@ -156,7 +169,10 @@ impl Row<'_> {
     }
 
     fn string(&self, column: &'static str) -> String {
-        self.array(column).as_string::<i32>().value(self.row).to_string()
+        self.array(column)
+            .as_string::<i32>()
+            .value(self.row)
+            .to_string()
     }
 
     fn bytes(&self, column: &'static str) -> Option<&[u8]> {
@@ -165,7 +181,10 @@ impl Row<'_> {
     }
 
     /// A list column's row as an array; lengths were validated on read.
-    fn list<T: ArrowPrimitiveType, const N: usize>(&self, column: &'static str) -> Option<[T::Native; N]> {
+    fn list<T: ArrowPrimitiveType, const N: usize>(
+        &self,
+        column: &'static str,
+    ) -> Option<[T::Native; N]> {
         let list = self.array(column).as_list::<i32>();
         if list.is_null(self.row) {
             return None;
@@ -175,12 +194,19 @@ impl Row<'_> {
         Some(std::array::from_fn(|i| values[i]))
     }
 
-    fn required<T: ArrowPrimitiveType, const N: usize>(&self, column: &'static str) -> [T::Native; N] {
-        self.list::<T, N>(column).expect("non-nullable columns were validated on read")
+    fn required<T: ArrowPrimitiveType, const N: usize>(
+        &self,
+        column: &'static str,
+    ) -> [T::Native; N] {
+        self.list::<T, N>(column)
+            .expect("non-nullable columns were validated on read")
     }
 
     fn pose(&self, quat: &'static str, translation: &'static str) -> Pose {
-        Pose { quat_wxyz: self.required::<Float64Type, 4>(quat), translation: self.required::<Float64Type, 3>(translation) }
+        Pose {
+            quat_wxyz: self.required::<Float64Type, 4>(quat),
+            translation: self.required::<Float64Type, 3>(translation),
+        }
     }
 }
 
@@ -224,7 +250,10 @@ impl Object {
             object_id: r.scalar::<Int32Type>("object_id"),
             size,
             world_box: r.pose("world_box_quat_wxyz", "world_box_translation_m"),
-            initial_world_box: r.pose("initial_world_box_quat_wxyz", "initial_world_box_translation_m"),
+            initial_world_box: r.pose(
+                "initial_world_box_quat_wxyz",
+                "initial_world_box_translation_m",
+            ),
             mass_kg: r.scalar::<Float64Type>("mass_kg"),
             friction: r.scalar::<Float64Type>("friction"),
             base_color_rgb: r.required::<Float32Type, 3>("base_color_rgb"),
@@ -242,8 +271,12 @@ impl Instance {
         let codes = r.required::<Int8Type, 8>("corner_visibility");
         let mut visibility = [Visibility::Visible; 8];
         for (v, &code) in visibility.iter_mut().zip(&codes) {
-            *v = Visibility::from_code(code)
-                .ok_or_else(|| r.bad("corner_visibility", format!("unknown visibility code {code} (0..=3)")))?;
+            *v = Visibility::from_code(code).ok_or_else(|| {
+                r.bad(
+                    "corner_visibility",
+                    format!("unknown visibility code {code} (0..=3)"),
+                )
+            })?;
         }
         Ok(Self {
             scene_id: r.scalar::<Int64Type>("scene_id"),
@@ -254,7 +287,9 @@ impl Instance {
             corners_camera: chunks(r.required::<Float64Type, 24>("corners_camera_m")),
             corners_px: chunks(r.required::<Float64Type, 16>("corners_px")),
             visibility,
-            label_keypoints_camera: r.list::<Float64Type, 12>("label_keypoints_camera_m").map(chunks),
+            label_keypoints_camera: r
+                .list::<Float64Type, 12>("label_keypoints_camera_m")
+                .map(chunks),
             label_keypoints_px: r.list::<Float64Type, 8>("label_keypoints_px").map(chunks),
             visible_bbox: r.list::<Int32Type, 4>("visible_bbox_px"),
             visible_pixels: r.scalar::<Int32Type>("visible_pixels"),
@@ -266,7 +301,10 @@ impl Instance {
 impl Frame {
     pub(crate) fn from_row(path: &Path, batch: &RecordBatch, row: usize) -> Result<Self> {
         let r = Row { path, batch, row };
-        let (width, height) = (r.scalar::<Int32Type>("width"), r.scalar::<Int32Type>("height"));
+        let (width, height) = (
+            r.scalar::<Int32Type>("width"),
+            r.scalar::<Int32Type>("height"),
+        );
         if width <= 0 || height <= 0 {
             return Err(r.bad("width", format!("image size {width} × {height} is empty")));
         }
@@ -290,12 +328,28 @@ impl Frame {
             denoise: r.array("denoise").as_boolean().value(row),
             render_seed: r.scalar::<Int64Type>("render_seed"),
             blender_version: r.string("blender_version"),
-            rgb: decode_png(&r, "rgb_png", rgb_png, width, height, png::ColorType::Rgb, png::BitDepth::Eight)?,
+            rgb: decode_png(
+                &r,
+                "rgb_png",
+                rgb_png,
+                width,
+                height,
+                png::ColorType::Rgb,
+                png::BitDepth::Eight,
+            )?,
             depth: decode_depth(&r, "depth_m_f32le", depth_bytes, width, height)?,
-            instance_mask: decode_png(&r, "instance_mask_png", mask_png, width, height, png::ColorType::Grayscale, png::BitDepth::Sixteen)?
-                .chunks_exact(2)
-                .map(|b| u16::from_be_bytes([b[0], b[1]]))
-                .collect(),
+            instance_mask: decode_png(
+                &r,
+                "instance_mask_png",
+                mask_png,
+                width,
+                height,
+                png::ColorType::Grayscale,
+                png::BitDepth::Sixteen,
+            )?
+            .chunks_exact(2)
+            .map(|b| u16::from_be_bytes([b[0], b[1]]))
+            .collect(),
             sensor_depth: r
                 .bytes("sensor_depth_m_f32le")
                 .map(|bytes| decode_depth(&r, "sensor_depth_m_f32le", bytes, width, height))
@@ -320,26 +374,56 @@ fn decode_png(
         .read_info()
         .map_err(|e| r.bad(column, format!("not a decodable PNG: {e}")))?;
     let info = reader.info();
-    let found = (info.width as usize, info.height as usize, info.color_type, info.bit_depth);
+    let found = (
+        info.width as usize,
+        info.height as usize,
+        info.color_type,
+        info.bit_depth,
+    );
     if found != (width, height, color, depth) {
         return Err(r.bad(
             column,
-            format!("PNG is {}×{} {:?} {:?}-bit, expected {width}×{height} {color:?} {depth:?}-bit", found.0, found.1, found.2, found.3),
+            format!(
+                "PNG is {}×{} {:?} {:?}-bit, expected {width}×{height} {color:?} {depth:?}-bit",
+                found.0, found.1, found.2, found.3
+            ),
         ));
     }
     let mut buf = vec![0; reader.output_buffer_size().unwrap_or(0)];
-    let frame = reader.next_frame(&mut buf).map_err(|e| r.bad(column, format!("PNG decode failed: {e}")))?;
+    let frame = reader
+        .next_frame(&mut buf)
+        .map_err(|e| r.bad(column, format!("PNG decode failed: {e}")))?;
     buf.truncate(frame.buffer_size());
     Ok(buf)
 }
 
-fn decode_depth(r: &Row, column: &'static str, bytes: &[u8], width: usize, height: usize) -> Result<Vec<f32>> {
+fn decode_depth(
+    r: &Row,
+    column: &'static str,
+    bytes: &[u8],
+    width: usize,
+    height: usize,
+) -> Result<Vec<f32>> {
     if bytes.len() != width * height * 4 {
-        return Err(r.bad(column, format!("{} bytes, expected {width}×{height}×4", bytes.len())));
+        return Err(r.bad(
+            column,
+            format!("{} bytes, expected {width}×{height}×4", bytes.len()),
+        ));
     }
-    let depth: Vec<f32> = bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    let depth: Vec<f32> = bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
     if let Some(i) = depth.iter().position(|d| !d.is_finite() || *d < 0.0) {
-        return Err(r.bad(column, format!("depth {} at pixel ({}, {}) is not a finite non-negative distance", depth[i], i % width, i / width)));
+        return Err(r.bad(
+            column,
+            format!(
+                "depth {} at pixel ({}, {}) is not a finite non-negative distance",
+                depth[i],
+                i % width,
+                i / width
+            ),
+        ));
     }
     Ok(depth)
 }

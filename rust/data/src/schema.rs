@@ -10,7 +10,6 @@
 //! top-left pixel at (0, 0); box corner i has sign pattern bit0 → x, bit1 → y, bit2 → z
 //! (0 = −, 1 = +).
 
-
 use arrow::datatypes::{DataType, Field, Schema};
 
 /// Version of the contract. Bump it on any change to [`TABLES`]; readers refuse other versions.
@@ -113,33 +112,73 @@ impl Table {
             (TABLE_KEY.to_string(), self.name.to_string()),
         ]
         .into();
-        Schema::new(self.columns.iter().map(Column::field).collect::<Vec<_>>()).with_metadata(metadata)
+        Schema::new(self.columns.iter().map(Column::field).collect::<Vec<_>>())
+            .with_metadata(metadata)
     }
 }
 
 const fn col(name: &'static str, scalar: Scalar, unit: &'static str, doc: &'static str) -> Column {
-    Column { name, scalar, list_size: None, nullable: false, unit, doc }
+    Column {
+        name,
+        scalar,
+        list_size: None,
+        nullable: false,
+        unit,
+        doc,
+    }
 }
 
-const fn list(name: &'static str, scalar: Scalar, n: i32, unit: &'static str, doc: &'static str) -> Column {
-    Column { name, scalar, list_size: Some(n), nullable: false, unit, doc }
+const fn list(
+    name: &'static str,
+    scalar: Scalar,
+    n: i32,
+    unit: &'static str,
+    doc: &'static str,
+) -> Column {
+    Column {
+        name,
+        scalar,
+        list_size: Some(n),
+        nullable: false,
+        unit,
+        doc,
+    }
 }
 
 const fn nullable(c: Column) -> Column {
-    Column { nullable: true, ..c }
+    Column {
+        nullable: true,
+        ..c
+    }
 }
 
 use Scalar::*;
 
-const SCENE_ID: Column = col("scene_id", Int64, "", "Scene index within the dataset (0-based, unique across shards).");
-const FRAME_ID: Column = col("frame_id", Int32, "", "View index within the scene (0-based).");
+const SCENE_ID: Column = col(
+    "scene_id",
+    Int64,
+    "",
+    "Scene index within the dataset (0-based, unique across shards).",
+);
+const FRAME_ID: Column = col(
+    "frame_id",
+    Int32,
+    "",
+    "View index within the scene (0-based).",
+);
 const OBJECT_ID: Column = col(
     "object_id",
     Int32,
     "",
     "Box index within the scene (0-based). Its pixels in `instance_mask_png` hold object_id + 1.",
 );
-const SIZE: Column = list("size_m", Float64, 3, "m, box frame", "Edge lengths (dx, dy, dz) along the box axes.");
+const SIZE: Column = list(
+    "size_m",
+    Float64,
+    3,
+    "m, box frame",
+    "Edge lengths (dx, dy, dz) along the box axes.",
+);
 
 pub const SCENES: Table = Table {
     name: "scenes",
@@ -147,26 +186,96 @@ pub const SCENES: Table = Table {
     key: &["scene_id"],
     columns: &[
         SCENE_ID,
-        col("seed", Int64, "", "Seed of this scene, derived from the recipe seed and scene_id."),
-        col("recipe", Utf8, "", "Recipe name (file stem under datasets/recipes/)."),
-        col("recipe_toml", Utf8, "", "Full text of the recipe the scene was generated from."),
-        col("tool_versions", Utf8, "", "JSON object of tool versions, e.g. {\"drake\": \"1.51.1\", \"python\": \"3.11.7\"}."),
-        col("physics_backend", Utf8, "", "Simulator that settled the scene: \"drake\" or \"mujoco\"."),
-        col("support", Utf8, "", "Support surface: \"floor\", \"bin\" or \"pallet\"."),
-        col("num_objects", Int32, "", "Number of boxes in the scene (rows in `objects`)."),
-        col("solver", Utf8, "", "Solver of the non-penetration projection: \"SNOPT\" or \"IPOPT\"."),
-        col("solver_status", Utf8, "", "Solver result of the accepted projection."),
-        col("solve_attempts", Int32, "", "Projection attempts used (jittered retries after a failure)."),
-        col("settle_time_s", Float64, "s", "Simulated time until the scene was certified at rest."),
-        col("max_linear_speed_mps", Float64, "m/s", "Largest body linear speed over the final rest window."),
-        col("max_angular_speed_radps", Float64, "rad/s", "Largest body angular speed over the final rest window."),
+        col(
+            "seed",
+            Int64,
+            "",
+            "Seed of this scene, derived from the recipe seed and scene_id.",
+        ),
+        col(
+            "recipe",
+            Utf8,
+            "",
+            "Recipe name (file stem under datasets/recipes/).",
+        ),
+        col(
+            "recipe_toml",
+            Utf8,
+            "",
+            "Full text of the recipe the scene was generated from.",
+        ),
+        col(
+            "tool_versions",
+            Utf8,
+            "",
+            "JSON object of tool versions, e.g. {\"drake\": \"1.51.1\", \"python\": \"3.11.7\"}.",
+        ),
+        col(
+            "physics_backend",
+            Utf8,
+            "",
+            "Simulator that settled the scene: \"drake\" or \"mujoco\".",
+        ),
+        col(
+            "support",
+            Utf8,
+            "",
+            "Support surface: \"floor\", \"bin\" or \"pallet\".",
+        ),
+        col(
+            "num_objects",
+            Int32,
+            "",
+            "Number of boxes in the scene (rows in `objects`).",
+        ),
+        col(
+            "solver",
+            Utf8,
+            "",
+            "Solver of the non-penetration projection: \"SNOPT\" or \"IPOPT\".",
+        ),
+        col(
+            "solver_status",
+            Utf8,
+            "",
+            "Solver result of the accepted projection.",
+        ),
+        col(
+            "solve_attempts",
+            Int32,
+            "",
+            "Projection attempts used (jittered retries after a failure).",
+        ),
+        col(
+            "settle_time_s",
+            Float64,
+            "s",
+            "Simulated time until the scene was certified at rest.",
+        ),
+        col(
+            "max_linear_speed_mps",
+            Float64,
+            "m/s",
+            "Largest body linear speed over the final rest window.",
+        ),
+        col(
+            "max_angular_speed_radps",
+            Float64,
+            "rad/s",
+            "Largest body angular speed over the final rest window.",
+        ),
         col(
             "min_signed_distance_m",
             Float64,
             "m",
             "Smallest signed distance between any two bodies (support included) in the settled scene; negative = penetration.",
         ),
-        col("stable", Bool, "", "True when every stability check passed. Only stable scenes are written."),
+        col(
+            "stable",
+            Bool,
+            "",
+            "True when every stability check passed. Only stable scenes are written.",
+        ),
     ],
 };
 
@@ -178,8 +287,20 @@ pub const OBJECTS: Table = Table {
         SCENE_ID,
         OBJECT_ID,
         SIZE,
-        list("world_box_quat_wxyz", Float64, 4, "world frame", "Rotation of T_world_box (settled pose), unit quaternion."),
-        list("world_box_translation_m", Float64, 3, "m, world frame", "Translation of T_world_box: the box centre."),
+        list(
+            "world_box_quat_wxyz",
+            Float64,
+            4,
+            "world frame",
+            "Rotation of T_world_box (settled pose), unit quaternion.",
+        ),
+        list(
+            "world_box_translation_m",
+            Float64,
+            3,
+            "m, world frame",
+            "Translation of T_world_box: the box centre.",
+        ),
         list(
             "initial_world_box_quat_wxyz",
             Float64,
@@ -187,14 +308,51 @@ pub const OBJECTS: Table = Table {
             "world frame",
             "Rotation of T_world_box before the drop (after the non-penetration projection).",
         ),
-        list("initial_world_box_translation_m", Float64, 3, "m, world frame", "Translation of T_world_box before the drop."),
+        list(
+            "initial_world_box_translation_m",
+            Float64,
+            3,
+            "m, world frame",
+            "Translation of T_world_box before the drop.",
+        ),
         col("mass_kg", Float64, "kg", "Mass (uniform density)."),
-        col("friction", Float64, "", "Coulomb friction coefficient (static = dynamic)."),
-        list("base_color_rgb", Float32, 3, "linear RGB in [0, 1]", "Cardboard base colour."),
-        col("roughness", Float32, "", "Principled BSDF roughness in [0, 1]."),
-        col("texture_seed", Int64, "", "Seed of the procedural cardboard texture, tape and label placement."),
-        col("has_tape", Bool, "", "Whether tape strips are drawn on the box."),
-        col("has_label", Bool, "", "Whether a printed label is drawn on the box's +z face."),
+        col(
+            "friction",
+            Float64,
+            "",
+            "Coulomb friction coefficient (static = dynamic).",
+        ),
+        list(
+            "base_color_rgb",
+            Float32,
+            3,
+            "linear RGB in [0, 1]",
+            "Cardboard base colour.",
+        ),
+        col(
+            "roughness",
+            Float32,
+            "",
+            "Principled BSDF roughness in [0, 1].",
+        ),
+        col(
+            "texture_seed",
+            Int64,
+            "",
+            "Seed of the procedural cardboard texture, tape and label placement.",
+        ),
+        col(
+            "has_tape",
+            Bool,
+            "",
+            "Whether tape strips are drawn on the box.",
+        ),
+        col(
+            "has_label",
+            Bool,
+            "",
+            "Whether a printed label is drawn on the box's +z face.",
+        ),
     ],
 };
 
@@ -207,23 +365,60 @@ pub const FRAMES: Table = Table {
         FRAME_ID,
         col("width", Int32, "px", "Image width."),
         col("height", Int32, "px", "Image height."),
-        col("fx", Float64, "px", "Focal length along x (pinhole, no distortion)."),
+        col(
+            "fx",
+            Float64,
+            "px",
+            "Focal length along x (pinhole, no distortion).",
+        ),
         col("fy", Float64, "px", "Focal length along y."),
-        col("cx", Float64, "px", "Principal point x (top-left pixel centre = 0)."),
+        col(
+            "cx",
+            Float64,
+            "px",
+            "Principal point x (top-left pixel centre = 0).",
+        ),
         col("cy", Float64, "px", "Principal point y."),
-        list("world_camera_quat_wxyz", Float64, 4, "world frame", "Rotation of T_world_camera (OpenCV camera axes)."),
-        list("world_camera_translation_m", Float64, 3, "m, world frame", "Camera centre in the world."),
-        col("render_seed", Int64, "", "Seed of the Cycles sampler and of the lighting draw."),
+        list(
+            "world_camera_quat_wxyz",
+            Float64,
+            4,
+            "world frame",
+            "Rotation of T_world_camera (OpenCV camera axes).",
+        ),
+        list(
+            "world_camera_translation_m",
+            Float64,
+            3,
+            "m, world frame",
+            "Camera centre in the world.",
+        ),
+        col(
+            "render_seed",
+            Int64,
+            "",
+            "Seed of the Cycles sampler and of the lighting draw.",
+        ),
         col("samples", Int32, "", "Cycles samples per pixel."),
         col("denoise", Bool, "", "Whether OpenImageDenoise was applied."),
-        col("blender_version", Utf8, "", "Blender (bpy) version that rendered the frame."),
+        col(
+            "blender_version",
+            Utf8,
+            "",
+            "Blender (bpy) version that rendered the frame.",
+        ),
         col(
             "render_settings",
             Utf8,
             "",
             "JSON object of everything else the render depends on (lights, world colour, exposure), for exact re-rendering.",
         ),
-        col("render_time_s", Float64, "s", "Wall time of the render on the generating machine."),
+        col(
+            "render_time_s",
+            Float64,
+            "s",
+            "Wall time of the render on the generating machine.",
+        ),
         col("rgb_png", Binary, "", "8-bit sRGB PNG, height × width × 3."),
         col(
             "depth_m_f32le",
@@ -255,10 +450,34 @@ pub const INSTANCES: Table = Table {
         FRAME_ID,
         OBJECT_ID,
         SIZE,
-        list("camera_box_quat_wxyz", Float64, 4, "camera frame", "Rotation of T_camera_box."),
-        list("camera_box_translation_m", Float64, 3, "m, camera frame", "Box centre in the camera frame."),
-        list("corners_camera_m", Float64, 24, "m, camera frame", "The 8 corners, 8 × 3 row-major, in corner order."),
-        list("corners_px", Float64, 16, "px", "The 8 corners projected, 8 × (u, v) row-major."),
+        list(
+            "camera_box_quat_wxyz",
+            Float64,
+            4,
+            "camera frame",
+            "Rotation of T_camera_box.",
+        ),
+        list(
+            "camera_box_translation_m",
+            Float64,
+            3,
+            "m, camera frame",
+            "Box centre in the camera frame.",
+        ),
+        list(
+            "corners_camera_m",
+            Float64,
+            24,
+            "m, camera frame",
+            "The 8 corners, 8 × 3 row-major, in corner order.",
+        ),
+        list(
+            "corners_px",
+            Float64,
+            16,
+            "px",
+            "The 8 corners projected, 8 × (u, v) row-major.",
+        ),
         list(
             "corner_visibility",
             Int8,
@@ -273,7 +492,13 @@ pub const INSTANCES: Table = Table {
             "m, camera frame",
             "Corners of the printed label (4 × 3), null when the box has no label.",
         )),
-        nullable(list("label_keypoints_px", Float64, 8, "px", "Label corners projected, 4 × (u, v).")),
+        nullable(list(
+            "label_keypoints_px",
+            Float64,
+            8,
+            "px",
+            "Label corners projected, 4 × (u, v).",
+        )),
         nullable(list(
             "visible_bbox_px",
             Int32,
@@ -281,7 +506,12 @@ pub const INSTANCES: Table = Table {
             "px",
             "Bounding box of the visible mask: (x_min, y_min, x_max, y_max), max exclusive; null when no pixel is visible.",
         )),
-        col("visible_pixels", Int32, "px", "Pixels of this box in the instance mask."),
+        col(
+            "visible_pixels",
+            Int32,
+            "px",
+            "Pixels of this box in the instance mask.",
+        ),
         col(
             "visible_fraction",
             Float32,
@@ -327,15 +557,30 @@ pub fn to_json() -> serde_json::Value {
 pub fn to_markdown() -> String {
     let mut out = format!("Schema version {SCHEMA_VERSION}.\n");
     for t in TABLES {
-        out += &format!("\n### `{}`\n\n{} Key: {}.\n\n", t.name, t.doc, t.key.join(", "));
+        out += &format!(
+            "\n### `{}`\n\n{} Key: {}.\n\n",
+            t.name,
+            t.doc,
+            t.key.join(", ")
+        );
         out += "| column | type | unit / frame | description |\n|---|---|---|---|\n";
         for c in t.columns {
             let ty = match c.list_size {
                 None => c.scalar.name().trim_end_matches('_').to_string(),
                 Some(n) => format!("{}[{n}]", c.scalar.name().trim_end_matches('_')),
             };
-            let ty = if c.nullable { format!("{ty}, nullable") } else { ty };
-            out += &format!("| `{}` | {} | {} | {} |\n", c.name, ty, c.unit, c.doc.replace('|', "\\|"));
+            let ty = if c.nullable {
+                format!("{ty}, nullable")
+            } else {
+                ty
+            };
+            out += &format!(
+                "| `{}` | {} | {} | {} |\n",
+                c.name,
+                ty,
+                c.unit,
+                c.doc.replace('|', "\\|")
+            );
         }
     }
     out
@@ -350,7 +595,12 @@ mod tests {
     fn column_names_are_unique_per_table_and_keys_exist() {
         for t in TABLES {
             let names: HashSet<_> = t.columns.iter().map(|c| c.name).collect();
-            assert_eq!(names.len(), t.columns.len(), "duplicate column in {}", t.name);
+            assert_eq!(
+                names.len(),
+                t.columns.len(),
+                "duplicate column in {}",
+                t.name
+            );
             for k in t.key {
                 assert!(t.column(k).is_some(), "key {k} missing from {}", t.name);
             }
@@ -360,10 +610,17 @@ mod tests {
     /// The Python writers load `python/boxpose_io/schema.json`; it must be this module, verbatim.
     #[test]
     fn python_schema_json_matches_this_module() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../python/boxpose_io/schema.json");
+        let path = concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../python/boxpose_io/schema.json"
+        );
         let on_disk: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(path).expect("read schema.json")).expect("parse schema.json");
-        assert!(on_disk == to_json(), "{path} is stale: regenerate it with `make schema`");
+            serde_json::from_str(&std::fs::read_to_string(path).expect("read schema.json"))
+                .expect("parse schema.json");
+        assert!(
+            on_disk == to_json(),
+            "{path} is stale: regenerate it with `make schema`"
+        );
     }
 
     /// `docs/dataset.md` embeds the column reference between two markers.
@@ -373,6 +630,9 @@ mod tests {
         let doc = std::fs::read_to_string(path).expect("read docs/dataset.md");
         let begin = doc.find(crate::DOC_BEGIN).expect("begin marker") + crate::DOC_BEGIN.len();
         let end = doc.find(crate::DOC_END).expect("end marker");
-        assert!(doc[begin..end].trim() == to_markdown().trim(), "{path} is stale: regenerate it with `make schema`");
+        assert!(
+            doc[begin..end].trim() == to_markdown().trim(),
+            "{path} is stale: regenerate it with `make schema`"
+        );
     }
 }

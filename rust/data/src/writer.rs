@@ -1,6 +1,7 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
+use arrow::datatypes::SchemaRef;
 use arrow::record_batch::RecordBatch;
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
@@ -15,18 +16,23 @@ pub fn shard_file_name(shard: usize, num_shards: usize) -> String {
     format!("part-{shard:05}-of-{num_shards:05}.parquet")
 }
 
-/// Writes `batches` as `<dataset>/<table>/<file_name>`: first under a `.tmp` name, then renamed
-/// once complete and synced, so an interrupted job never leaves a half shard that looks valid.
+/// Writes `batches` as `<dataset>/<table>/<file_name>`, atomically (see [`write_parquet`]).
 /// The batches must carry the table's schema (see [`Table::arrow_schema`]).
 pub fn write_shard(dataset: &Path, table: &Table, file_name: &str, batches: &[RecordBatch]) -> Result<PathBuf> {
-    let dir = dataset.join(table.name);
-    fs::create_dir_all(&dir).map_err(|source| DataError::Io { path: dir.clone(), source })?;
-    let path = dir.join(file_name);
-    let tmp = dir.join(format!("{file_name}.tmp"));
+    let path = dataset.join(table.name).join(file_name);
+    write_parquet(&path, std::sync::Arc::new(table.arrow_schema()), batches)?;
+    Ok(path)
+}
+
+/// Writes `batches` (zstd) first under a `.tmp` name, then renames the file once complete and
+/// synced, so an interrupted job never leaves a half file that looks valid.
+pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) -> Result<()> {
+    let dir = path.parent().unwrap_or(Path::new("."));
+    fs::create_dir_all(dir).map_err(|source| DataError::Io { path: dir.to_path_buf(), source })?;
+    let tmp = path.with_file_name(format!("{}.tmp", path.file_name().unwrap_or_default().to_string_lossy()));
     let io = |source| DataError::Io { path: tmp.clone(), source };
     let parquet = |source| DataError::Parquet { path: tmp.clone(), source };
 
-    let schema = std::sync::Arc::new(table.arrow_schema());
     let props = WriterProperties::builder()
         .set_compression(Compression::ZSTD(ZstdLevel::try_new(3).map_err(parquet)?))
         .build();
@@ -45,6 +51,5 @@ pub fn write_shard(dataset: &Path, table: &Table, file_name: &str, batches: &[Re
     }
     let file = writer.into_inner().map_err(parquet)?;
     file.sync_all().map_err(io)?;
-    fs::rename(&tmp, &path).map_err(|source| DataError::Io { path: path.clone(), source })?;
-    Ok(path)
+    fs::rename(&tmp, path).map_err(|source| DataError::Io { path: path.to_path_buf(), source })
 }
