@@ -48,6 +48,23 @@ schema: ## Regenerate python/boxpose_io/schema.json and the column reference in 
 	mkdir -p build && cargo run --quiet -p boxpose-cli -- schema --markdown > build/columns.md
 	$(PY) scripts/splice_doc.py docs/dataset.md build/columns.md
 
+scenes: setup ## Generate a dataset: Drake scenes then Blender renders, shard by shard, resumable (RECIPE=clutter SHARDS=1)
+	$(PY) scripts/make_scenes.py --recipe $(RECIPE) --dataset $(DATASET) --num-shards $(SHARDS) --boxpose $(BOXPOSE)
+
+DEMO_DATASET := datasets/generated/demo
+DEMO_RESULTS := results/demo
+demo: setup ## The main job on the default recipe: a small photoreal clutter dataset, then every later stage on it
+	$(PY) scripts/make_scenes.py --recipe clutter --dataset $(DEMO_DATASET) --num-scenes 2 --boxpose $(BOXPOSE)
+	@echo; echo "== MuJoCo re-settles the Drake scenes from their initial poses (the search loop's fast path)"
+	$(BOXPOSE) settle $(DEMO_DATASET)
+	@echo; echo "== heatmap → pose on ground-truth heatmaps, then with 4 confident outlier peaks (the paper's failure)"
+	$(BOXPOSE) eval-geometry $(DEMO_DATASET) --out $(DEMO_RESULTS)/eval_geometry_clean.parquet
+	$(BOXPOSE) eval-geometry $(DEMO_DATASET) --outliers 4 --out $(DEMO_RESULTS)/eval_geometry_4_outliers.parquet
+	@echo; echo "== re-render a 128×128 crop of scene 0 from Rust (embedded Blender)"
+	$(BOXPOSE) render $(DEMO_DATASET) --scene 0 --crop 256,176,384,304 --out $(DEMO_RESULTS)/rerender
+	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
+	@echo "results: $(DEMO_RESULTS)"
+
 test: setup ## Run every test: Rust unit/property tests, then the Python/Rust end-to-end tests
 	cargo test --release --workspace
 	$(PY) -m pytest -q tests
