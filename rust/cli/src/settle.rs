@@ -59,6 +59,7 @@ struct Row {
 fn load_recipe(recipe: &str) -> anyhow::Result<RecipePhysics> {
     let path = Path::new(recipe);
     let path = if path.exists() { path.to_path_buf() } else { Path::new("datasets/recipes").join(format!("{recipe}.toml")) };
+    anyhow::ensure!(path.is_file(), "--recipe {recipe}: neither a TOML file nor a recipe name ({} does not exist)", path.display());
     Ok(RecipePhysics::from_file(&path)?)
 }
 

@@ -17,7 +17,7 @@ mod settle;
 
 pub use boxpose_data::Pose;
 pub use error::{PhysicsError, Result};
-pub use mjcf::{CONTACT_SOLIMP, CONTACT_SOLREF, Cone, IMPRATIO, MujocoOptions, Solver, to_mjcf, to_mjcf_with};
+pub use mjcf::{CONTACT_SOLIMP, CONTACT_SOLREF, Cone, IMPRATIO, Integrator, MujocoOptions, Solver, to_mjcf, to_mjcf_with};
 pub use scene::{
     BIN_WALL_THICKNESS_M, BoxBody, GRAVITY_MPS2, PALLET_HEIGHT_M, QUATERNION_NORM_TOLERANCE, RecipePhysics, SUPPORT_FRICTION,
     SceneDescription, SettleParams, Support, SupportKind, combined_friction,

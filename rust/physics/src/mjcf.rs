@@ -48,6 +48,13 @@ pub enum Solver {
     Pgs,
 }
 
+/// MuJoCo's integrators (the ones that make sense for free boxes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Integrator {
+    Euler,
+    ImplicitFast,
+}
+
 /// MuJoCo's friction cone models.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Cone {
@@ -59,6 +66,7 @@ pub enum Cone {
 /// choice (module docs), the other values exist for tuning and benchmarks.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MujocoOptions {
+    pub integrator: Integrator,
     pub solver: Solver,
     pub cone: Cone,
     pub impratio: f64,
@@ -84,6 +92,7 @@ pub struct MujocoOptions {
 impl Default for MujocoOptions {
     fn default() -> Self {
         Self {
+            integrator: Integrator::ImplicitFast,
             solver: Solver::Newton,
             cone: Cone::Elliptic,
             impratio: IMPRATIO,
@@ -127,6 +136,10 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
         Solver::Cg => "CG",
         Solver::Pgs => "PGS",
     };
+    let integrator = match o.integrator {
+        Integrator::Euler => "Euler",
+        Integrator::ImplicitFast => "implicitfast",
+    };
     let cone = match o.cone {
         Cone::Elliptic => "elliptic",
         Cone::Pyramidal => "pyramidal",
@@ -138,7 +151,7 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
     let _ = writeln!(s, r#"  <compiler angle="radian" autolimits="true"/>"#);
     let _ = writeln!(
         s,
-        r#"  <option timestep="{}" gravity="0 0 {}" integrator="implicitfast" solver="{solver}" cone="{cone}" impratio="{}" tolerance="{}" iterations="{}" ls_iterations="{}" noslip_iterations="{}" jacobian="{}"{}>"#,
+        r#"  <option timestep="{}" gravity="0 0 {}" integrator="{integrator}" solver="{solver}" cone="{cone}" impratio="{}" tolerance="{}" iterations="{}" ls_iterations="{}" noslip_iterations="{}" jacobian="{}"{}>"#,
         params.time_step_s,
         -GRAVITY_MPS2,
         o.impratio,

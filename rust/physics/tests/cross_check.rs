@@ -29,7 +29,7 @@ fn drake_and_mujoco_agree_on_the_same_drops() {
         .current_dir(&root)
         .args(["-m", "drake_scenes.bench_settle", "--recipe"])
         .arg(&recipe_path)
-        .args(["--boxes", "1", "3", "--scenes", "3", "--out"])
+        .args(["--boxes", "1", "3", "--scenes", "4", "--out"])
         .arg(out.path())
         .output()
         .expect("running the Drake stage");
