@@ -108,6 +108,9 @@ class BlenderScene:
         s.cycles.use_adaptive_sampling = False
         s.cycles.use_animated_seed = False
         s.cycles.denoiser = "OPENIMAGEDENOISE"
+        # BALANCED: about half the denoising time of HIGH, no visible loss on these scenes.
+        s.cycles.denoising_quality = "BALANCED"
+        s.cycles.denoising_prefilter = "ACCURATE"
         s.cycles.caustics_reflective = s.cycles.caustics_refractive = False
         s.display_settings.display_device = "sRGB"
         self.view_layer.use_pass_z = True

@@ -40,11 +40,12 @@ def synthetic_scene(
     sizes, placed = [], []
     for _ in range(num_boxes):
         size = rng.uniform([0.08, 0.06, 0.05], [0.18, 0.14, 0.12])
-        radius = 0.5 * float(np.hypot(size[0], size[1]))
-        for _attempt in range(200):
+        for _attempt in range(500):
             xy = rng.uniform(-spread, spread, 2)
-            if all(np.linalg.norm(xy - p[0]) > radius + p[1] + 0.01 for p in placed):
+            radius = 0.5 * float(np.hypot(size[0], size[1]))
+            if all(np.linalg.norm(xy - p[0]) > radius + p[1] + 0.005 for p in placed):
                 break
+            size = size * 0.99  # crowded: shrink until it fits
         placed.append((xy, radius))
         sizes.append(size)
     objects = []

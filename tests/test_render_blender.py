@@ -286,7 +286,7 @@ def test_corner_visibility_agrees_with_the_render(clutter):
     pixels), and the box's own mask at or next to it. Occluded by another object: another
     object nearer than the corner at or next to its pixel. Self-occluded: the box's own surface
     in front of the corner at or next to its pixel. Outside: off the image or behind the camera."""
-    counts = {VISIBLE: 0, OCCLUDED_BY_OTHER: 0, SELF_OCCLUDED: 0, OUTSIDE_IMAGE: 0, "peeking": 0}
+    counts = {VISIBLE: 0, OCCLUDED_BY_OTHER: 0, SELF_OCCLUDED: 0, OUTSIDE_IMAGE: 0, "boundary": 0}
     for frame, instances in clutter[2]:
         _, depth, mask = decode(frame)
         h, w = depth.shape
@@ -310,17 +310,21 @@ def test_corner_visibility_agrees_with_the_render(clutter):
                     tol = 0.005 + 1.5 * _own_slope(depth, mask == own, u, v)
                     in_front = depth[v, u] > 0 and depth[v, u] < z - tol
                     if in_front or not (m == own).any():
-                        # only where the corner peeks out from behind another box by less than
-                        # a pixel, so that no pixel centre near it sees the box
+                        # Only at an occlusion boundary, where no pixel centre near the corner sees
+                        # it: the corner is a vertex of its own silhouette next to a face seen
+                        # edge-on, or it peeks out from behind another box by under a pixel.
+                        # (A corner hidden behind its own box lies inside its own silhouette.)
+                        own_edge = _distance_to_polygon_edges(px[k : k + 1], geo.convex_hull_2d(px))[0]
                         edges = [_distance_to_polygon_edges(px[k : k + 1], geo.convex_hull_2d(np.array(o["corners_px"]).reshape(8, 2)))[0] for o in instances if o is not inst]
-                        assert min(edges) < 1.0, (inst["object_id"], k)
-                        counts["peeking"] += 1
+                        other_in_front = in_front and mask[v, u] != own
+                        assert (own_edge < 1e-6 and not other_in_front) or min(edges) < 1.0, (inst["object_id"], k)
+                        counts["boundary"] += 1
                 elif state == OCCLUDED_BY_OTHER:  # another object (box or support) is in front
                     assert ((m != own) & (d > 0) & (d < z)).any(), (inst["object_id"], k, state)
                 else:  # the box's own faces are in front
                     assert ((m == own) & (d < z - 0.005)).any(), (inst["object_id"], k, state)
     assert counts[VISIBLE] > 20 and counts[SELF_OCCLUDED] > 5 and counts[OCCLUDED_BY_OTHER] >= 1, counts
-    assert counts["peeking"] <= 0.1 * counts[VISIBLE], counts
+    assert counts["boundary"] <= 0.1 * counts[VISIBLE], counts
 
 
 def test_pose_matches_the_objects_rows(clutter):
