@@ -23,14 +23,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let d = MujocoOptions::default();
     let variants: Vec<(&str, MujocoOptions)> = vec![
         ("default", d),
-        ("implicitfast", MujocoOptions { integrator: Integrator::ImplicitFast, ..d }),
+        ("solref 0.01", MujocoOptions { solref: [0.01, 1.0], ..d }),
+        ("solref 0.004", MujocoOptions { solref: [0.004, 1.0], ..d }),
+        ("impratio 100", MujocoOptions { impratio: 100.0, ..d }),
+        ("solref .004 imp 100", MujocoOptions { solref: [0.004, 1.0], impratio: 100.0, ..d }),
+        ("solref .01 imp 100", MujocoOptions { solref: [0.01, 1.0], impratio: 100.0, ..d }),
+        ("noslip 10", MujocoOptions { noslip_iterations: 10, ..d }),
         ("Euler", MujocoOptions { integrator: Integrator::Euler, ..d }),
         ("pyramidal", MujocoOptions { cone: Cone::Pyramidal, impratio: 1.0, ..d }),
-        ("impratio 1", MujocoOptions { impratio: 1.0, ..d }),
         ("sleep 1e-3", MujocoOptions { sleep_tolerance: Some(1e-3), ..d }),
-        ("solref 0.004", MujocoOptions { solref: [0.004, 1.0], ..d }),
-        ("solref 0.02", MujocoOptions { solref: [0.02, 1.0], ..d }),
-        ("tol 1e-8", MujocoOptions { tolerance: 1e-8, ..d }),
     ];
     // One settler per (variant, scene), built up front.
     let mut settlers = Vec::new();
