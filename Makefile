@@ -16,7 +16,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes demo test bench clean
+.PHONY: help setup rust schema scenes demo test bench bench-geometry bench-settle bench-render clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-8s %s\n", $$1, $$2}'
@@ -64,6 +64,18 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	$(BOXPOSE) render $(DEMO_DATASET) --scene 0 --crop 256,176,384,304 --out $(DEMO_RESULTS)/rerender
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
+
+bench: bench-geometry bench-settle bench-render ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
+
+bench-geometry: setup ## Geometry core (criterion), then fast exact search vs a batched NumPy brute force on the same inputs
+	cargo bench -p boxpose-geometry --bench geometry
+	$(PY) scripts/bench_geometry_numpy.py --scenes 200
+
+bench-settle: setup ## Drake vs MuJoCo settle time on the same 5- and 20-box drops
+	scripts/bench_settle.sh
+
+bench-render: setup ## Cycles seconds per 640×480 frame by samples and denoising; 128×128 crop re-render from Rust, scene reused vs rebuilt
+	$(PY) scripts/bench_render.py
 
 test: setup ## Run every test: Rust unit/property tests, then the Python/Rust end-to-end tests
 	cargo test --release --workspace
