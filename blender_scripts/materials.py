@@ -111,7 +111,7 @@ def _rgba(rgb) -> tuple[float, float, float, float]:
 
 
 def cardboard_material(name: str, size, base_color, roughness: float, look: BoxAppearance) -> bpy.types.Material:
-    """Cardboard: base colour modulated by low-frequency blotches and fine fibres, a slight bump;
+    """Cardboard: base colour modulated by low-frequency blotches and fine fibres;
     tape strips over the +z face and down two opposite sides; a printed label on +z."""
     mat = bpy.data.materials.new(name)
     g = Graph(mat.node_tree)
@@ -128,7 +128,6 @@ def cardboard_material(name: str, size, base_color, roughness: float, look: BoxA
     color = g.scale_color(_rgba(base_color), shade)
     rough = float(roughness)
     rough_socket = None
-    height = g.math("ADD", g.math("MULTIPLY", blotch, 0.3), g.math("MULTIPLY", fibre, 0.7))
 
     if look.tape is not None:
         t = look.tape
@@ -138,7 +137,6 @@ def cardboard_material(name: str, size, base_color, roughness: float, look: BoxA
         tape = g.math("MULTIPLY", g.both(on_strip, high_enough), t.opacity)
         color = g.mix_color(tape, color, _rgba(t.color))
         rough_socket = g.mix_float(tape, rough, t.roughness)
-        height = g.mix_float(tape, height, 0.5)  # tape is smooth
 
     if look.label is not None:
         lab = look.label
@@ -163,13 +161,9 @@ def cardboard_material(name: str, size, base_color, roughness: float, look: BoxA
         paper = g.mix_color(ink, (0.82, 0.82, 0.78, 1.0), (0.02, 0.02, 0.02, 1.0))
         color = g.mix_color(inside, color, paper)
         rough_socket = g.mix_float(inside, rough_socket if rough_socket is not None else rough, 0.55)
-        height = g.mix_float(inside, height, 0.5)
 
-    bump = g.node("ShaderNodeBump")
-    bump.inputs["Strength"].default_value = 0.08
-    bump.inputs["Distance"].default_value = 0.001
-    g._feed(bump.inputs["Height"], height)
-    g.principled(mat, color, rough_socket if rough_socket is not None else rough, normal=bump.outputs["Normal"], specular=0.3)
+    # No bump: at these resolutions it is invisible and costs ~20 % of a crop render.
+    g.principled(mat, color, rough_socket if rough_socket is not None else rough, specular=0.3)
     return mat
 
 
