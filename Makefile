@@ -36,7 +36,8 @@ $(MUJOCO_LINK_DIR)/.stamp: $(VENV)/.stamp
 	touch $@
 
 rust: $(MUJOCO_LINK_DIR)/.stamp ## Build the Rust workspace (release) and install the `boxpose` Python module into .venv
-	cargo build --release --workspace
+	# --all-targets: the same feature unification as `cargo test`, so the tests reuse this build.
+	cargo build --release --workspace --all-targets
 	# maturin builds into its own target dir: it sets PYO3_BUILD_EXTENSION_MODULE, which would
 	# otherwise invalidate the workspace's pyo3 build on every alternation.
 	VIRTUAL_ENV=$(CURDIR)/$(VENV) CARGO_TARGET_DIR=target/maturin $(VENV)/bin/maturin develop --release --quiet -m rust/python/Cargo.toml

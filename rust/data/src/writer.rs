@@ -5,6 +5,7 @@ use arrow::datatypes::SchemaRef;
 use arrow::record_batch::RecordBatch;
 use parquet::arrow::ArrowWriter;
 use parquet::basic::{Compression, ZstdLevel};
+use parquet::file::metadata::KeyValue;
 use parquet::file::properties::WriterProperties;
 
 use crate::error::{DataError, Result};
@@ -33,8 +34,12 @@ pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) ->
     let io = |source| DataError::Io { path: tmp.clone(), source };
     let parquet = |source| DataError::Parquet { path: tmp.clone(), source };
 
+    // The schema's metadata (schema version, table) goes into the footer's key-value pairs, where
+    // every Parquet reader sees it; ArrowWriter alone keeps it only inside its encoded schema.
+    let metadata = schema.metadata().iter().map(|(k, v)| KeyValue::new(k.clone(), v.clone())).collect();
     let props = WriterProperties::builder()
         .set_compression(Compression::ZSTD(ZstdLevel::try_new(3).map_err(parquet)?))
+        .set_key_value_metadata(Some(metadata))
         .build();
     let file = fs::File::create(&tmp).map_err(io)?;
     let mut writer = ArrowWriter::try_new(file, schema.clone(), Some(props)).map_err(parquet)?;
