@@ -150,7 +150,6 @@ def test_exr_reader_rejects_other_files():
 
 @pytest.fixture(scope="module")
 def session():
-    pytest.importorskip("bpy")
     from blender_scripts.session import Session
 
     return Session()

@@ -12,8 +12,8 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-pytest.importorskip("bpy")
-boxpose_io = pytest.importorskip("boxpose_io")
+import bpy  # noqa: E402, F401  (installed by `make setup`: a missing bpy fails, never skips)
+import boxpose_io  # noqa: E402
 
 from blender_scripts.synthetic import synthetic_scene  # noqa: E402
 
@@ -42,7 +42,7 @@ def no_render_outputs(dataset: Path) -> bool:
     return not any((dataset / t).glob("*") for t in ("frames", "instances") if (dataset / t).exists())
 
 
-def test_driver_renders_resumes_and_pandas_reads_it(tmp_path, boxpose_bin_optional):
+def test_driver_renders_resumes_and_pandas_reads_it(tmp_path, boxpose_bin):
     dataset = tmp_path / "tiny"
     write_inputs(dataset, tiny_scenes(3))
     r = run_driver(dataset, "--scenes-per-worker", "2")
@@ -72,15 +72,8 @@ def test_driver_renders_resumes_and_pandas_reads_it(tmp_path, boxpose_bin_option
     assert "(0 new frames" in r.stdout
     assert (dataset / "frames" / "part-00000-of-00001.parquet").stat().st_mtime_ns == mtime
 
-    if boxpose_bin_optional is not None:
-        r = subprocess.run([str(boxpose_bin_optional), "inspect", str(dataset)], capture_output=True, text=True)
-        assert r.returncode == 0, r.stderr
-
-
-@pytest.fixture
-def boxpose_bin_optional():
-    path = REPO / "target" / "release" / "boxpose"
-    return path if path.is_file() else None
+    r = subprocess.run([str(boxpose_bin), "inspect", str(dataset)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
 
 
 def test_render_crash_leaves_no_shard_and_resume_finishes(tmp_path):

@@ -13,8 +13,8 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-pytest.importorskip("bpy")
-boxpose_io = pytest.importorskip("boxpose_io")
+import bpy  # noqa: E402, F401  (installed by `make setup`: a missing bpy fails, never skips)
+import boxpose_io  # noqa: E402
 
 from blender_scripts.synthetic import synthetic_scene  # noqa: E402
 
