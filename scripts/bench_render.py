@@ -10,7 +10,8 @@
     python scripts/bench_render.py [--samples 1,16,64] [--repeats 2] [--crop-samples 16] [--skip-rust]
 
 Cycles uses every core; the machine's load average is printed, since renders slow down 2–3×
-when other jobs share the cores.
+when other jobs share the cores. CPU seconds (all threads of the process) are printed too: they
+depend far less on other jobs, and CPU / cores estimates the wall time on an idle machine.
 """
 
 from __future__ import annotations
@@ -51,14 +52,19 @@ def main() -> int:
     rows = []
     for samples in (int(s) for s in args.samples.split(",")):
         for denoise in (False, True):
-            times = []
+            times, cpu = [], []
             for _ in range(args.repeats):
-                t = time.perf_counter()
+                t, c = time.perf_counter(), time.process_time()
                 session.render(0, samples=samples, denoise=denoise)
                 times.append(time.perf_counter() - t)
-            mean = sum(times) / len(times)
+                cpu.append(time.process_time() - c)
+            mean, cpu_mean = sum(times) / len(times), sum(cpu) / len(cpu)
             rows.append((samples, denoise, mean, min(times)))
-            print(f"640x480 frame at {samples:3d} samples{' + denoise' if denoise else '          '}: mean {mean:6.2f} s, min {min(times):6.2f} s ({len(times)} renders)", flush=True)
+            print(
+                f"640x480 frame at {samples:3d} samples{' + denoise' if denoise else '          '}: mean {mean:6.2f} s, min {min(times):6.2f} s, "
+                f"CPU {cpu_mean:6.2f} s ({len(times)} renders)",
+                flush=True,
+            )
     print(f"load average after the frames: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     del session
 

@@ -4,7 +4,7 @@
 //!
 //!     cargo bench -p boxpose-render --bench crop_rerender -- [--samples 16] [--repeats 5] [--boxes 12] [--denoise]
 //!
-//! Prints one line per case: `crop <size> <case>: mean … s, min … s, max … s (n renders)`.
+//! Prints one line per case: `crop <size> <case>: mean … s, min … s, max … s, CPU … s (n renders)`.
 
 use std::time::Instant;
 
@@ -25,7 +25,13 @@ struct Options {
 }
 
 fn options() -> Options {
-    let mut o = Options { samples: 16, repeats: 5, boxes: 12, denoise: false, size: 128 };
+    let mut o = Options {
+        samples: 16,
+        repeats: 5,
+        boxes: 12,
+        denoise: false,
+        size: 128,
+    };
     let args: Vec<String> = std::env::args().skip(1).collect();
     let mut i = 0;
     while i < args.len() {
@@ -64,7 +70,8 @@ result = (boxpose_io.table_from_rows("scenes", [scene]).to_batches()[0], boxpose
         );
         let code = std::ffi::CString::new(code).unwrap();
         let globals = pyo3::types::PyDict::new(py);
-        py.run(&code, Some(&globals), None).expect("bench scene rows");
+        py.run(&code, Some(&globals), None)
+            .expect("bench scene rows");
         let result = globals.get_item("result").unwrap().unwrap();
         (
             RecordBatch::from_pyarrow_bound(&result.get_item(0).unwrap()).unwrap(),
@@ -73,18 +80,51 @@ result = (boxpose_io.table_from_rows("scenes", [scene]).to_batches()[0], boxpose
     })
 }
 
-fn report(name: &str, times: &[f64]) {
-    let mean = times.iter().sum::<f64>() / times.len() as f64;
+/// CPU seconds of this process so far (all threads): /proc/self/stat utime + stime.
+fn cpu_seconds() -> f64 {
+    unsafe extern "C" {
+        fn sysconf(name: std::ffi::c_int) -> std::ffi::c_long;
+    }
+    const SC_CLK_TCK: std::ffi::c_int = 2;
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let fields: Vec<&str> = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .collect();
+    let ticks: f64 = fields
+        .get(11..13)
+        .map(|f| f.iter().filter_map(|v| v.parse::<f64>().ok()).sum())
+        .unwrap_or(0.0);
+    ticks / unsafe { sysconf(SC_CLK_TCK) } as f64
+}
+
+/// Runs `f` `n` times; prints mean / min / max wall seconds and mean CPU seconds.
+fn measure(name: &str, n: usize, mut f: impl FnMut(usize)) {
+    let (mut times, cpu0) = (Vec::new(), cpu_seconds());
+    for k in 0..n {
+        let t = Instant::now();
+        f(k);
+        times.push(t.elapsed().as_secs_f64());
+    }
+    let cpu = (cpu_seconds() - cpu0) / n as f64;
+    let mean = times.iter().sum::<f64>() / n as f64;
     let min = times.iter().cloned().fold(f64::INFINITY, f64::min);
     let max = times.iter().cloned().fold(0.0, f64::max);
-    println!("{name}: mean {mean:.3} s, min {min:.3} s, max {max:.3} s ({} renders)", times.len());
+    println!(
+        "{name}: mean {mean:.3} s, min {min:.3} s, max {max:.3} s, CPU {cpu:.3} s ({n} renders)"
+    );
 }
 
 fn main() {
     let o = options();
     let t = Instant::now();
     let mut renderer = Renderer::new(0).expect("start the embedded Blender");
-    println!("embedded Blender started in {:.2} s", t.elapsed().as_secs_f64());
+    println!(
+        "embedded Blender started in {:.2} s",
+        t.elapsed().as_secs_f64()
+    );
     let (scenes, objects) = scene(o.boxes);
     let (x0, y0) = ((640 - o.size) / 2, (480 - o.size) / 2);
     let request = RenderRequest {
@@ -94,41 +134,58 @@ fn main() {
         crop: Some([x0, y0, x0 + o.size, y0 + o.size]),
         ..Default::default()
     };
-    let label = format!("crop {0}x{0} at {1} samples{2}", o.size, o.samples, if o.denoise { " + denoise" } else { "" });
+    let label = format!(
+        "crop {0}x{0} at {1} samples{2}",
+        o.size,
+        o.samples,
+        if o.denoise { " + denoise" } else { "" }
+    );
 
     let t = Instant::now();
     renderer.load_scene(&scenes, &objects, 0).expect("load");
-    println!("scene with {} boxes built in {:.2} s", o.boxes, t.elapsed().as_secs_f64());
+    println!(
+        "scene with {} boxes built in {:.2} s",
+        o.boxes,
+        t.elapsed().as_secs_f64()
+    );
     renderer.render(&request).expect("warm-up render"); // Cycles device init, first BVH build
 
-    let mut reused = Vec::new();
-    for _ in 0..o.repeats {
-        let t = Instant::now();
+    measure(&format!("{label}, scene reused"), o.repeats, |_| {
         renderer.render(&request).expect("render");
-        reused.push(t.elapsed().as_secs_f64());
-    }
-    report(&format!("{label}, scene reused"), &reused);
+    });
 
     // The search loop: move a box, re-render the crop (persistent Cycles data, pose update only).
-    let l = objects.column_by_name("world_box_translation_m").unwrap().as_list::<i32>();
-    let q = objects.column_by_name("world_box_quat_wxyz").unwrap().as_list::<i32>();
+    let l = objects
+        .column_by_name("world_box_translation_m")
+        .unwrap()
+        .as_list::<i32>();
+    let q = objects
+        .column_by_name("world_box_quat_wxyz")
+        .unwrap()
+        .as_list::<i32>();
     let (t0, q0) = (l.value(0), q.value(0));
-    let (t0, q0) = (t0.as_primitive::<Float64Type>().values(), q0.as_primitive::<Float64Type>().values());
-    let mut moved = Vec::new();
-    for k in 0..o.repeats {
-        let pose = Pose { quat_wxyz: [q0[0], q0[1], q0[2], q0[3]], translation: [t0[0] + 0.002 * (k + 1) as f64, t0[1], t0[2]] };
-        let t = Instant::now();
-        renderer.render(&RenderRequest { poses: vec![(0, pose)], ..request.clone() }).expect("render");
-        moved.push(t.elapsed().as_secs_f64());
-    }
-    report(&format!("{label}, scene reused, one box moved"), &moved);
-
-    let mut rebuilt = Vec::new();
-    for _ in 0..o.repeats {
-        let t = Instant::now();
+    let (t0, q0) = (
+        t0.as_primitive::<Float64Type>().values(),
+        q0.as_primitive::<Float64Type>().values(),
+    );
+    measure(
+        &format!("{label}, scene reused, one box moved"),
+        o.repeats,
+        |k| {
+            let pose = Pose {
+                quat_wxyz: [q0[0], q0[1], q0[2], q0[3]],
+                translation: [t0[0] + 0.002 * (k + 1) as f64, t0[1], t0[2]],
+            };
+            renderer
+                .render(&RenderRequest {
+                    poses: vec![(0, pose)],
+                    ..request.clone()
+                })
+                .expect("render");
+        },
+    );
+    measure(&format!("{label}, scene rebuilt"), o.repeats, |_| {
         renderer.load_scene(&scenes, &objects, 0).expect("load");
         renderer.render(&request).expect("render");
-        rebuilt.push(t.elapsed().as_secs_f64());
-    }
-    report(&format!("{label}, scene rebuilt"), &rebuilt);
+    });
 }
