@@ -10,9 +10,8 @@ from __future__ import annotations
 import tomllib
 from dataclasses import asdict, dataclass
 
-
-class RecipeError(ValueError):
-    pass
+# [support] and [materials] are defined once, by the scene stage that owns them (no pydrake import).
+from drake_scenes.recipe import MaterialsSpec, RecipeError, SupportSpec
 
 
 @dataclass(frozen=True)
@@ -37,13 +36,6 @@ class LightingSpec:
 
 
 @dataclass(frozen=True)
-class MaterialsSpec:
-    roughness: tuple[float, float]
-    tape_probability: float
-    label_probability: float
-
-
-@dataclass(frozen=True)
 class RenderSpec:
     samples: int
     denoise: bool
@@ -52,15 +44,6 @@ class RenderSpec:
     max_bounces: int = 4  # Cycles light bounces (cardboard is diffuse: 4 is plenty)
     view_transform: str = "AgX"  # Blender colour management view transform of the PNGs
     exposure: float = -1.0  # colour management exposure (stops)
-
-
-@dataclass(frozen=True)
-class SupportSpec:
-    """Read from the recipe's [support] section (owned by the scene stage) to draw the support."""
-
-    kind: str
-    half_extent_m: tuple[float, float]
-    wall_height_m: float
 
 
 @dataclass(frozen=True)
