@@ -16,7 +16,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes demo test bench bench-geometry bench-settle bench-render clean
+.PHONY: help setup rust schema scenes train demo test bench bench-geometry bench-settle bench-render bench-learn clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -52,6 +52,14 @@ schema: ## Regenerate python/boxpose_io/schema.json and the column reference in 
 scenes: setup ## Generate a dataset: Drake scenes then Blender renders, shard by shard, resumable (RECIPE=clutter SHARDS=1)
 	$(PY) scripts/make_scenes.py --recipe $(RECIPE) --dataset $(DATASET) --num-shards $(SHARDS) --boxpose $(BOXPOSE)
 
+TRAIN_CONFIG ?= configs/keypoint-slim.toml
+TRAIN_RUN ?= runs/keypoint-slim
+MODEL ?= models/keypoint-slim
+train: setup ## Train the keypoint network: render the `train` recipe (resumable), train (resumable), copy the model to $(MODEL)
+	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
+	$(BOXPOSE) train --config $(TRAIN_CONFIG) --out $(TRAIN_RUN)
+	mkdir -p $(MODEL) && cp $(TRAIN_RUN)/model/network.toml $(TRAIN_RUN)/model/model.bpk $(TRAIN_RUN)/history.csv $(TRAIN_RUN)/config.toml $(MODEL)/
+
 DEMO_DATASET := datasets/generated/demo
 DEMO_RESULTS := results/demo
 demo: setup ## The main job on the default recipe: a small photoreal clutter dataset, then every later stage on it
@@ -63,10 +71,13 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	$(BOXPOSE) eval-geometry $(DEMO_DATASET) --outliers 4 --out $(DEMO_RESULTS)/eval_geometry_4_outliers.parquet
 	@echo; echo "== re-render a 128×128 crop of scene 0 from Rust (embedded Blender)"
 	$(BOXPOSE) render $(DEMO_DATASET) --scene 0 --crop 256,176,384,304 --out $(DEMO_RESULTS)/rerender
+	@echo; echo "== the shipped keypoint network ($(MODEL)) on these freshly rendered scenes: one frame, then all of them"
+	$(BOXPOSE) predict $(DEMO_DATASET) --scene 0 --frame 0 --model $(MODEL) --out $(DEMO_RESULTS)/predict
+	$(BOXPOSE) eval $(DEMO_DATASET) --model $(MODEL) --out $(DEMO_RESULTS)/eval
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
 
-bench: bench-geometry bench-settle bench-render ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
+bench: bench-geometry bench-settle bench-render bench-learn ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
 
 bench-geometry: setup ## Geometry core (criterion), then fast exact search vs a batched NumPy brute force on the same inputs
 	cargo bench -p boxpose-geometry --bench geometry
@@ -77,6 +88,16 @@ bench-settle: setup ## Drake vs MuJoCo settle time on the same 5- and 20-box dro
 
 bench-render: setup ## Cycles seconds per 640×480 frame by samples and denoising; 128×128 crop re-render from Rust, scene reused vs rebuilt
 	$(PY) scripts/bench_render.py
+
+# PyTorch only for the comparison benchmark: PyPI's torch wheel brings CUDA libraries (≈ 6 GB).
+TORCH_VENV := build/torch-venv
+$(TORCH_VENV)/.stamp:
+	$(PYTHON_BOOTSTRAP) -m venv $(TORCH_VENV)
+	$(TORCH_VENV)/bin/pip install --quiet torch==2.9.0 "numpy<2"
+	touch $@
+
+bench-learn: setup $(TORCH_VENV)/.stamp ## Keypoint network training step and per-crop inference: burn next to PyTorch, same architecture
+	$(TORCH_VENV)/bin/python scripts/bench_learn.py
 
 test: setup ## Run every test: Rust unit/property tests, then the Python/Rust end-to-end tests
 	cargo test --release --workspace

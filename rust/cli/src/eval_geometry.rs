@@ -8,18 +8,18 @@
 
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::time::Instant;
 
 use anyhow::Context;
-use arrow::array::{ArrayRef, Float64Array, Int32Array, Int64Array, StringArray};
-use arrow::datatypes::{DataType, Field, Schema};
+use arrow::datatypes::Schema;
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Instance, Intrinsics};
 use boxpose_geometry::heatmap::{
     self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord, VoxelGrid,
 };
-use boxpose_geometry::{BoxModel, metrics, robust, size_fit};
-use boxpose_geometry::correspondence::{fast_exact_search, paper_exact_search};
+use boxpose_geometry::BoxModel;
+use boxpose_geometry::pipeline;
+
+use crate::fit_table::{self, FitRow};
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
@@ -32,8 +32,6 @@ const PEAK_SIGMA_VOXELS: f64 = 1.5;
 const CROP_MARGIN: f64 = 1.2;
 /// Score of a true corner's peak; outliers get 1.0, so they rank first, as in the paper's failures.
 const CORNER_PEAK_SCORE: f32 = 0.8;
-/// Peaks the paper's search fits (m).
-const PAPER_M: usize = 5;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -59,24 +57,6 @@ pub struct Args {
     seed: u64,
 }
 
-struct Row {
-    scene_id: i64,
-    frame_id: i32,
-    object_id: i32,
-    method: &'static str,
-    diameter_m: f64,
-    outcome: Result<Scores, String>,
-}
-
-struct Scores {
-    paper_error: f64,
-    mssd_m: f64,
-    add_s_m: f64,
-    rotation_error_deg: f64,
-    translation_error_m: f64,
-    fit_time_us: f64,
-}
-
 pub fn run(args: &Args) -> anyhow::Result<()> {
     anyhow::ensure!(args.resolution >= 8, "--resolution {} is too coarse (use at least 8)", args.resolution);
     let dataset = Dataset::open(&args.dataset)?;
@@ -100,7 +80,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     bar.finish_and_clear();
     anyhow::ensure!(!rows.is_empty(), "{}: no instance is visible enough to evaluate", args.dataset.display());
-    boxpose_data::write_parquet(&args.out, schema(), &[to_batch(&rows)?])?;
+    let schema = Arc::new(Schema::new(fit_table::fields()));
+    boxpose_data::write_parquet(&args.out, schema.clone(), &[RecordBatch::try_new(schema, fit_table::columns(&rows))?])?;
     print_summary(args, &rows);
     println!("per-instance metrics: {}", args.out.display());
     Ok(())
@@ -131,7 +112,7 @@ fn voxel_grid(k: &Intrinsics, instance: &Instance, diameter: f64, resolution: us
     }
 }
 
-fn evaluate(args: &Args, k: &Intrinsics, instance: &Instance, rng: &mut ChaCha8Rng) -> anyhow::Result<Vec<Row>> {
+fn evaluate(args: &Args, k: &Intrinsics, instance: &Instance, rng: &mut ChaCha8Rng) -> anyhow::Result<Vec<FitRow>> {
     let model = BoxModel::new(Vector3::from(instance.size))?;
     let truth = pose(instance.camera_box.quat_wxyz, instance.camera_box.translation);
     let truth_corners: Vec<Point3<f64>> = instance.corners_camera.iter().map(|c| Point3::from(*c)).collect();
@@ -158,36 +139,9 @@ fn evaluate(args: &Args, k: &Intrinsics, instance: &Instance, rng: &mut ChaCha8R
     let points = peaks.iter().map(|p| grid.back_project(&p.coord)).collect::<Result<Vec<_>, _>>()?;
     let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
 
-    // `fitted` and `fitted_pose` give the paper's error (corner sets, so axis labels do not
-    // matter); `estimate` is the pose in the true model's axis labels for the pose metrics.
-    let score = |fitted: &BoxModel, fitted_pose: &Isometry3<f64>, estimate: &Isometry3<f64>, start: Instant| -> Result<Scores, String> {
-        let fit_time_us = start.elapsed().as_secs_f64() * 1e6;
-        Ok(Scores {
-            paper_error: metrics::paper_error(fitted, fitted_pose, &truth_corners).map_err(|e| e.to_string())?,
-            mssd_m: metrics::mssd(&model, estimate, &truth).map_err(|e| e.to_string())?,
-            add_s_m: metrics::add_s(&model, estimate, &truth).map_err(|e| e.to_string())?,
-            rotation_error_deg: metrics::rotation_error_deg(&model, estimate, &truth).map_err(|e| e.to_string())?,
-            translation_error_m: metrics::translation_error(estimate, &truth).map_err(|e| e.to_string())?,
-            fit_time_us,
-        })
-    };
-    let mut methods: Vec<(&'static str, Result<Scores, String>)> = Vec::new();
-    let start = Instant::now();
-    let fit = paper_exact_search(&model, &points, &scores, PAPER_M).map_err(|e| e.to_string());
-    methods.push(("paper_exact", fit.and_then(|f| score(&model, &f.pose, &f.pose, start))));
-    let start = Instant::now();
-    let fit = fast_exact_search(&model, &points, &scores, PAPER_M).map_err(|e| e.to_string());
-    methods.push(("fast_exact", fit.and_then(|f| score(&model, &f.pose, &f.pose, start))));
-    let start = Instant::now();
-    let fit = robust::robust_fit(&model, &points, &robust::RobustParams::for_box(&model)).map_err(|e| e.to_string());
-    methods.push(("robust", fit.and_then(|f| score(&model, &f.pose, &f.pose, start))));
-    let start = Instant::now();
-    let fit = size_fit::fit_pose_and_size(&points, &size_fit::SizeFitParams::default()).map_err(|e| e.to_string());
-    methods.push(("size_and_pose", fit.and_then(|f| score(&f.model, &f.pose, &relabel_axes(&f.pose, &truth), start))));
-
-    Ok(methods
+    Ok(pipeline::fit_and_score(&model, &truth, &points, &scores)
         .into_iter()
-        .map(|(method, outcome)| Row {
+        .map(|(method, outcome)| FitRow {
             scene_id: instance.scene_id,
             frame_id: instance.frame_id,
             object_id: instance.object_id,
@@ -198,93 +152,10 @@ fn evaluate(args: &Args, k: &Intrinsics, instance: &Instance, rng: &mut ChaCha8R
         .collect())
 }
 
-/// A box of unknown size has no preferred axis labels: the size fit may call the true x axis
-/// its z. Of the 24 proper signed axis permutations of the fitted frame, returns the one whose
-/// axes best align with the true ones, so that the pose metrics compare like with like.
-fn relabel_axes(fitted: &Isometry3<f64>, truth: &Isometry3<f64>) -> Isometry3<f64> {
-    let (fitted_axes, true_axes) = (fitted.rotation.to_rotation_matrix(), truth.rotation.to_rotation_matrix());
-    let mut best = (f64::NEG_INFINITY, *fitted);
-    for perm in [[0, 1, 2], [1, 2, 0], [2, 0, 1], [0, 2, 1], [2, 1, 0], [1, 0, 2]] {
-        for signs in 0..8 {
-            let relabel = nalgebra::Matrix3::from_fn(|r, c| if perm[c] == r { if signs >> c & 1 == 1 { -1.0 } else { 1.0 } } else { 0.0 });
-            if relabel.determinant() < 0.0 {
-                continue;
-            }
-            let candidate = fitted_axes.matrix() * relabel;
-            let alignment = (candidate.transpose() * true_axes.matrix()).trace();
-            if alignment > best.0 {
-                let rotation = UnitQuaternion::from_matrix(&candidate);
-                best = (alignment, Isometry3::from_parts(fitted.translation, rotation));
-            }
-        }
-    }
-    best.1
-}
-
-fn schema() -> Arc<Schema> {
-    let f64_field = |name: &str| Field::new(name, DataType::Float64, true);
-    Arc::new(Schema::new(vec![
-        Field::new("scene_id", DataType::Int64, false),
-        Field::new("frame_id", DataType::Int32, false),
-        Field::new("object_id", DataType::Int32, false),
-        Field::new("method", DataType::Utf8, false),
-        Field::new("diameter_m", DataType::Float64, false),
-        f64_field("paper_error"),
-        f64_field("mssd_m"),
-        f64_field("add_s_m"),
-        f64_field("rotation_error_deg"),
-        f64_field("translation_error_m"),
-        f64_field("fit_time_us"),
-        Field::new("fit_error", DataType::Utf8, true),
-    ]))
-}
-
-fn to_batch(rows: &[Row]) -> anyhow::Result<RecordBatch> {
-    let metric = |get: fn(&Scores) -> f64| -> ArrayRef {
-        Arc::new(rows.iter().map(|r| r.outcome.as_ref().ok().map(get)).collect::<Float64Array>())
-    };
-    let columns: Vec<ArrayRef> = vec![
-        Arc::new(rows.iter().map(|r| r.scene_id).collect::<Int64Array>()),
-        Arc::new(rows.iter().map(|r| r.frame_id).collect::<Int32Array>()),
-        Arc::new(rows.iter().map(|r| r.object_id).collect::<Int32Array>()),
-        Arc::new(rows.iter().map(|r| Some(r.method)).collect::<StringArray>()),
-        Arc::new(rows.iter().map(|r| r.diameter_m).collect::<Float64Array>()),
-        metric(|s| s.paper_error),
-        metric(|s| s.mssd_m),
-        metric(|s| s.add_s_m),
-        metric(|s| s.rotation_error_deg),
-        metric(|s| s.translation_error_m),
-        metric(|s| s.fit_time_us),
-        Arc::new(rows.iter().map(|r| r.outcome.as_ref().err().map(String::as_str)).collect::<StringArray>()),
-    ];
-    Ok(RecordBatch::try_new(schema(), columns)?)
-}
-
-fn print_summary(args: &Args, rows: &[Row]) {
+fn print_summary(args: &Args, rows: &[FitRow]) {
     println!(
         "heatmap → pose on ground truth: corner noise {} m, {} outlier peak(s), {}³ voxels",
         args.noise_m, args.outliers, args.resolution
     );
-    println!("{:<14} {:>9} {:>11} {:>11} {:>13} {:>13} {:>12}", "method", "instances", "MSSD<0.05d", "MSSD<0.1d", "median MSSD", "mean error", "mean time");
-    for method in ["paper_exact", "fast_exact", "robust", "size_and_pose"] {
-        let of_method: Vec<&Row> = rows.iter().filter(|r| r.method == method).collect();
-        let scored: Vec<(&Scores, f64)> = of_method.iter().filter_map(|r| r.outcome.as_ref().ok().map(|s| (s, r.diameter_m))).collect();
-        if scored.is_empty() {
-            println!("{method:<14} {:>9} every fit failed", of_method.len());
-            continue;
-        }
-        let n = scored.len() as f64;
-        let recall = |fraction: f64| scored.iter().filter(|(s, d)| s.mssd_m < fraction * d).count() as f64 / n;
-        let mut mssd: Vec<f64> = scored.iter().map(|(s, _)| s.mssd_m).collect();
-        mssd.sort_by(f64::total_cmp);
-        println!(
-            "{method:<14} {:>9} {:>10.1}% {:>10.1}% {:>11.4} m {:>13.6} {:>9.0} µs",
-            of_method.len(),
-            100.0 * recall(0.05),
-            100.0 * recall(0.1),
-            mssd[mssd.len() / 2],
-            scored.iter().map(|(s, _)| s.paper_error).sum::<f64>() / n,
-            scored.iter().map(|(s, _)| s.fit_time_us).sum::<f64>() / n,
-        );
-    }
+    fit_table::print(rows);
 }

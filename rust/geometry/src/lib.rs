@@ -13,6 +13,7 @@
 //! - [`robust`]: a pose that survives up to half the peaks being outliers.
 //! - [`size_fit`]: pose and box size together, for boxes of unknown size.
 //! - [`metrics`]: the paper's error (step 7) and the usual pose metrics.
+//! - [`pipeline`]: peaks → every pose fit → scores, as each evaluation runs them.
 
 pub mod align;
 pub mod box_model;
@@ -20,6 +21,7 @@ pub mod correspondence;
 pub mod error;
 pub mod heatmap;
 pub mod metrics;
+pub mod pipeline;
 pub mod robust;
 pub mod size_fit;
 

@@ -1,0 +1,180 @@
+//! `boxpose eval`: the trained keypoint network over a dataset — per instance, the heatmap's
+//! error, corner recall and every pose fit's metrics (Parquet), a summary table, and the paper's
+//! Fig. 6: a log-scale histogram of the paper's error, as PNG.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::Context;
+use arrow::array::{ArrayRef, Float64Array, Int32Array};
+use arrow::datatypes::{DataType, Field, Schema};
+use arrow::record_batch::RecordBatch;
+use boxpose_data::Dataset;
+use boxpose_geometry::pipeline::Method;
+use boxpose_learn::backend::BackendKind;
+use boxpose_learn::data::{self, Sample};
+use boxpose_learn::inference::CropRequest;
+use boxpose_learn::segmentation::{self, SegmenterModel};
+use boxpose_learn::evaluation::{self, InstanceEval};
+use boxpose_learn::inference::KeypointModel;
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::fit_table::{self, FitRow};
+use crate::plots;
+use crate::predict::Crops;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Dataset folder with rendered frames.
+    dataset: PathBuf,
+    /// Trained model folder (network.toml + model.bpk), e.g. a run's model/ or models/<name>.
+    #[arg(long, default_value = "models/keypoint-slim")]
+    model: PathBuf,
+    /// Output folder: eval.parquet, summary.json, paper_error_hist.png.
+    #[arg(long, default_value = "results/eval")]
+    out: PathBuf,
+    /// Skip instances with a smaller visible fraction (a detector would not crop them).
+    #[arg(long, default_value_t = 0.25)]
+    min_visible_fraction: f32,
+    /// Where the crops come from: ground-truth boxes, or the segmenter's (a box it misses
+    /// counts as a failed fit), so that the errors of each stage can be told apart.
+    #[arg(long, value_enum, default_value_t = Crops::Gt)]
+    crops: Crops,
+    /// Trained segmenter folder, for --crops predicted.
+    #[arg(long, default_value = "models/segmenter-slim")]
+    segmenter: PathBuf,
+    /// Crops per forward pass.
+    #[arg(long, default_value_t = 16)]
+    batch_size: usize,
+    #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
+    backend: BackendKind,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let model = KeypointModel::load(&args.model, args.backend.device()?)?;
+    let segmenter = match args.crops {
+        Crops::Predicted => Some(SegmenterModel::load(&args.segmenter, args.backend.device()?)?),
+        Crops::Gt => None,
+    };
+    let dataset = Dataset::open(&args.dataset)?;
+    let frames: Vec<_> = dataset.frames()?.collect::<Result<_, _>>()?;
+    let mut all_detections = Vec::new();
+    let total: usize = frames.iter().map(|f| f.instances.len()).sum();
+    let bar = ProgressBar::new(total as u64)
+        .with_style(ProgressStyle::with_template("evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]")?);
+    let mut fit_rows = Vec::new();
+    let mut evals = Vec::new();
+    for frame in &frames {
+        let chosen: Vec<_> = frame
+            .instances
+            .iter()
+            .filter(|i| i.visible_fraction >= args.min_visible_fraction && i.visible_bbox.is_some())
+            .collect();
+        // each chosen instance's sample, or None when the segmenter missed it
+        let samples: Vec<Option<Sample>> = match &segmenter {
+            None => chosen
+                .iter()
+                .map(|instance| data::instance_sample(&model.config, frame, instance, None).map(Some))
+                .collect::<Result<_, _>>()
+                .with_context(|| format!("scene {} frame {}", frame.scene_id, frame.frame_id))?,
+            Some(segmenter) => {
+                let detections = segmenter.segment(&[frame])?.remove(0);
+                let found = segmentation::match_detections(frame, &detections, 0.5);
+                let samples = chosen
+                    .iter()
+                    .map(|instance| {
+                        let index = frame.instances.iter().position(|i| i.object_id == instance.object_id).expect("an instance of this frame");
+                        let Some(d) = found[index] else { return Ok(None) };
+                        let detection = &detections[d];
+                        let Some(crop) = CropRequest::around(frame, &model.config, detection.bbox, |i| detection.mask[i]) else { return Ok(None) };
+                        data::sample_at(&model.config, frame, &crop.window, crop.z_ref, &instance.corners_camera, None).map(Some)
+                    })
+                    .collect::<Result<Vec<_>, boxpose_learn::LearnError>>()?;
+                all_detections.push(detections);
+                samples
+            }
+        };
+        let inputs: Vec<Vec<f32>> = samples.iter().flatten().map(|s| s.input.clone()).collect();
+        let mut heatmaps = model.heatmaps(&inputs, args.batch_size)?.into_iter();
+        for (instance, sample) in chosen.iter().zip(&samples) {
+            let eval = match sample {
+                Some(sample) => {
+                    let heatmap = heatmaps.next().expect("one heatmap per found instance");
+                    evaluation::evaluate_instance(&model.config, instance, &heatmap, &sample.target, &sample.grid)?
+                }
+                None => evaluation::missed_instance(instance)?,
+            };
+            for (method, outcome) in &eval.fits {
+                fit_rows.push(FitRow {
+                    scene_id: instance.scene_id,
+                    frame_id: instance.frame_id,
+                    object_id: instance.object_id,
+                    method: *method,
+                    diameter_m: eval.diameter_m,
+                    outcome: outcome.clone(),
+                });
+            }
+            evals.push(eval);
+        }
+        bar.inc(frame.instances.len() as u64);
+    }
+    bar.finish_and_clear();
+    anyhow::ensure!(!evals.is_empty(), "{}: no instance is visible enough to evaluate", args.dataset.display());
+
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    write_rows(&args.out.join("eval.parquet"), &fit_rows, &evals)?;
+    let summary = evaluation::summarize(&evals);
+    let summary_path = args.out.join("summary.json");
+    std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)?).with_context(|| summary_path.display().to_string())?;
+    let errors = |method: Method| -> Vec<f64> {
+        fit_rows.iter().filter(|r| r.method == method).filter_map(|r| r.outcome.as_ref().ok().map(|s| s.paper_error)).collect()
+    };
+    let histogram = args.out.join("paper_error_hist.png");
+    plots::error_histogram(
+        &histogram,
+        &format!("paper's error on {} ({} instances)", args.dataset.file_name().unwrap_or_default().to_string_lossy(), evals.len()),
+        &[("paper's search", errors(Method::PaperExact)), ("robust fit", errors(Method::Robust)), ("size + pose fit", errors(Method::SizeAndPose))],
+    )?;
+
+    let crops = match args.crops {
+        Crops::Gt => "ground-truth crops",
+        Crops::Predicted => "the segmenter's crops",
+    };
+    println!("keypoint network {} on {} ({} instances, {crops})", args.model.display(), args.dataset.display(), evals.len());
+    if segmenter.is_some() {
+        let frame_refs: Vec<_> = frames.iter().collect();
+        let s = segmentation::score_detections(&frame_refs, &all_detections);
+        println!(
+            "segmenter {}: mask AP {:.3} (AP50 {:.3}), bbox AP {:.3} (AP50 {:.3}); {} detections for {} visible boxes; {} of {} evaluated boxes found",
+            args.segmenter.display(), s.mask_ap, s.mask_ap50, s.bbox_ap, s.bbox_ap50, s.detections, s.true_instances,
+            evals.iter().filter(|e| !e.missed).count(), evals.len()
+        );
+        let path = args.out.join("segmentation.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&s)?).with_context(|| path.display().to_string())?;
+    }
+    println!(
+        "corner recall (peak within {:.0} mm): {:.1}%   heatmap MSE {:.3e}",
+        evaluation::CORNER_RECALL_RADIUS_M * 1000.0,
+        100.0 * summary.corner_recall,
+        summary.heatmap_mse
+    );
+    fit_table::print(&fit_rows);
+    println!("per-instance metrics: {}", args.out.join("eval.parquet").display());
+    println!("error histogram (paper Fig. 6): {}", histogram.display());
+    Ok(())
+}
+
+/// The fit rows with each instance's heatmap MSE and corners found beside them.
+fn write_rows(path: &Path, rows: &[FitRow], evals: &[InstanceEval]) -> anyhow::Result<()> {
+    let per_instance = rows.len() / evals.len();
+    let mut fields = fit_table::fields();
+    fields.push(Field::new("heatmap_mse", DataType::Float64, true));
+    fields.push(Field::new("corners_found", DataType::Int32, false));
+    let mut columns = fit_table::columns(rows);
+    let repeat = |i: usize| &evals[i / per_instance];
+    columns.push(Arc::new((0..rows.len()).map(|i| Some(repeat(i).heatmap_mse).filter(|_| !repeat(i).missed)).collect::<Float64Array>()) as ArrayRef);
+    columns.push(Arc::new((0..rows.len()).map(|i| repeat(i).corners_found as i32).collect::<Int32Array>()) as ArrayRef);
+    let schema = Arc::new(Schema::new(fields));
+    boxpose_data::write_parquet(path, schema.clone(), &[RecordBatch::try_new(schema, columns)?])?;
+    Ok(())
+}

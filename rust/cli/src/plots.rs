@@ -1,0 +1,133 @@
+//! Pictures a person would rather look at than read: the paper's Fig. 6 (error histogram) and
+//! Fig. 5 (a frame with true corners white, NMS peaks black, fitted corners grey).
+
+use std::path::Path;
+
+use anyhow::Context;
+use boxpose_data::Intrinsics;
+use nalgebra::Point3;
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+/// DejaVu Sans (its licence is beside it), so that labels render without system fonts.
+static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
+
+fn register_font() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        plotters::style::register_font("sans-serif", FontStyle::Normal, FONT).unwrap_or_else(|_| panic!("the bundled font parses"));
+    });
+}
+
+const SERIES_COLORS: [RGBColor; 3] = [RGBColor(214, 39, 40), RGBColor(31, 119, 180), RGBColor(44, 160, 44)];
+
+/// Histogram of `log10(error)` per series, counts on a log scale (the paper's Fig. 6).
+pub fn error_histogram(path: &Path, title: &str, series: &[(&str, Vec<f64>)]) -> anyhow::Result<()> {
+    register_font();
+    let logs: Vec<Vec<f64>> = series.iter().map(|(_, v)| v.iter().filter(|e| **e > 0.0).map(|e| e.log10()).collect()).collect();
+    let all: Vec<f64> = logs.iter().flatten().copied().collect();
+    anyhow::ensure!(!all.is_empty(), "no positive error to plot in {}", path.display());
+    let lo = all.iter().copied().fold(f64::INFINITY, f64::min).floor();
+    let hi = all.iter().copied().fold(f64::NEG_INFINITY, f64::max).ceil().max(lo + 1.0);
+    let bins_per_decade = 8.0;
+    let bins = ((hi - lo) * bins_per_decade) as usize;
+    let counts: Vec<Vec<usize>> = logs
+        .iter()
+        .map(|values| {
+            let mut c = vec![0usize; bins];
+            for v in values {
+                c[(((v - lo) * bins_per_decade) as usize).min(bins - 1)] += 1;
+            }
+            c
+        })
+        .collect();
+    let max_count = counts.iter().flatten().copied().max().unwrap_or(1).max(1) as f64;
+
+    let (width, height) = (900u32, 540u32);
+    let mut buffer = vec![0u8; (width * height * 3) as usize];
+    {
+    let root = BitMapBackend::with_buffer(&mut buffer, (width, height)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(title, ("sans-serif", 22))
+        .margin(12)
+        .x_label_area_size(44)
+        .y_label_area_size(56)
+        .build_cartesian_2d(lo..hi, (0.8..max_count * 1.5).log_scale())?;
+    chart
+        .configure_mesh()
+        .x_desc("log10(paper's error)  [m²]")
+        .y_desc("instances")
+        .y_label_formatter(&|y| format!("{y:.0}"))
+        .draw()?;
+    let width = 1.0 / bins_per_decade / series.len() as f64;
+    for (k, ((name, _), c)) in series.iter().zip(&counts).enumerate() {
+        let color = SERIES_COLORS[k % SERIES_COLORS.len()];
+        chart
+            .draw_series(c.iter().enumerate().filter(|(_, n)| **n > 0).map(|(b, n)| {
+                let x0 = lo + b as f64 / bins_per_decade + k as f64 * width;
+                Rectangle::new([(x0, 0.8), (x0 + width, *n as f64)], color.filled())
+            }))?
+            .label(format!("{name} ({})", logs[k].len()))
+            .legend(move |(x, y)| Rectangle::new([(x, y - 5), (x + 12, y + 5)], color.filled()));
+    }
+    chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw()?;
+    root.present()?;
+    }
+    save_png(path, &buffer, width, height)
+}
+
+/// One box on the overlay: any of its true corners, NMS peaks and fitted corners.
+pub struct OverlayBox {
+    pub truth: Option<[Point3<f64>; 8]>,
+    pub peaks: Vec<Point3<f64>>,
+    pub fitted: Option<[Point3<f64>; 8]>,
+}
+
+/// The frame with, per box, the true box white, the NMS peaks black and the fitted box grey
+/// (the paper's Fig. 5), as PNG.
+pub fn overlay(path: &Path, rgb: &[u8], width: usize, height: usize, k: &Intrinsics, boxes: &[OverlayBox]) -> anyhow::Result<()> {
+    let mut buffer = rgb.to_vec();
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (width as u32, height as u32)).into_drawing_area();
+        let project = |p: &Point3<f64>| -> (i32, i32) { ((k.fx * p.x / p.z + k.cx).round() as i32, (k.fy * p.y / p.z + k.cy).round() as i32) };
+        let grey = RGBColor(150, 150, 150);
+        let draw_box = |corners: &[Point3<f64>; 8], color: RGBColor| -> anyhow::Result<()> {
+            for a in 0..8usize {
+                for bit in [1usize, 2, 4] {
+                    let b = a | bit;
+                    if b != a {
+                        root.draw(&PathElement::new(vec![project(&corners[a]), project(&corners[b])], color.stroke_width(1)))?;
+                    }
+                }
+                root.draw(&Circle::new(project(&corners[a]), 3, color.filled()))?;
+            }
+            Ok(())
+        };
+        for b in boxes {
+            if let Some(truth) = &b.truth {
+                draw_box(truth, WHITE)?;
+            }
+            if let Some(fitted) = &b.fitted {
+                draw_box(fitted, grey)?;
+            }
+            for p in &b.peaks {
+                root.draw(&Circle::new(project(p), 3, BLACK.filled()))?;
+            }
+        }
+        root.present()?;
+    }
+    save_png(path, &buffer, width as u32, height as u32)
+}
+
+/// Writes 8-bit RGB pixels as a PNG.
+fn save_png(path: &Path, rgb: &[u8], width: u32, height: u32) -> anyhow::Result<()> {
+    let file = std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width, height);
+    encoder.set_color(png::ColorType::Rgb);
+    encoder.set_depth(png::BitDepth::Eight);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(rgb).with_context(|| format!("cannot write {}", path.display()))?;
+    writer.finish()?;
+    Ok(())
+}

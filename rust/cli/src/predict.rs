@@ -1,0 +1,326 @@
+//! `boxpose predict`: an RGBD frame → per box: pose, size, the 8 fitted corners, the NMS peaks
+//! with their scores and the fit's residual (Parquet and JSON), and an overlay PNG like the
+//! paper's Fig. 5 (true box white, NMS peaks black, fitted box grey).
+//!
+//! The frame is a dataset row (`DATASET --scene S --frame F`) or files (`--rgb`, `--depth`,
+//! `--intrinsics`). Boxes are cropped around ground-truth boxes (`--crops gt`, dataset rows) or
+//! around the bounding boxes given with `--bbox`.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{Context, bail};
+use arrow::array::{ArrayRef, Float64Array, Int32Array, Int64Array, ListArray, StringArray};
+use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, Int32Type, Schema};
+use arrow::record_batch::RecordBatch;
+use boxpose_data::{Dataset, Frame, Intrinsics, Pose};
+use boxpose_learn::backend::BackendKind;
+use boxpose_learn::evaluation::true_pose;
+use boxpose_learn::inference::{self, BoxPrediction, CropRequest, KeypointModel};
+use boxpose_learn::segmentation::{self, SegmenterModel};
+use nalgebra::Point3;
+use serde_json::json;
+
+use crate::plots::{self, OverlayBox};
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Crops {
+    /// Around each ground-truth box's visible bounding box, at its mask's median depth.
+    Gt,
+    /// Around each box the instance segmenter finds, at its predicted mask's median depth.
+    Predicted,
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Dataset folder holding the frame (or give --rgb/--depth/--intrinsics instead).
+    dataset: Option<PathBuf>,
+    /// Scene of the frame in the dataset.
+    #[arg(long, requires = "dataset")]
+    scene: Option<i64>,
+    /// Frame (view) of the scene.
+    #[arg(long, default_value_t = 0)]
+    frame: i32,
+    /// How boxes are found: ground truth (dataset frames only) or the segmenter. Files use
+    /// --bbox when given, else the segmenter.
+    #[arg(long, value_enum, default_value_t = Crops::Gt)]
+    crops: Crops,
+    /// Trained segmenter folder, for --crops predicted.
+    #[arg(long, default_value = "models/segmenter-slim")]
+    segmenter: PathBuf,
+    /// An 8-bit RGB PNG to predict on instead of a dataset frame.
+    #[arg(long, requires_all = ["depth", "intrinsics"], conflicts_with = "dataset")]
+    rgb: Option<PathBuf>,
+    /// Its depth: a 16-bit PNG in millimetres (0 = no measurement), the same size.
+    #[arg(long)]
+    depth: Option<PathBuf>,
+    /// Its intrinsics: fx,fy,cx,cy in pixels.
+    #[arg(long, value_delimiter = ',', num_args = 4)]
+    intrinsics: Option<Vec<f64>>,
+    /// A box to crop: x_min,y_min,x_max,y_max in pixels (repeat for several boxes).
+    #[arg(long, value_delimiter = ',', num_args = 4, action = clap::ArgAction::Append)]
+    bbox: Vec<i32>,
+    /// Trained model folder (network.toml + model.bpk).
+    #[arg(long, default_value = "models/keypoint-slim")]
+    model: PathBuf,
+    /// Output folder: predictions.parquet, predictions.json, overlay.png.
+    #[arg(long, default_value = "results/predict")]
+    out: PathBuf,
+    #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
+    backend: BackendKind,
+}
+
+/// A box to predict: where it came from, and its crop.
+struct Target {
+    object_id: Option<i32>,
+    bbox: [i32; 4],
+    crop: CropRequest,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    let model = KeypointModel::load(&args.model, args.backend.device()?)?;
+    let (frame, targets) = match (&args.dataset, &args.rgb) {
+        (Some(dataset), None) => {
+            let scene = args.scene.context("--scene is required with a dataset")?;
+            let frame = find_frame(dataset, scene, args.frame)?;
+            let targets = match args.crops {
+                Crops::Gt => gt_targets(&frame, &model),
+                Crops::Predicted => predicted_targets(&frame, &model, &args.segmenter, args.backend)?,
+            };
+            (frame, targets)
+        }
+        (None, Some(rgb)) => {
+            let frame = frame_from_files(rgb, args.depth.as_deref().context("--depth is required with --rgb")?, args.intrinsics.as_deref().context("--intrinsics is required with --rgb")?)?;
+            if args.bbox.is_empty() {
+                let targets = predicted_targets(&frame, &model, &args.segmenter, args.backend)?;
+                return finish(args, &model, frame, targets);
+            }
+            let targets = args
+                .bbox
+                .chunks(4)
+                .map(|b| {
+                    let bbox = [b[0], b[1], b[2], b[3]];
+                    let crop = CropRequest::around(&frame, &model.config, bbox, |_| true)
+                        .with_context(|| format!("--bbox {bbox:?} has no depth measurement inside"))?;
+                    Ok(Target { object_id: None, bbox, crop })
+                })
+                .collect::<anyhow::Result<Vec<_>>>()?;
+            (frame, targets)
+        }
+        _ => bail!("give a dataset folder with --scene (and --frame), or --rgb, --depth and --intrinsics"),
+    };
+    finish(args, &model, frame, targets)
+}
+
+/// Predicts the targets' poses and writes every output.
+fn finish(args: &Args, model: &KeypointModel, frame: Frame, targets: Vec<Target>) -> anyhow::Result<()> {
+    anyhow::ensure!(!targets.is_empty(), "no box to predict in this frame");
+    let crops: Vec<CropRequest> = targets.iter().map(|t| t.crop).collect();
+    let predictions = inference::predict(model, &frame, &crops, 16)?;
+
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    write_parquet(&args.out.join("predictions.parquet"), &frame, &targets, &predictions)?;
+    let json_path = args.out.join("predictions.json");
+    std::fs::write(&json_path, serde_json::to_string_pretty(&to_json(&frame, &targets, &predictions))?)
+        .with_context(|| format!("cannot write {}", json_path.display()))?;
+    let overlay_boxes: Vec<OverlayBox> = targets
+        .iter()
+        .zip(&predictions)
+        .map(|(t, p)| OverlayBox {
+            truth: t.object_id.and_then(|id| frame.instances.iter().find(|i| i.object_id == id)).map(|i| i.corners_camera.map(Point3::from)),
+            peaks: p.points.clone(),
+            fitted: p.fit.as_ref().ok().map(fitted_corners),
+        })
+        .collect();
+    let overlay = args.out.join("overlay.png");
+    plots::overlay(&overlay, &frame.rgb, frame.width, frame.height, &frame.intrinsics, &overlay_boxes)?;
+
+    for (t, p) in targets.iter().zip(&predictions) {
+        let who = t.object_id.map_or(format!("bbox {:?}", t.bbox), |id| format!("object {id}"));
+        match &p.fit {
+            Ok(fit) => {
+                let size = fit.model.size();
+                let at = fit.pose.translation.vector;
+                let truth = t.object_id.and_then(|id| frame.instances.iter().find(|i| i.object_id == id));
+                let error = truth.map_or(String::new(), |i| format!(", {:.1} mm from the true centre", 1000.0 * (at - true_pose(i).translation.vector).norm()));
+                println!(
+                    "{who}: size {:.3}×{:.3}×{:.3} m at ({:.3}, {:.3}, {:.3}) m, {} of {} peaks inliers, residual {:.1} mm{error}",
+                    size.x, size.y, size.z, at.x, at.y, at.z,
+                    fit.inliers.iter().filter(|b| **b).count(), p.points.len(), 1000.0 * fit.inlier_rms
+                );
+            }
+            Err(e) => println!("{who}: no pose ({e})"),
+        }
+    }
+    println!("predictions: {} and {}", args.out.join("predictions.parquet").display(), json_path.display());
+    println!("overlay (true white, NMS peaks black, fitted grey): {}", overlay.display());
+    Ok(())
+}
+
+fn find_frame(dataset: &Path, scene: i64, frame_id: i32) -> anyhow::Result<Frame> {
+    for frame in Dataset::open(dataset)?.frames()? {
+        let frame = frame?;
+        if frame.scene_id == scene && frame.frame_id == frame_id {
+            return Ok(frame);
+        }
+    }
+    bail!("{}: no frame {frame_id} of scene {scene} (`boxpose inspect` lists them)", dataset.display())
+}
+
+fn gt_targets(frame: &Frame, model: &KeypointModel) -> Vec<Target> {
+    frame
+        .instances
+        .iter()
+        .filter_map(|instance| {
+            let bbox = instance.visible_bbox?;
+            let label = (instance.object_id + 1) as u16;
+            let crop = CropRequest::around(frame, &model.config, bbox, |i| frame.instance_mask[i] == label)?;
+            Some(Target { object_id: Some(instance.object_id), bbox, crop })
+        })
+        .collect()
+}
+
+/// The boxes the segmenter finds; each is matched to a true instance (mask IoU ≥ 0.5) when the
+/// frame has ground truth, for the overlay and the printed error.
+fn predicted_targets(frame: &Frame, model: &KeypointModel, segmenter: &Path, backend: BackendKind) -> anyhow::Result<Vec<Target>> {
+    let segmenter = SegmenterModel::load(segmenter, backend.device()?)?;
+    let detections = segmenter.segment(&[frame])?.remove(0);
+    let found = segmentation::match_detections(frame, &detections, 0.5);
+    Ok(detections
+        .iter()
+        .enumerate()
+        .filter_map(|(d, detection)| {
+            let crop = CropRequest::around(frame, &model.config, detection.bbox, |i| detection.mask[i])?;
+            let object_id = found.iter().position(|f| *f == Some(d)).map(|i| frame.instances[i].object_id);
+            Some(Target { object_id, bbox: detection.bbox, crop })
+        })
+        .collect())
+}
+
+/// A frame from an RGB PNG and a 16-bit depth PNG in millimetres.
+fn frame_from_files(rgb_path: &Path, depth_path: &Path, k: &[f64]) -> anyhow::Result<Frame> {
+    let read = |path: &Path| -> anyhow::Result<(png::OutputInfo, Vec<u8>)> {
+        let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
+        decoder.set_transformations(png::Transformations::EXPAND);
+        let mut reader = decoder.read_info().with_context(|| format!("{}: not a PNG", path.display()))?;
+        let mut buffer = vec![0; reader.output_buffer_size().context("image too large")?];
+        let info = reader.next_frame(&mut buffer).with_context(|| format!("{}: corrupt PNG", path.display()))?;
+        buffer.truncate(info.buffer_size());
+        Ok((info, buffer))
+    };
+    let (info, rgb) = read(rgb_path)?;
+    anyhow::ensure!(
+        info.color_type == png::ColorType::Rgb && info.bit_depth == png::BitDepth::Eight,
+        "{}: expected an 8-bit RGB PNG, found {:?} at {:?} bits",
+        rgb_path.display(),
+        info.color_type,
+        info.bit_depth
+    );
+    let (dinfo, depth_bytes) = read(depth_path)?;
+    anyhow::ensure!(
+        dinfo.color_type == png::ColorType::Grayscale && dinfo.bit_depth == png::BitDepth::Sixteen,
+        "{}: expected a 16-bit greyscale PNG of millimetres",
+        depth_path.display()
+    );
+    anyhow::ensure!(
+        (dinfo.width, dinfo.height) == (info.width, info.height),
+        "{} is {}×{} but {} is {}×{}",
+        depth_path.display(), dinfo.width, dinfo.height, rgb_path.display(), info.width, info.height
+    );
+    let depth = depth_bytes.chunks(2).map(|b| u16::from_be_bytes([b[0], b[1]]) as f32 / 1000.0).collect();
+    let (width, height) = (info.width as usize, info.height as usize);
+    Ok(Frame {
+        scene_id: -1,
+        frame_id: 0,
+        width,
+        height,
+        intrinsics: Intrinsics { fx: k[0], fy: k[1], cx: k[2], cy: k[3] },
+        world_camera: Pose { quat_wxyz: [1.0, 0.0, 0.0, 0.0], translation: [0.0; 3] },
+        samples: 0,
+        denoise: false,
+        render_seed: 0,
+        blender_version: String::new(),
+        rgb,
+        depth,
+        instance_mask: vec![0; width * height],
+        sensor_depth: None,
+        instances: Vec::new(),
+    })
+}
+
+fn fitted_corners(fit: &boxpose_geometry::size_fit::SizedBoxFit) -> [Point3<f64>; 8] {
+    fit.model.corners().map(|c| fit.pose * c)
+}
+
+fn to_json(frame: &Frame, targets: &[Target], predictions: &[BoxPrediction]) -> serde_json::Value {
+    let boxes: Vec<_> = targets
+        .iter()
+        .zip(predictions)
+        .map(|(t, p)| {
+            let fit = p.fit.as_ref().map(|fit| {
+                let q = fit.pose.rotation.quaternion();
+                json!({
+                    "pose_quat_wxyz": [q.w, q.i, q.j, q.k],
+                    "pose_translation_m": fit.pose.translation.vector.as_slice(),
+                    "size_m": fit.model.size().as_slice(),
+                    "corners_camera_m": fitted_corners(fit).iter().map(|c| [c.x, c.y, c.z]).collect::<Vec<_>>(),
+                    "inliers": fit.inliers,
+                    "inlier_rms_m": fit.inlier_rms,
+                })
+            });
+            json!({
+                "object_id": t.object_id,
+                "bbox": t.bbox,
+                "reference_depth_m": t.crop.z_ref,
+                "peaks_camera_m": p.points.iter().map(|c| [c.x, c.y, c.z]).collect::<Vec<_>>(),
+                "peak_scores": p.peaks.iter().map(|k| k.score).collect::<Vec<_>>(),
+                "fit": fit.as_ref().ok(),
+                "fit_error": fit.as_ref().err(),
+            })
+        })
+        .collect();
+    json!({ "scene_id": frame.scene_id, "frame_id": frame.frame_id, "boxes": boxes })
+}
+
+fn write_parquet(path: &Path, frame: &Frame, targets: &[Target], predictions: &[BoxPrediction]) -> anyhow::Result<()> {
+    let fits: Vec<_> = predictions.iter().map(|p| p.fit.as_ref().ok()).collect();
+    let f64_list = |values: Vec<Option<Vec<f64>>>| -> ArrayRef {
+        Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(values.into_iter().map(|v| v.map(|v| v.into_iter().map(Some).collect::<Vec<_>>()))))
+    };
+    let list = |name: &str, item: DataType, nullable: bool| Field::new(name, DataType::List(Arc::new(Field::new("item", item, true))), nullable);
+    let schema = Arc::new(Schema::new(vec![
+        Field::new("scene_id", DataType::Int64, false),
+        Field::new("frame_id", DataType::Int32, false),
+        Field::new("object_id", DataType::Int32, true),
+        list("bbox", DataType::Int32, false),
+        Field::new("reference_depth_m", DataType::Float64, false),
+        list("pose_quat_wxyz", DataType::Float64, true),
+        list("pose_translation_m", DataType::Float64, true),
+        list("size_m", DataType::Float64, true),
+        list("corners_camera_m", DataType::Float64, true),
+        list("peaks_camera_m", DataType::Float64, false),
+        list("peak_scores", DataType::Float32, false),
+        Field::new("inlier_count", DataType::Int32, true),
+        Field::new("inlier_rms_m", DataType::Float64, true),
+        Field::new("fit_error", DataType::Utf8, true),
+    ]));
+    let columns: Vec<ArrayRef> = vec![
+        Arc::new(Int64Array::from(vec![frame.scene_id; targets.len()])),
+        Arc::new(Int32Array::from(vec![frame.frame_id; targets.len()])),
+        Arc::new(targets.iter().map(|t| t.object_id).collect::<Int32Array>()),
+        Arc::new(ListArray::from_iter_primitive::<Int32Type, _, _>(targets.iter().map(|t| Some(t.bbox.map(Some))))),
+        Arc::new(targets.iter().map(|t| t.crop.z_ref).collect::<Float64Array>()),
+        f64_list(fits.iter().map(|f| f.map(|f| { let q = f.pose.rotation.quaternion(); vec![q.w, q.i, q.j, q.k] })).collect()),
+        f64_list(fits.iter().map(|f| f.map(|f| f.pose.translation.vector.as_slice().to_vec())).collect()),
+        f64_list(fits.iter().map(|f| f.map(|f| f.model.size().as_slice().to_vec())).collect()),
+        f64_list(fits.iter().map(|f| f.map(|f| fitted_corners(f).iter().flat_map(|c| [c.x, c.y, c.z]).collect())).collect()),
+        f64_list(predictions.iter().map(|p| Some(p.points.iter().flat_map(|c| [c.x, c.y, c.z]).collect())).collect()),
+        Arc::new(ListArray::from_iter_primitive::<Float32Type, _, _>(predictions.iter().map(|p| Some(p.peaks.iter().map(|k| Some(k.score)).collect::<Vec<_>>())))),
+        Arc::new(fits.iter().map(|f| f.map(|f| f.inliers.iter().filter(|b| **b).count() as i32)).collect::<Int32Array>()),
+        Arc::new(fits.iter().map(|f| f.map(|f| f.inlier_rms)).collect::<Float64Array>()),
+        Arc::new(predictions.iter().map(|p| p.fit.as_ref().err().cloned()).collect::<StringArray>()),
+    ];
+    boxpose_data::write_parquet(path, schema.clone(), &[RecordBatch::try_new(schema, columns)?])?;
+    Ok(())
+}

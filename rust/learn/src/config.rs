@@ -1,0 +1,170 @@
+//! Network and training settings: one TOML file (see `models/*/config.toml` and
+//! `configs/*.toml`), every field overridable from the command line.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use crate::LearnError;
+
+/// Backbone layouts. `resnet18`/`resnet34` are the paper's family (ResNet-34 in the paper);
+/// `slim` halves every width of ResNet-18 for CPU training, `tiny` is for tests.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backbone {
+    Resnet18,
+    Resnet34,
+    Slim,
+    Tiny,
+}
+
+/// Channel widths and BasicBlock counts of the four ResNet stages, and the head's width.
+pub struct Layout {
+    pub widths: [usize; 4],
+    pub blocks: [usize; 4],
+    pub head_channels: usize,
+}
+
+impl Backbone {
+    pub fn layout(self) -> Layout {
+        match self {
+            Backbone::Resnet18 => Layout { widths: [64, 128, 256, 512], blocks: [2, 2, 2, 2], head_channels: 256 },
+            Backbone::Resnet34 => Layout { widths: [64, 128, 256, 512], blocks: [3, 4, 6, 3], head_channels: 256 },
+            Backbone::Slim => Layout { widths: [32, 64, 128, 256], blocks: [2, 2, 2, 2], head_channels: 128 },
+            Backbone::Tiny => Layout { widths: [8, 8, 16, 16], blocks: [1, 1, 1, 1], head_channels: 8 },
+        }
+    }
+}
+
+/// What the network sees and outputs; stored beside every checkpoint so inference rebuilds the
+/// same crop and voxel grid.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NetworkConfig {
+    pub backbone: Backbone,
+    /// Side of the square network input in pixels (128 on CPU, 256 as in the paper); a multiple
+    /// of 32. The heatmap is input_size / 4 on a side.
+    pub input_size: usize,
+    /// Depth bins D of the heatmap.
+    pub depth_bins: usize,
+    /// Depth range of the heatmap relative to the crop's reference depth (the median depth of the
+    /// box's visible pixels), metres: [near, far].
+    pub depth_range_m: [f64; 2],
+    /// Standard deviation of the target Gaussians and of the NMS kernel, in voxels.
+    pub sigma_voxels: f64,
+    /// The square crop's side is the box's visible bounding box's longer side times this.
+    pub crop_margin: f64,
+}
+
+impl NetworkConfig {
+    pub fn heatmap_size(&self) -> usize {
+        self.input_size / 4
+    }
+
+    pub fn validate(&self) -> Result<(), LearnError> {
+        let bad = |reason: String| Err(LearnError::Config(reason));
+        if self.input_size == 0 || self.input_size % 32 != 0 {
+            return bad(format!("input_size {} must be a positive multiple of 32", self.input_size));
+        }
+        if self.depth_bins < 2 {
+            return bad(format!("depth_bins {} must be at least 2", self.depth_bins));
+        }
+        let [near, far] = self.depth_range_m;
+        if !(near.is_finite() && far.is_finite() && near < far) {
+            return bad(format!("depth_range_m {:?} must be finite with near < far", self.depth_range_m));
+        }
+        if !(self.sigma_voxels > 0.0) || !(self.crop_margin >= 1.0) {
+            return bad(format!("sigma_voxels {} must be > 0 and crop_margin {} ≥ 1", self.sigma_voxels, self.crop_margin));
+        }
+        Ok(())
+    }
+}
+
+/// Training-time augmentation of the crops (never applied in validation or inference).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AugmentConfig {
+    /// Crop centre moves by up to this fraction of the crop's side.
+    pub shift: f64,
+    /// Crop side is scaled by a factor in [1 − scale, 1 + scale].
+    pub scale: f64,
+    /// Brightness, contrast and per-channel gain vary by up to this fraction.
+    pub color: f64,
+    /// Standard deviation of Gaussian noise added to valid depth, metres.
+    pub depth_noise_m: f64,
+    /// Fraction of depth pixels set to "no measurement" (0), as a real sensor drops them.
+    pub depth_dropout: f64,
+}
+
+/// Everything `boxpose train` needs; a TOML file with these sections.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    pub network: NetworkConfig,
+    pub augment: AugmentConfig,
+    pub optimizer: OptimizerConfig,
+    pub data: DataConfig,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OptimizerConfig {
+    pub batch_size: usize,
+    /// Total optimizer steps of the run.
+    pub steps: usize,
+    /// Adam learning rate; decays by cosine to `learning_rate · final_lr_fraction`.
+    pub learning_rate: f64,
+    pub final_lr_fraction: f64,
+    pub weight_decay: f64,
+    /// Validate and checkpoint every this many steps (and at the end).
+    pub validate_every: usize,
+    pub seed: u64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    /// Dataset folders to train on (relative paths are taken from the working directory).
+    pub datasets: Vec<PathBuf>,
+    /// Scenes with `scene_id % val_modulus == 0` are held out for validation.
+    pub val_modulus: i64,
+    /// Instances less visible than this are not trained or evaluated on (a detector would not
+    /// find them either).
+    pub min_visible_fraction: f32,
+    /// At most this many validation instances are scored per validation (0: all).
+    pub max_val_instances: usize,
+    /// Worker threads preparing batches (crop, augment, target) ahead of the optimizer.
+    pub loader_threads: usize,
+}
+
+impl TrainConfig {
+    pub fn load(path: &Path) -> Result<Self, LearnError> {
+        let text = std::fs::read_to_string(path).map_err(|e| LearnError::Io(path.to_path_buf(), e))?;
+        let config: TrainConfig =
+            toml::from_str(&text).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+        config.validate().map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+        Ok(config)
+    }
+
+    pub fn validate(&self) -> Result<(), LearnError> {
+        self.network.validate()?;
+        let o = &self.optimizer;
+        if o.batch_size == 0 || o.steps == 0 || o.validate_every == 0 {
+            return Err(LearnError::Config("batch_size, steps and validate_every must be positive".into()));
+        }
+        if !(o.learning_rate > 0.0) || !(0.0..=1.0).contains(&o.final_lr_fraction) {
+            return Err(LearnError::Config(format!(
+                "learning_rate {} must be > 0 and final_lr_fraction {} in [0, 1]",
+                o.learning_rate, o.final_lr_fraction
+            )));
+        }
+        if self.data.val_modulus < 2 {
+            return Err(LearnError::Config(format!("val_modulus {} must be at least 2", self.data.val_modulus)));
+        }
+        Ok(())
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("a TrainConfig always serializes")
+    }
+}

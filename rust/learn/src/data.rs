@@ -1,0 +1,355 @@
+//! From the dataset contract to network tensors: per instance, a square RGBD crop around the box
+//! (its visible bounding box enlarged by a margin, jittered for training), resized to the network
+//! input and normalized, and the target: a 3D Gaussian at every ground-truth corner in the
+//! (z-bin, v, u) volume. Batches are prepared on worker threads ahead of the optimizer.
+
+use std::path::Path;
+use std::sync::Arc;
+use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+
+use boxpose_data::{Dataset, Frame, Instance, Intrinsics};
+use boxpose_geometry::heatmap::{self, CropTransform, DepthBins, HeatmapDims, PinholeIntrinsics, VoxelGrid};
+use nalgebra::Point3;
+use rand::seq::SliceRandom;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
+
+use crate::LearnError;
+use crate::training::Task;
+use crate::config::{AugmentConfig, NetworkConfig};
+
+/// RGB is normalized as (x/255 − mean)/std with these (a neutral grey; boxes are not ImageNet).
+const RGB_MEAN: f32 = 0.5;
+const RGB_STD: f32 = 0.25;
+/// Depth enters the network as (z − z_ref)/DEPTH_SCALE_M, clamped to ±DEPTH_CLAMP; 0 where the
+/// pixel has no depth.
+const DEPTH_SCALE_M: f32 = 0.1;
+const DEPTH_CLAMP: f32 = 3.0;
+
+/// A square window of the image, in pixel-index coordinates: it covers pixels x0..x0+side.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CropWindow {
+    pub x0: f64,
+    pub y0: f64,
+    pub side: f64,
+}
+
+impl CropWindow {
+    /// The square around a bounding box `(x_min, y_min, x_max, y_max)` (max exclusive), its side
+    /// the box's longer side times `margin`.
+    pub fn around(bbox: [i32; 4], margin: f64) -> Self {
+        let [x_min, y_min, x_max, y_max] = bbox.map(f64::from);
+        let side = (x_max - x_min).max(y_max - y_min).max(1.0) * margin;
+        let (cx, cy) = ((x_min + x_max) / 2.0, (y_min + y_max) / 2.0);
+        Self { x0: cx - side / 2.0, y0: cy - side / 2.0, side }
+    }
+
+    /// Training jitter: shift the centre by up to `shift`·side, scale the side by 1 ± `scale`.
+    fn jittered(self, augment: &AugmentConfig, rng: &mut ChaCha8Rng) -> Self {
+        let side = self.side * (1.0 + rng.random_range(-augment.scale..=augment.scale));
+        let cx = self.x0 + self.side / 2.0 + self.side * rng.random_range(-augment.shift..=augment.shift);
+        let cy = self.y0 + self.side / 2.0 + self.side * rng.random_range(-augment.shift..=augment.shift);
+        Self { x0: cx - side / 2.0, y0: cy - side / 2.0, side }
+    }
+}
+
+/// What ties a crop's heatmap to the camera: the voxel grid of a window at reference depth z_ref.
+pub fn voxel_grid(config: &NetworkConfig, intrinsics: &Intrinsics, window: &CropWindow, z_ref: f64) -> VoxelGrid {
+    let scale = window.side / config.heatmap_size() as f64;
+    let [near, far] = config.depth_range_m;
+    VoxelGrid {
+        intrinsics: PinholeIntrinsics { fx: intrinsics.fx, fy: intrinsics.fy, cx: intrinsics.cx, cy: intrinsics.cy },
+        crop: CropTransform { x0: window.x0, y0: window.y0, sx: scale, sy: scale },
+        depth: DepthBins { z_ref, z_min: near, bin_size: (far - near) / config.depth_bins as f64 },
+    }
+}
+
+pub fn heatmap_dims(config: &NetworkConfig) -> HeatmapDims {
+    let n = config.heatmap_size();
+    HeatmapDims { depth: config.depth_bins, height: n, width: n }
+}
+
+/// The crop's reference depth: the median depth of the pixels inside the window that `belongs`
+/// to the box (its mask, ground truth or predicted), or of all valid pixels of the window when
+/// none does. `None` when the window has no depth at all.
+pub fn reference_depth(frame: &Frame, window: &CropWindow, belongs: impl Fn(usize) -> bool) -> Option<f64> {
+    let (x_lo, x_hi) = (window.x0.floor().max(0.0) as usize, ((window.x0 + window.side).ceil() as usize).min(frame.width));
+    let (y_lo, y_hi) = (window.y0.floor().max(0.0) as usize, ((window.y0 + window.side).ceil() as usize).min(frame.height));
+    let mut own = Vec::new();
+    let mut any = Vec::new();
+    for y in y_lo..y_hi {
+        for x in x_lo..x_hi {
+            let i = y * frame.width + x;
+            let z = frame.depth[i];
+            if z > 0.0 {
+                any.push(z);
+                if belongs(i) {
+                    own.push(z);
+                }
+            }
+        }
+    }
+    let mut depths = if own.is_empty() { any } else { own };
+    if depths.is_empty() {
+        return None;
+    }
+    let middle = depths.len() / 2;
+    Some(*depths.select_nth_unstable_by(middle, f32::total_cmp).1 as f64)
+}
+
+/// The network input `[4, S, S]` (R, G, B, depth) of a square window.
+pub fn crop_input(frame: &Frame, window: &CropWindow, z_ref: f64, size: usize, augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>) -> Vec<f32> {
+    let step = window.side / size as f64;
+    resample_input(frame, [window.x0, window.y0], [step, step], [size, size], z_ref, augment)
+}
+
+/// The network input `[4, height, width]` (R, G, B, depth) of the image region that starts at
+/// pixel `origin` and advances `step` image pixels per input pixel: RGB resampled bilinearly,
+/// depth by nearest neighbour (interpolating across a box's edge would invent surfaces), both
+/// with the half-pixel-centre convention of [`CropTransform`]. Outside the image: grey, no depth.
+pub fn resample_input(
+    frame: &Frame,
+    origin: [f64; 2],
+    step: [f64; 2],
+    [width, height]: [usize; 2],
+    z_ref: f64,
+    augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
+) -> Vec<f32> {
+    let plane = width * height;
+    let mut input = vec![0.0f32; 4 * plane];
+    let (w, h) = (frame.width as isize, frame.height as isize);
+    let rgb_at = |x: isize, y: isize, c: usize| -> f32 {
+        if x < 0 || y < 0 || x >= w || y >= h {
+            RGB_MEAN * 255.0
+        } else {
+            frame.rgb[(y as usize * frame.width + x as usize) * 3 + c] as f32
+        }
+    };
+    for row in 0..height {
+        let y = origin[1] + (row as f64 + 0.5) * step[1] - 0.5;
+        let (y_floor, fy) = (y.floor(), (y - y.floor()) as f32);
+        for col in 0..width {
+            let x = origin[0] + (col as f64 + 0.5) * step[0] - 0.5;
+            let (x_floor, fx) = (x.floor(), (x - x.floor()) as f32);
+            let (xi, yi) = (x_floor as isize, y_floor as isize);
+            for c in 0..3 {
+                let top = rgb_at(xi, yi, c) * (1.0 - fx) + rgb_at(xi + 1, yi, c) * fx;
+                let bottom = rgb_at(xi, yi + 1, c) * (1.0 - fx) + rgb_at(xi + 1, yi + 1, c) * fx;
+                input[c * plane + row * width + col] = top * (1.0 - fy) + bottom * fy;
+            }
+            let (xn, yn) = (x.round() as isize, y.round() as isize);
+            if xn >= 0 && yn >= 0 && xn < w && yn < h {
+                input[3 * plane + row * width + col] = frame.depth[yn as usize * frame.width + xn as usize];
+            }
+        }
+    }
+    if let Some((augment, rng)) = augment {
+        augment_input(&mut input, plane, augment, rng);
+    }
+    for value in &mut input[..3 * plane] {
+        *value = (*value / 255.0 - RGB_MEAN) / RGB_STD;
+    }
+    for z in &mut input[3 * plane..] {
+        if *z > 0.0 {
+            *z = ((*z - z_ref as f32) / DEPTH_SCALE_M).clamp(-DEPTH_CLAMP, DEPTH_CLAMP);
+        }
+    }
+    input
+}
+
+/// Colour jitter on RGB in [0, 255]; noise and dropout on raw depth in metres.
+fn augment_input(input: &mut [f32], plane: usize, augment: &AugmentConfig, rng: &mut ChaCha8Rng) {
+    let c = augment.color as f32;
+    if c > 0.0 {
+        let brightness = rng.random_range(-c..=c) * 255.0;
+        let contrast = 1.0 + rng.random_range(-c..=c);
+        for channel in 0..3 {
+            let gain = 1.0 + rng.random_range(-c..=c) / 2.0;
+            for v in &mut input[channel * plane..(channel + 1) * plane] {
+                *v = (((*v - 127.5) * contrast + 127.5) * gain + brightness).clamp(0.0, 255.0);
+            }
+        }
+    }
+    let noise = Normal::new(0.0, augment.depth_noise_m.max(0.0) as f32).expect("a non-negative standard deviation");
+    for z in &mut input[3 * plane..] {
+        if *z > 0.0 {
+            if rng.random_bool(augment.depth_dropout.clamp(0.0, 1.0)) {
+                *z = 0.0;
+            } else {
+                *z += noise.sample(rng);
+            }
+        }
+    }
+}
+
+/// The training target: a Gaussian of `sigma_voxels` at each of the 8 ground-truth corners
+/// (occluded ones too: the network is asked for the box, not its visible surface).
+pub fn target_heatmap(config: &NetworkConfig, grid: &VoxelGrid, corners_camera: &[[f64; 3]; 8]) -> Result<Vec<f32>, LearnError> {
+    let centres = corners_camera.iter().map(|c| grid.project(&Point3::from(*c))).collect::<Result<Vec<_>, _>>()?;
+    Ok(heatmap::render_target_heatmap(heatmap_dims(config), &centres, config.sigma_voxels)?)
+}
+
+/// One instance ready for the network, with what scoring it needs.
+pub struct Sample {
+    pub input: Vec<f32>,
+    pub target: Vec<f32>,
+    pub grid: VoxelGrid,
+}
+
+/// The crop of a ground-truth instance: its visible bbox (jittered when augmenting) and the
+/// median depth of its own mask.
+pub fn instance_sample(
+    config: &NetworkConfig,
+    frame: &Frame,
+    instance: &Instance,
+    augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
+) -> Result<Sample, LearnError> {
+    let bbox = instance.visible_bbox.ok_or_else(|| LearnError::Data(format!(
+        "scene {} frame {} object {}: no visible pixel, nothing to crop",
+        instance.scene_id, instance.frame_id, instance.object_id
+    )))?;
+    let mut window = CropWindow::around(bbox, config.crop_margin);
+    let label = (instance.object_id + 1) as u16;
+    match augment {
+        Some((augment, rng)) => {
+            window = window.jittered(augment, rng);
+            let z_ref = gt_reference_depth(frame, &window, label)?;
+            sample_at(config, frame, &window, z_ref, &instance.corners_camera, Some((augment, rng)))
+        }
+        None => {
+            let z_ref = gt_reference_depth(frame, &window, label)?;
+            sample_at(config, frame, &window, z_ref, &instance.corners_camera, None)
+        }
+    }
+}
+
+/// The sample of a box with true corners `corners_camera` in any crop (a predicted one, say).
+pub fn sample_at(
+    config: &NetworkConfig,
+    frame: &Frame,
+    window: &CropWindow,
+    z_ref: f64,
+    corners_camera: &[[f64; 3]; 8],
+    augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
+) -> Result<Sample, LearnError> {
+    let input = crop_input(frame, window, z_ref, config.input_size, augment);
+    let grid = voxel_grid(config, &frame.intrinsics, window, z_ref);
+    let target = target_heatmap(config, &grid, corners_camera)?;
+    Ok(Sample { input, target, grid })
+}
+
+fn gt_reference_depth(frame: &Frame, window: &CropWindow, label: u16) -> Result<f64, LearnError> {
+    reference_depth(frame, window, |i| frame.instance_mask[i] == label)
+        .ok_or_else(|| LearnError::Data(format!("scene {} frame {}: crop has no depth", frame.scene_id, frame.frame_id)))
+}
+
+/// Every decoded frame of some datasets, and the instances to learn from, split by scene into
+/// training and held-out validation.
+pub struct InstanceSet {
+    pub frames: Vec<Frame>,
+    /// (frame index, instance index) pairs.
+    pub train: Vec<(usize, usize)>,
+    pub val: Vec<(usize, usize)>,
+    /// Frame indices of the training and held-out scenes.
+    pub train_frames: Vec<usize>,
+    pub val_frames: Vec<usize>,
+}
+
+impl InstanceSet {
+    pub fn load(datasets: &[impl AsRef<Path>], val_modulus: i64, min_visible_fraction: f32) -> Result<Self, LearnError> {
+        let mut frames = Vec::new();
+        for path in datasets {
+            let dataset = Dataset::open(path.as_ref())?;
+            for frame in dataset.frames()? {
+                frames.push(frame?);
+            }
+        }
+        let (mut train, mut val) = (Vec::new(), Vec::new());
+        let (mut train_frames, mut val_frames) = (Vec::new(), Vec::new());
+        for (f, frame) in frames.iter().enumerate() {
+            if frame.scene_id.rem_euclid(val_modulus) == 0 { val_frames.push(f) } else { train_frames.push(f) }
+            for (i, instance) in frame.instances.iter().enumerate() {
+                if instance.visible_fraction < min_visible_fraction || instance.visible_bbox.is_none() {
+                    continue;
+                }
+                if frame.scene_id.rem_euclid(val_modulus) == 0 { val.push((f, i)) } else { train.push((f, i)) }
+            }
+        }
+        Ok(Self { frames, train, val, train_frames, val_frames })
+    }
+
+    pub fn instance(&self, (f, i): (usize, usize)) -> (&Frame, &Instance) {
+        (&self.frames[f], &self.frames[f].instances[i])
+    }
+}
+
+/// A batch as flat arrays: inputs `[B, C, H, W]`, targets `[B, C', H', W']`.
+pub struct Batch {
+    pub step: usize,
+    pub size: usize,
+    pub inputs: Vec<f32>,
+    pub targets: Vec<f32>,
+}
+
+/// Which training example fills slot `slot` of step `step`: epochs are seeded shuffles of the
+/// training set, so the sequence depends only on the seed, and a resumed run continues it.
+fn sampled_item(order_cache: &mut (u64, Vec<usize>), n: usize, seed: u64, position: usize) -> usize {
+    let epoch = (position / n) as u64;
+    if order_cache.0 != epoch || order_cache.1.len() != n {
+        let mut order: Vec<usize> = (0..n).collect();
+        order.shuffle(&mut ChaCha8Rng::seed_from_u64(seed ^ epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+        *order_cache = (epoch, order);
+    }
+    order_cache.1[position % n]
+}
+
+/// Prepares training batches of `task` for steps `start_step..end_step`, on `threads` worker
+/// threads, at most two batches ahead of the optimizer; each example's augmentation is seeded by
+/// (seed, step, slot), so the batches do not depend on the thread count.
+pub fn spawn_loader<T: Task>(
+    task: Arc<T>,
+    batch_size: usize,
+    seed: u64,
+    start_step: usize,
+    end_step: usize,
+    threads: usize,
+) -> Result<Receiver<Result<Batch, LearnError>>, LearnError> {
+    let items = task.train_items();
+    if items == 0 {
+        return Err(LearnError::Data("nothing to train on (is every scene held out, or every box hidden?)".into()));
+    }
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.max(1))
+        .thread_name(|i| format!("boxpose-loader-{i}"))
+        .build()
+        .map_err(|e| LearnError::Data(format!("cannot start the loader threads: {e}")))?;
+    let (sender, receiver): (SyncSender<_>, _) = sync_channel(2);
+    std::thread::spawn(move || {
+        let mut order = (u64::MAX, Vec::new());
+        for step in start_step..end_step {
+            let picks: Vec<usize> = (0..batch_size).map(|slot| sampled_item(&mut order, items, seed, step * batch_size + slot)).collect();
+            let examples: Result<Vec<(Vec<f32>, Vec<f32>)>, LearnError> = pool.install(|| {
+                picks
+                    .par_iter()
+                    .enumerate()
+                    .map(|(slot, &pick)| {
+                        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ((step * batch_size + slot) as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+                        task.training_example(pick, &mut rng)
+                    })
+                    .collect()
+            });
+            let batch = examples.map(|examples| Batch {
+                step,
+                size: examples.len(),
+                inputs: examples.iter().flat_map(|(input, _)| input.iter().copied()).collect(),
+                targets: examples.iter().flat_map(|(_, target)| target.iter().copied()).collect(),
+            });
+            if sender.send(batch).is_err() {
+                return; // the trainer stopped
+            }
+        }
+    });
+    Ok(receiver)
+}

@@ -1,0 +1,134 @@
+//! Scores of the network on ground-truth instances: the heatmap loss, corner recall, and every
+//! pose fit's metrics. Shared by validation during training and by `boxpose eval`.
+
+use boxpose_data::Instance;
+use boxpose_geometry::BoxModel;
+use boxpose_geometry::heatmap::VoxelGrid;
+use boxpose_geometry::pipeline::{self, Method, Scores};
+use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+
+use crate::LearnError;
+use crate::config::NetworkConfig;
+use crate::inference;
+
+/// A true corner counts as found when a back-projected peak lies within this distance (metres).
+pub const CORNER_RECALL_RADIUS_M: f64 = 0.02;
+
+/// How the network did on one instance.
+pub struct InstanceEval {
+    pub diameter_m: f64,
+    /// The segmenter did not find the box: no heatmap, every fit failed.
+    pub missed: bool,
+    /// Mean squared error of the heatmap against the target.
+    pub heatmap_mse: f64,
+    /// True corners with a peak within [`CORNER_RECALL_RADIUS_M`], of 8.
+    pub corners_found: usize,
+    pub fits: Vec<(Method, Result<Scores, String>)>,
+}
+
+/// The box's true pose in the camera frame.
+pub fn true_pose(instance: &Instance) -> Isometry3<f64> {
+    let [w, x, y, z] = instance.camera_box.quat_wxyz;
+    Isometry3::from_parts(
+        Translation3::from(Vector3::from(instance.camera_box.translation)),
+        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
+    )
+}
+
+/// Scores one heatmap (from the crop `grid`) against its instance's truth and `target`.
+pub fn evaluate_instance(
+    config: &NetworkConfig,
+    instance: &Instance,
+    heatmap: &[f32],
+    target: &[f32],
+    grid: &VoxelGrid,
+) -> Result<InstanceEval, LearnError> {
+    let model = BoxModel::new(Vector3::from(instance.size))?;
+    let heatmap_mse = heatmap.iter().zip(target).map(|(p, t)| ((p - t) as f64).powi(2)).sum::<f64>() / heatmap.len() as f64;
+    let (peaks, points) = inference::decode(config, heatmap, grid)?;
+    let corners_found = instance
+        .corners_camera
+        .iter()
+        .filter(|c| points.iter().any(|p| (p - Point3::from(**c)).norm() < CORNER_RECALL_RADIUS_M))
+        .count();
+    let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
+    let fits = pipeline::fit_and_score(&model, &true_pose(instance), &points, &scores);
+    Ok(InstanceEval { diameter_m: model.diameter(), missed: false, heatmap_mse, corners_found, fits })
+}
+
+/// An instance the segmenter missed: no corner found, every fit a failure.
+pub fn missed_instance(instance: &Instance) -> Result<InstanceEval, LearnError> {
+    let model = BoxModel::new(Vector3::from(instance.size))?;
+    Ok(InstanceEval {
+        diameter_m: model.diameter(),
+        missed: true,
+        heatmap_mse: f64::NAN,
+        corners_found: 0,
+        fits: Method::ALL.into_iter().map(|m| (m, Err("not found by the segmenter".to_string()))).collect(),
+    })
+}
+
+/// Aggregates of many [`InstanceEval`]s.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
+pub struct Summary {
+    pub instances: usize,
+    pub heatmap_mse: f64,
+    /// Fraction of true corners found.
+    pub corner_recall: f64,
+    /// Fraction of instances whose robust fit (known size) has MSSD below 0.05 / 0.1 of the
+    /// box's diameter (a failed fit counts as a miss).
+    pub robust_mssd_recall_005: f64,
+    pub robust_mssd_recall_010: f64,
+    /// The same for the pose-and-size fit (size unknown).
+    pub size_mssd_recall_005: f64,
+    pub size_mssd_recall_010: f64,
+    /// Median of the paper's error of the paper's own search.
+    pub paper_error_median: f64,
+}
+
+impl Summary {
+    /// The summary as (name, value) pairs: the columns of a run's history.csv.
+    pub fn named(&self) -> Vec<(String, f64)> {
+        [
+            ("val_instances", self.instances as f64),
+            ("heatmap_mse", self.heatmap_mse),
+            ("corner_recall", self.corner_recall),
+            ("robust_mssd_recall_005", self.robust_mssd_recall_005),
+            ("robust_mssd_recall_010", self.robust_mssd_recall_010),
+            ("size_mssd_recall_005", self.size_mssd_recall_005),
+            ("size_mssd_recall_010", self.size_mssd_recall_010),
+            ("paper_error_median", self.paper_error_median),
+        ]
+        .into_iter()
+        .map(|(name, value)| (name.to_string(), value))
+        .collect()
+    }
+}
+
+/// Fraction of `evals` whose `method` fit has MSSD below `fraction` of the diameter.
+pub fn mssd_recall(evals: &[InstanceEval], method: Method, fraction: f64) -> f64 {
+    let hits = evals
+        .iter()
+        .filter(|e| e.fits.iter().any(|(m, s)| *m == method && s.as_ref().is_ok_and(|s| s.mssd_m < fraction * e.diameter_m)))
+        .count();
+    hits as f64 / evals.len().max(1) as f64
+}
+
+pub fn summarize(evals: &[InstanceEval]) -> Summary {
+    let n = evals.len().max(1) as f64;
+    let mut paper_errors: Vec<f64> = evals
+        .iter()
+        .filter_map(|e| e.fits.iter().find(|(m, _)| *m == Method::PaperExact).and_then(|(_, s)| s.as_ref().ok()).map(|s| s.paper_error))
+        .collect();
+    paper_errors.sort_by(f64::total_cmp);
+    Summary {
+        instances: evals.len(),
+        heatmap_mse: evals.iter().filter(|e| !e.missed).map(|e| e.heatmap_mse).sum::<f64>() / evals.iter().filter(|e| !e.missed).count().max(1) as f64,
+        corner_recall: evals.iter().map(|e| e.corners_found as f64 / 8.0).sum::<f64>() / n,
+        robust_mssd_recall_005: mssd_recall(evals, Method::Robust, 0.05),
+        robust_mssd_recall_010: mssd_recall(evals, Method::Robust, 0.1),
+        size_mssd_recall_005: mssd_recall(evals, Method::SizeAndPose, 0.05),
+        size_mssd_recall_010: mssd_recall(evals, Method::SizeAndPose, 0.1),
+        paper_error_median: paper_errors.get(paper_errors.len() / 2).copied().unwrap_or(f64::NAN),
+    }
+}

@@ -1,0 +1,163 @@
+//! From a frame and a box's crop to its pose (paper steps 4–6): the network's heatmap, NMS
+//! peaks, back-projection, and a pose-and-size fit. A trained model is a folder holding
+//! `network.toml` (what the network sees) and `model.bpk` (burn's burnpack weights).
+
+use std::path::{Path, PathBuf};
+
+use boxpose_data::Frame;
+use boxpose_geometry::heatmap::{self, NmsParams, Peak, VoxelGrid};
+use boxpose_geometry::size_fit::{self, SizeFitParams, SizedBoxFit};
+use burn::prelude::*;
+use nalgebra::Point3;
+
+use crate::LearnError;
+use crate::config::NetworkConfig;
+use crate::data::{self, CropWindow};
+use crate::model::KeypointNet;
+
+pub const NETWORK_FILE: &str = "network.toml";
+pub const WEIGHTS_FILE: &str = "model.bpk";
+/// Peaks taken from each heatmap: one per box corner, as the paper.
+pub const PEAK_COUNT: usize = 8;
+
+/// A trained keypoint network, ready for inference on one device.
+pub struct KeypointModel {
+    pub config: NetworkConfig,
+    pub net: KeypointNet,
+    pub device: Device,
+}
+
+impl KeypointModel {
+    /// Loads `dir/network.toml` and `dir/model.bpk`.
+    pub fn load(dir: &Path, device: Device) -> Result<Self, LearnError> {
+        let config_path = dir.join(NETWORK_FILE);
+        let text = std::fs::read_to_string(&config_path).map_err(|e| LearnError::Io(config_path.clone(), e))?;
+        let config: NetworkConfig =
+            toml::from_str(&text).map_err(|e| LearnError::Checkpoint(config_path.clone(), e.to_string()))?;
+        config.validate().map_err(|e| LearnError::Checkpoint(config_path, e.to_string()))?;
+        let weights = dir.join(WEIGHTS_FILE);
+        if !weights.is_file() {
+            return Err(LearnError::Checkpoint(weights, "missing: is this a model folder written by `boxpose train`?".into()));
+        }
+        let net = KeypointNet::keypoints(&config, &device)
+            .try_load_file(&weights)
+            .map_err(|e| LearnError::Checkpoint(weights.clone(), format!("cannot load the weights ({e}); were they trained with this network.toml?")))?;
+        Ok(Self { config, net: net.valid(), device })
+    }
+
+    /// Writes the model folder (network.toml, model.bpk) atomically: into `dir.tmp`, then renamed.
+    pub fn save(config: &NetworkConfig, net: &KeypointNet, dir: &Path) -> Result<(), LearnError> {
+        write_dir_atomically(dir, |tmp| {
+            let path = tmp.join(NETWORK_FILE);
+            std::fs::write(&path, toml::to_string_pretty(config).expect("a NetworkConfig serializes")).map_err(|e| LearnError::Io(path, e))?;
+            let path = tmp.join(WEIGHTS_FILE);
+            net.clone().save_file(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))
+        })
+    }
+
+    /// Heatmaps `[D·H·W]` of prepared inputs `[4·S·S]` each, in batches of `batch_size`.
+    pub fn heatmaps(&self, inputs: &[Vec<f32>], batch_size: usize) -> Result<Vec<Vec<f32>>, LearnError> {
+        let s = self.config.input_size;
+        let mut out = Vec::with_capacity(inputs.len());
+        for chunk in inputs.chunks(batch_size.max(1)) {
+            let flat: Vec<f32> = chunk.iter().flatten().copied().collect();
+            let input = Tensor::<4>::from_data(TensorData::new(flat, [chunk.len(), 4, s, s]), &self.device);
+            let output = self.net.forward(input);
+            let [_, d, h, w] = output.dims();
+            let values: Vec<f32> = output.into_data().try_to_vec::<f32>().map_err(|e| LearnError::Backend(format!("{e:?}")))?;
+            out.extend(values.chunks(d * h * w).map(<[f32]>::to_vec));
+        }
+        if let Some(bad) = out.iter().flatten().find(|v| !v.is_finite()) {
+            return Err(LearnError::Backend(format!("the network output a non-finite value ({bad}): corrupt weights?")));
+        }
+        Ok(out)
+    }
+}
+
+/// A box's crop at inference: the window and its reference depth.
+#[derive(Debug, Clone, Copy)]
+pub struct CropRequest {
+    pub window: CropWindow,
+    pub z_ref: f64,
+}
+
+impl CropRequest {
+    /// The crop around a bounding box, at the median depth of the pixels `belongs` marks as the
+    /// box's (its mask); `None` when the window has no depth.
+    pub fn around(frame: &Frame, config: &NetworkConfig, bbox: [i32; 4], belongs: impl Fn(usize) -> bool) -> Option<Self> {
+        let window = CropWindow::around(bbox, config.crop_margin);
+        data::reference_depth(frame, &window, belongs).map(|z_ref| Self { window, z_ref })
+    }
+}
+
+/// What the pipeline recovers for one box.
+#[derive(Debug, Clone)]
+pub struct BoxPrediction {
+    pub grid: VoxelGrid,
+    /// NMS peaks (best first) and their back-projections, camera frame, metres.
+    pub peaks: Vec<Peak>,
+    pub points: Vec<Point3<f64>>,
+    /// The pose-and-size fit (pose, size, inliers, residuals), or why it failed.
+    pub fit: Result<SizedBoxFit, String>,
+}
+
+/// NMS on one heatmap, and the peaks back-projected through the crop's voxel grid.
+pub fn decode(config: &NetworkConfig, heatmap: &[f32], grid: &VoxelGrid) -> Result<(Vec<Peak>, Vec<Point3<f64>>), LearnError> {
+    let params = NmsParams { count: PEAK_COUNT, sigma: config.sigma_voxels, refine_radius: 1 };
+    let peaks = heatmap::non_maximum_suppression(heatmap, data::heatmap_dims(config), &params)?;
+    let points = peaks.iter().map(|p| grid.back_project(&p.coord)).collect::<Result<Vec<_>, _>>()?;
+    Ok((peaks, points))
+}
+
+/// Runs the whole pipeline on crops of one frame.
+pub fn predict(model: &KeypointModel, frame: &Frame, crops: &[CropRequest], batch_size: usize) -> Result<Vec<BoxPrediction>, LearnError> {
+    let inputs: Vec<Vec<f32>> =
+        crops.iter().map(|c| data::crop_input(frame, &c.window, c.z_ref, model.config.input_size, None)).collect();
+    let heatmaps = model.heatmaps(&inputs, batch_size)?;
+    crops
+        .iter()
+        .zip(&heatmaps)
+        .map(|(crop, heatmap)| {
+            let grid = data::voxel_grid(&model.config, &frame.intrinsics, &crop.window, crop.z_ref);
+            let (peaks, points) = decode(&model.config, heatmap, &grid)?;
+            let fit = size_fit::fit_pose_and_size(&points, &SizeFitParams::default()).map_err(|e| e.to_string());
+            Ok(BoxPrediction { grid, peaks, points, fit })
+        })
+        .collect()
+}
+
+/// Writes a folder by filling `dir.tmp` and renaming it over `dir`, so a reader never sees a
+/// half-written one (an interrupted write leaves the previous folder intact).
+pub fn write_dir_atomically(dir: &Path, fill: impl FnOnce(&Path) -> Result<(), LearnError>) -> Result<(), LearnError> {
+    let with_suffix = |suffix: &str| -> PathBuf {
+        let mut name = dir.file_name().unwrap_or_default().to_os_string();
+        name.push(suffix);
+        dir.with_file_name(name)
+    };
+    let (tmp, old) = (with_suffix(".tmp"), with_suffix(".old"));
+    restore_interrupted(dir, &old)?;
+    for leftover in [&tmp, &old] {
+        if leftover.exists() {
+            std::fs::remove_dir_all(leftover).map_err(|e| LearnError::Io(leftover.clone(), e))?;
+        }
+    }
+    std::fs::create_dir_all(&tmp).map_err(|e| LearnError::Io(tmp.clone(), e))?;
+    fill(&tmp)?;
+    if dir.exists() {
+        std::fs::rename(dir, &old).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
+    }
+    std::fs::rename(&tmp, dir).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old).map_err(|e| LearnError::Io(old, e))?;
+    }
+    Ok(())
+}
+
+/// If a write was interrupted between its two renames, `dir` is missing and `dir.old` is the last
+/// complete folder: put it back.
+pub fn restore_interrupted(dir: &Path, old: &Path) -> Result<(), LearnError> {
+    if !dir.exists() && old.exists() {
+        std::fs::rename(old, dir).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
+    }
+    Ok(())
+}

@@ -1,0 +1,467 @@
+//! Instance segmentation (paper step 3, where the paper uses Mask R-CNN), bottom-up in the
+//! manner of Panoptic-DeepLab: one network over the whole RGBD frame outputs, at 1/4 of its input
+//! resolution, a foreground logit, an object-centre heatmap and every pixel's offset to its
+//! object's centre. Foreground pixels vote for a centre; each voted peak of the centre heatmap is
+//! one box, with its mask, bounding box and score. A model folder holds `segmenter.toml` and
+//! `model.bpk`.
+
+use std::path::Path;
+
+use boxpose_data::Frame;
+use burn::prelude::*;
+use burn::tensor::activation::log_sigmoid;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::LearnError;
+use crate::config::{AugmentConfig, Backbone, DataConfig, OptimizerConfig};
+use crate::data::{self, InstanceSet};
+use crate::inference::{WEIGHTS_FILE, write_dir_atomically};
+use crate::model::ResNetDeconv;
+use crate::training::Task;
+
+pub const SEGMENTER_FILE: &str = "segmenter.toml";
+/// Output channels: foreground logit, centre heatmap, offset to the centre (x, y) in output pixels.
+const OUTPUTS: usize = 4;
+/// Target channels: the outputs' targets and the mask of pixels whose offset is supervised.
+const TARGETS: usize = 5;
+
+/// What the segmenter sees and how its output becomes instances.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SegmenterConfig {
+    pub backbone: Backbone,
+    /// The frame is resized to this (multiples of 32); the output is a quarter of it.
+    pub input_width: usize,
+    pub input_height: usize,
+    /// Standard deviation of the target centre Gaussians, output pixels.
+    pub centre_sigma: f64,
+    /// Loss weights of the centre heatmap (MSE) and the offsets (L1, output pixels) beside the
+    /// foreground's binary cross-entropy.
+    pub centre_weight: f64,
+    pub offset_weight: f64,
+    /// A pixel is foreground above this probability; a centre is a local maximum above this.
+    pub foreground_threshold: f32,
+    pub centre_threshold: f32,
+    /// Instances with fewer output pixels are dropped.
+    pub min_pixels: usize,
+}
+
+impl SegmenterConfig {
+    pub fn output_size(&self) -> [usize; 2] {
+        [self.input_width / 4, self.input_height / 4]
+    }
+
+    pub fn validate(&self) -> Result<(), LearnError> {
+        if self.input_width == 0 || self.input_width % 32 != 0 || self.input_height == 0 || self.input_height % 32 != 0 {
+            return Err(LearnError::Config(format!("input {}×{} must be positive multiples of 32", self.input_width, self.input_height)));
+        }
+        if !(self.centre_sigma > 0.0) {
+            return Err(LearnError::Config("centre_sigma must be positive".into()));
+        }
+        Ok(())
+    }
+}
+
+/// `boxpose train-segmenter`'s TOML file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SegmenterTrainConfig {
+    pub segmenter: SegmenterConfig,
+    pub augment: AugmentConfig,
+    pub optimizer: OptimizerConfig,
+    pub data: DataConfig,
+}
+
+impl SegmenterTrainConfig {
+    pub fn load(path: &Path) -> Result<Self, LearnError> {
+        let text = std::fs::read_to_string(path).map_err(|e| LearnError::Io(path.to_path_buf(), e))?;
+        let config: Self = toml::from_str(&text).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+        config.segmenter.validate().map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+        Ok(config)
+    }
+
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).expect("a SegmenterTrainConfig always serializes")
+    }
+}
+
+/// One found box: its mask over the full frame (row-major), bounding box and score.
+#[derive(Debug, Clone)]
+pub struct Detection {
+    pub mask: Vec<bool>,
+    /// (x_min, y_min, x_max, y_max), max exclusive, full-frame pixels.
+    pub bbox: [i32; 4],
+    pub score: f32,
+}
+
+/// Image pixels per input pixel, for a frame resized to the segmenter's input.
+fn input_step(config: &SegmenterConfig, frame: &Frame) -> [f64; 2] {
+    [frame.width as f64 / config.input_width as f64, frame.height as f64 / config.input_height as f64]
+}
+
+/// The frame resized to the input, depth relative to the frame's median depth.
+pub fn frame_input(config: &SegmenterConfig, frame: &Frame, augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>) -> Vec<f32> {
+    let whole = data::CropWindow { x0: 0.0, y0: 0.0, side: frame.width.max(frame.height) as f64 };
+    let z_ref = data::reference_depth(frame, &whole, |_| false).unwrap_or(1.0);
+    data::resample_input(frame, [0.0, 0.0], input_step(config, frame), [config.input_width, config.input_height], z_ref, augment)
+}
+
+/// Object label (object_id + 1, 0 = none) at the centre of each output pixel.
+fn output_labels(config: &SegmenterConfig, frame: &Frame) -> Vec<u16> {
+    let [w, h] = config.output_size();
+    let [sx, sy] = input_step(config, frame);
+    let mut labels = vec![0u16; w * h];
+    for v in 0..h {
+        let y = (((v as f64 + 0.5) * 4.0 * sy - 0.5).round() as usize).min(frame.height - 1);
+        for u in 0..w {
+            let x = (((u as f64 + 0.5) * 4.0 * sx - 0.5).round() as usize).min(frame.width - 1);
+            labels[v * w + u] = frame.instance_mask[y * frame.width + x];
+        }
+    }
+    labels
+}
+
+/// Targets `[5, H/4, W/4]`: foreground, centre Gaussians at each visible box's mask centroid,
+/// offsets (x, y) from each foreground pixel to its box's centroid, and the offset weight.
+pub fn frame_targets(config: &SegmenterConfig, frame: &Frame) -> Vec<f32> {
+    let [w, h] = config.output_size();
+    let plane = w * h;
+    let labels = output_labels(config, frame);
+    let max_label = labels.iter().copied().max().unwrap_or(0) as usize;
+    let mut sums = vec![(0.0f64, 0.0f64, 0usize); max_label + 1];
+    for (i, &label) in labels.iter().enumerate() {
+        if label > 0 {
+            let s = &mut sums[label as usize];
+            s.0 += (i % w) as f64;
+            s.1 += (i / w) as f64;
+            s.2 += 1;
+        }
+    }
+    let centroids: Vec<Option<(f64, f64)>> = sums.iter().map(|&(x, y, n)| (n > 0).then(|| (x / n as f64, y / n as f64))).collect();
+    let mut target = vec![0.0f32; TARGETS * plane];
+    let two_sigma_sq = 2.0 * config.centre_sigma * config.centre_sigma;
+    for (i, &label) in labels.iter().enumerate() {
+        let (u, v) = ((i % w) as f64, (i / w) as f64);
+        let mut centre = 0.0f64;
+        for &(cx, cy) in centroids.iter().flatten() {
+            centre = centre.max((-((u - cx).powi(2) + (v - cy).powi(2)) / two_sigma_sq).exp());
+        }
+        target[plane + i] = centre as f32;
+        if let Some((cx, cy)) = centroids.get(label as usize).copied().flatten().filter(|_| label > 0) {
+            target[i] = 1.0;
+            target[2 * plane + i] = (cx - u) as f32;
+            target[3 * plane + i] = (cy - v) as f32;
+            target[4 * plane + i] = 1.0;
+        }
+    }
+    target
+}
+
+/// Groups one output `[4, H/4, W/4]` into instances on the full frame.
+pub fn decode(config: &SegmenterConfig, frame: &Frame, output: &[f32]) -> Vec<Detection> {
+    let [w, h] = config.output_size();
+    let plane = w * h;
+    let sigmoid = |x: f32| 1.0 / (1.0 + (-x).exp());
+    let centre = &output[plane..2 * plane];
+    let mut centres = Vec::new();
+    for v in 0..h {
+        for u in 0..w {
+            let value = centre[v * w + u];
+            if value < config.centre_threshold {
+                continue;
+            }
+            let is_peak = (v.saturating_sub(1)..(v + 2).min(h))
+                .all(|vv| (u.saturating_sub(1)..(u + 2).min(w)).all(|uu| centre[vv * w + uu] <= value));
+            if is_peak {
+                centres.push((u as f64, v as f64, value));
+            }
+        }
+    }
+    // every foreground pixel joins the centre nearest to where its offset points
+    let mut owner = vec![usize::MAX; plane];
+    let mut counts = vec![0usize; centres.len()];
+    for i in 0..plane {
+        if centres.is_empty() || sigmoid(output[i]) < config.foreground_threshold {
+            continue;
+        }
+        let (x, y) = ((i % w) as f64 + output[2 * plane + i] as f64, (i / w) as f64 + output[3 * plane + i] as f64);
+        let nearest = (0..centres.len())
+            .min_by(|&a, &b| {
+                let d = |k: usize| (centres[k].0 - x).powi(2) + (centres[k].1 - y).powi(2);
+                d(a).total_cmp(&d(b))
+            })
+            .expect("at least one centre");
+        owner[i] = nearest;
+        counts[nearest] += 1;
+    }
+    let [sx, sy] = input_step(config, frame);
+    let mut detections = Vec::new();
+    for (k, &(_, _, score)) in centres.iter().enumerate() {
+        if counts[k] < config.min_pixels {
+            continue;
+        }
+        let mut mask = vec![false; frame.width * frame.height];
+        let mut bbox = [i32::MAX, i32::MAX, i32::MIN, i32::MIN];
+        for y in 0..frame.height {
+            let v = (((y as f64 + 0.5) / (4.0 * sy) - 0.5).round().max(0.0) as usize).min(h - 1);
+            for x in 0..frame.width {
+                let u = (((x as f64 + 0.5) / (4.0 * sx) - 0.5).round().max(0.0) as usize).min(w - 1);
+                if owner[v * w + u] == k {
+                    mask[y * frame.width + x] = true;
+                    bbox = [bbox[0].min(x as i32), bbox[1].min(y as i32), bbox[2].max(x as i32 + 1), bbox[3].max(y as i32 + 1)];
+                }
+            }
+        }
+        detections.push(Detection { mask, bbox, score });
+    }
+    detections.sort_by(|a, b| b.score.total_cmp(&a.score));
+    detections
+}
+
+/// A trained segmenter on one device.
+pub struct SegmenterModel {
+    pub config: SegmenterConfig,
+    pub net: ResNetDeconv,
+    pub device: Device,
+}
+
+impl SegmenterModel {
+    pub fn load(dir: &Path, device: Device) -> Result<Self, LearnError> {
+        let path = dir.join(SEGMENTER_FILE);
+        let text = std::fs::read_to_string(&path).map_err(|e| LearnError::Io(path.clone(), e))?;
+        let config: SegmenterConfig = toml::from_str(&text).map_err(|e| LearnError::Checkpoint(path.clone(), e.to_string()))?;
+        config.validate().map_err(|e| LearnError::Checkpoint(path, e.to_string()))?;
+        let weights = dir.join(WEIGHTS_FILE);
+        let net = ResNetDeconv::new(config.backbone, OUTPUTS, &device)
+            .try_load_file(&weights)
+            .map_err(|e| LearnError::Checkpoint(weights.clone(), format!("cannot load the weights ({e}); is this a segmenter folder?")))?;
+        Ok(Self { config, net: net.valid(), device })
+    }
+
+    pub fn save(config: &SegmenterConfig, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
+        write_dir_atomically(dir, |tmp| {
+            let path = tmp.join(SEGMENTER_FILE);
+            std::fs::write(&path, toml::to_string_pretty(config).expect("a SegmenterConfig serializes")).map_err(|e| LearnError::Io(path, e))?;
+            let path = tmp.join(WEIGHTS_FILE);
+            net.clone().save_file(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))
+        })
+    }
+
+    /// The boxes found in each frame.
+    pub fn segment(&self, frames: &[&Frame]) -> Result<Vec<Vec<Detection>>, LearnError> {
+        let (w, h) = (self.config.input_width, self.config.input_height);
+        let mut out = Vec::with_capacity(frames.len());
+        for chunk in frames.chunks(4) {
+            let flat: Vec<f32> = chunk.iter().flat_map(|f| frame_input(&self.config, f, None)).collect();
+            let output = self.net.forward(Tensor::<4>::from_data(TensorData::new(flat, [chunk.len(), 4, h, w]), &self.device));
+            let values: Vec<f32> = output.into_data().try_to_vec::<f32>().map_err(|e| LearnError::Backend(format!("{e:?}")))?;
+            let per_frame = values.len() / chunk.len();
+            out.extend(chunk.iter().zip(values.chunks(per_frame)).map(|(frame, output)| decode(&self.config, frame, output)));
+        }
+        Ok(out)
+    }
+}
+
+/// Intersection over union of two boolean masks.
+pub fn mask_iou(a: &[bool], b: &[bool]) -> f64 {
+    let (mut inter, mut union) = (0usize, 0usize);
+    for (&x, &y) in a.iter().zip(b) {
+        inter += (x && y) as usize;
+        union += (x || y) as usize;
+    }
+    if union == 0 { 0.0 } else { inter as f64 / union as f64 }
+}
+
+/// Intersection over union of two boxes (x_min, y_min, x_max, y_max), max exclusive.
+pub fn bbox_iou(a: &[i32; 4], b: &[i32; 4]) -> f64 {
+    let w = (a[2].min(b[2]) - a[0].max(b[0])).max(0) as f64;
+    let h = (a[3].min(b[3]) - a[1].max(b[1])).max(0) as f64;
+    let area = |r: &[i32; 4]| ((r[2] - r[0]) * (r[3] - r[1])) as f64;
+    let inter = w * h;
+    if inter == 0.0 { 0.0 } else { inter / (area(a) + area(b) - inter) }
+}
+
+/// COCO-style average precision at one IoU threshold: detections of every frame ranked by score,
+/// each greedily matched to the unmatched true instance of its frame it overlaps most (at least
+/// `threshold`); precision interpolated at 101 recall points. `ious[f][d][g]` is the IoU of frame
+/// f's detection d with its true instance g, `scores[f][d]` the detection's score.
+pub fn average_precision(ious: &[Vec<Vec<f64>>], scores: &[Vec<f32>], true_count: usize, threshold: f64) -> f64 {
+    if true_count == 0 {
+        return f64::NAN;
+    }
+    let mut ranked: Vec<(f32, usize, usize)> =
+        scores.iter().enumerate().flat_map(|(f, s)| s.iter().enumerate().map(move |(d, &score)| (score, f, d))).collect();
+    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let mut taken: Vec<Vec<bool>> = ious.iter().map(|frame| vec![false; frame.first().map_or(0, Vec::len)]).collect();
+    let (mut tp, mut fp) = (0usize, 0usize);
+    let mut curve = Vec::with_capacity(ranked.len());
+    for (_, f, d) in ranked {
+        let best = ious[f][d].iter().enumerate().filter(|(g, iou)| !taken[f][*g] && **iou >= threshold).max_by(|a, b| a.1.total_cmp(b.1));
+        match best {
+            Some((g, _)) => {
+                taken[f][g] = true;
+                tp += 1;
+            }
+            None => fp += 1,
+        }
+        curve.push((tp as f64 / true_count as f64, tp as f64 / (tp + fp) as f64));
+    }
+    (0..=100)
+        .map(|r| {
+            let recall = r as f64 / 100.0;
+            curve.iter().filter(|(rec, _)| *rec >= recall).map(|(_, p)| *p).fold(0.0, f64::max)
+        })
+        .sum::<f64>()
+        / 101.0
+}
+
+/// Mask and bounding-box AP of detections against a frame's true visible instances.
+#[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
+pub struct SegmentationScores {
+    pub mask_ap50: f64,
+    /// Mean over IoU thresholds 0.50, 0.55, …, 0.95 (COCO's AP).
+    pub mask_ap: f64,
+    pub bbox_ap50: f64,
+    pub bbox_ap: f64,
+    pub true_instances: usize,
+    pub detections: usize,
+}
+
+/// True instances a detector is asked to find: every box with a visible pixel.
+pub fn true_masks(frame: &Frame) -> Vec<(i32, Vec<bool>, [i32; 4])> {
+    frame
+        .instances
+        .iter()
+        .filter_map(|i| {
+            let bbox = i.visible_bbox?;
+            let label = (i.object_id + 1) as u16;
+            Some((i.object_id, frame.instance_mask.iter().map(|&m| m == label).collect(), bbox))
+        })
+        .collect()
+}
+
+pub fn score_detections(frames: &[&Frame], detections: &[Vec<Detection>]) -> SegmentationScores {
+    let truths: Vec<_> = frames.iter().map(|f| true_masks(f)).collect();
+    let true_count = truths.iter().map(Vec::len).sum();
+    let scores: Vec<Vec<f32>> = detections.iter().map(|d| d.iter().map(|d| d.score).collect()).collect();
+    let ious = |overlap: &dyn Fn(&Detection, &(i32, Vec<bool>, [i32; 4])) -> f64| -> Vec<Vec<Vec<f64>>> {
+        detections.iter().zip(&truths).map(|(dets, gts)| dets.iter().map(|d| gts.iter().map(|g| overlap(d, g)).collect()).collect()).collect()
+    };
+    let mask_ious = ious(&|d, g| mask_iou(&d.mask, &g.1));
+    let bbox_ious = ious(&|d, g| bbox_iou(&d.bbox, &g.2));
+    let coco = |ious: &[Vec<Vec<f64>>]| (0..10).map(|k| average_precision(ious, &scores, true_count, 0.5 + 0.05 * k as f64)).sum::<f64>() / 10.0;
+    SegmentationScores {
+        mask_ap50: average_precision(&mask_ious, &scores, true_count, 0.5),
+        mask_ap: coco(&mask_ious),
+        bbox_ap50: average_precision(&bbox_ious, &scores, true_count, 0.5),
+        bbox_ap: coco(&bbox_ious),
+        true_instances: true_count,
+        detections: detections.iter().map(Vec::len).sum(),
+    }
+}
+
+/// The segmenter's task: whole frames of the training scenes.
+pub struct SegmenterTask {
+    pub config: SegmenterTrainConfig,
+    pub set: InstanceSet,
+}
+
+impl SegmenterTask {
+    pub fn load(config: SegmenterTrainConfig) -> Result<Self, LearnError> {
+        config.segmenter.validate()?;
+        let set = InstanceSet::load(&config.data.datasets, config.data.val_modulus, config.data.min_visible_fraction)?;
+        Ok(Self { config, set })
+    }
+}
+
+impl Task for SegmenterTask {
+    fn train_items(&self) -> usize {
+        self.set.train_frames.len()
+    }
+
+    fn input_shape(&self) -> [usize; 3] {
+        [4, self.config.segmenter.input_height, self.config.segmenter.input_width]
+    }
+
+    fn target_shape(&self) -> [usize; 3] {
+        let [w, h] = self.config.segmenter.output_size();
+        [TARGETS, h, w]
+    }
+
+    fn training_example(&self, item: usize, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
+        let frame = &self.set.frames[self.set.train_frames[item]];
+        let input = frame_input(&self.config.segmenter, frame, Some((&self.config.augment, rng)));
+        Ok((input, frame_targets(&self.config.segmenter, frame)))
+    }
+
+    fn network(&self, device: &Device) -> ResNetDeconv {
+        ResNetDeconv::new(self.config.segmenter.backbone, OUTPUTS, device)
+    }
+
+    /// Binary cross-entropy of the foreground, plus weighted MSE of the centre heatmap, plus the
+    /// weighted L1 error of the offsets over foreground pixels.
+    fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
+        let c = &self.config.segmenter;
+        let channel = |t: &Tensor<4>, k: usize| t.clone().narrow(1, k, 1);
+        let (logit, fg) = (channel(&output, 0), channel(&target, 0));
+        let bce = (fg.clone() * log_sigmoid(logit.clone()) + (fg.neg() + 1.0) * log_sigmoid(logit.neg())).neg().mean();
+        let centre = (channel(&output, 1) - channel(&target, 1)).powi_scalar(2).mean();
+        let weight = channel(&target, 4);
+        let offset_error = (output.narrow(1, 2, 2) - target.narrow(1, 2, 2)).abs() * weight.clone();
+        let offset = offset_error.sum() / (weight.sum() * 2.0 + 1.0);
+        bce + centre * c.centre_weight + offset * c.offset_weight
+    }
+
+    fn validate(&self, net: &ResNetDeconv) -> Result<Vec<(String, f64)>, LearnError> {
+        let device = net.devices().into_iter().next().unwrap_or_default();
+        let model = SegmenterModel { config: self.config.segmenter.clone(), net: net.clone(), device };
+        let frames: Vec<&Frame> = self.set.val_frames.iter().map(|&f| &self.set.frames[f]).collect();
+        if frames.is_empty() {
+            return Err(LearnError::Data(format!("no held-out frame: no scene has scene_id % {} == 0", self.config.data.val_modulus)));
+        }
+        let detections = model.segment(&frames)?;
+        let s = score_detections(&frames, &detections);
+        Ok(vec![
+            ("mask_ap50".into(), s.mask_ap50),
+            ("mask_ap".into(), s.mask_ap),
+            ("bbox_ap50".into(), s.bbox_ap50),
+            ("bbox_ap".into(), s.bbox_ap),
+            ("detections_per_true".into(), s.detections as f64 / s.true_instances.max(1) as f64),
+        ])
+    }
+
+    fn save_model(&self, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
+        SegmenterModel::save(&self.config.segmenter, net, dir)
+    }
+}
+
+/// For each of the frame's instances, the detection (index into `detections`, sorted by score)
+/// that found it: detections in score order each take the unmatched instance they overlap most,
+/// if its mask IoU is at least `threshold`.
+pub fn match_detections(frame: &Frame, detections: &[Detection], threshold: f64) -> Vec<Option<usize>> {
+    let mut found = vec![None; frame.instances.len()];
+    for (d, detection) in detections.iter().enumerate() {
+        let best = frame
+            .instances
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| found[*i].is_none())
+            .map(|(i, instance)| {
+                let label = (instance.object_id + 1) as u16;
+                let (mut inter, mut union) = (0usize, 0usize);
+                for (&m, &p) in frame.instance_mask.iter().zip(&detection.mask) {
+                    let t = m == label;
+                    inter += (t && p) as usize;
+                    union += (t || p) as usize;
+                }
+                (i, if union == 0 { 0.0 } else { inter as f64 / union as f64 })
+            })
+            .filter(|(_, iou)| *iou >= threshold)
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((i, _)) = best {
+            found[i] = Some(d);
+        }
+    }
+    found
+}

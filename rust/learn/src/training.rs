@@ -1,0 +1,338 @@
+//! The training loop shared by both networks: Adam on the task's loss, warm-up then cosine
+//! learning-rate decay, validation on held-out scenes every `validate_every` steps, and a
+//! checkpoint (weights, optimizer state, step, history) written atomically at each validation,
+//! from which an interrupted run resumes exactly where it stopped.
+//!
+//! A run folder holds `config.toml` (the full configuration), `checkpoint/` (the latest state),
+//! `history.csv` (one row per validation) and, at the end, `model/` (what inference loads).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::prelude::*;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::LearnError;
+use crate::config::{OptimizerConfig, TrainConfig};
+use crate::data::{self, InstanceSet};
+use crate::evaluation::{self, InstanceEval};
+use crate::inference::{self, KeypointModel, write_dir_atomically};
+use crate::model::{KeypointNet, ResNetDeconv};
+
+const CONFIG_FILE: &str = "config.toml";
+const CHECKPOINT_DIR: &str = "checkpoint";
+const STATE_FILE: &str = "state.toml";
+const OPTIMIZER_FILE: &str = "optimizer.bpk";
+const HISTORY_FILE: &str = "history.csv";
+pub const MODEL_DIR: &str = "model";
+
+/// What a network learns: its examples, loss, held-out scores and saved form.
+pub trait Task: Send + Sync + 'static {
+    /// Training examples, addressed as 0..n.
+    fn train_items(&self) -> usize;
+    /// Shapes of one example's input and target, `[channels, height, width]`.
+    fn input_shape(&self) -> [usize; 3];
+    fn target_shape(&self) -> [usize; 3];
+    /// One augmented training example (input, target), flat in those shapes.
+    fn training_example(&self, item: usize, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>), LearnError>;
+    fn network(&self, device: &Device) -> ResNetDeconv;
+    /// The scalar loss of a batch's output against its targets.
+    fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1>;
+    /// Held-out scores of the network (in inference mode), as (name, value) in a fixed order.
+    fn validate(&self, net: &ResNetDeconv) -> Result<Vec<(String, f64)>, LearnError>;
+    /// Writes the finished model folder.
+    fn save_model(&self, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError>;
+}
+
+/// What a checkpoint records beside the weights: where the run stands.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TrainState {
+    /// Optimizer steps done.
+    pub step: usize,
+    /// Wall-clock seconds spent training so far, over every session of the run.
+    pub train_seconds: f64,
+    pub last_validation: Option<Validation>,
+}
+
+/// One validation: the mean training loss since the previous one, and held-out scores.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Validation {
+    pub step: usize,
+    pub train_loss: f64,
+    pub metrics: Vec<(String, f64)>,
+}
+
+/// How a run ended.
+pub struct TrainReport {
+    pub run_dir: PathBuf,
+    pub state: TrainState,
+    pub resumed_from: Option<usize>,
+    pub finished: bool,
+}
+
+/// Options of one run beyond the configuration.
+pub struct TrainOptions {
+    pub device: Device,
+    /// Discard an existing checkpoint in the run folder instead of resuming from it.
+    pub restart: bool,
+    /// Stop (with a checkpoint) after this many steps of this session; for tests and time-boxed
+    /// jobs. The run resumes from there later.
+    pub stop_after: Option<usize>,
+    pub progress: bool,
+}
+
+/// Learning rate at `step`: linear warm-up over the first 5 % of the run, then cosine decay to
+/// `final_lr_fraction` of the peak.
+pub fn learning_rate(o: &OptimizerConfig, step: usize) -> f64 {
+    let warmup = (o.steps / 20).max(1);
+    if step < warmup {
+        return o.learning_rate * (step + 1) as f64 / warmup as f64;
+    }
+    let progress = (step - warmup) as f64 / (o.steps - warmup).max(1) as f64;
+    let floor = o.learning_rate * o.final_lr_fraction;
+    floor + (o.learning_rate - floor) * 0.5 * (1.0 + (std::f64::consts::PI * progress.min(1.0)).cos())
+}
+
+/// Trains `task` in `run_dir`, resuming its checkpoint when the run's configuration
+/// (`config_toml`, compared as text) is unchanged.
+pub fn train<T: Task>(
+    task: Arc<T>,
+    o: &OptimizerConfig,
+    config_toml: &str,
+    loader_threads: usize,
+    run_dir: &Path,
+    options: TrainOptions,
+) -> Result<TrainReport, LearnError> {
+    std::fs::create_dir_all(run_dir).map_err(|e| LearnError::Io(run_dir.to_path_buf(), e))?;
+    let checkpoint_dir = run_dir.join(CHECKPOINT_DIR);
+    inference::restore_interrupted(&checkpoint_dir, &run_dir.join(format!("{CHECKPOINT_DIR}.old")))?;
+    let config_path = run_dir.join(CONFIG_FILE);
+    if options.restart {
+        for stale in [checkpoint_dir.clone(), run_dir.join(MODEL_DIR), run_dir.join(HISTORY_FILE)] {
+            let removed = if stale.is_dir() { std::fs::remove_dir_all(&stale) } else { std::fs::remove_file(&stale) };
+            match removed {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(LearnError::Io(stale, e)),
+                _ => {}
+            }
+        }
+    } else if checkpoint_dir.exists() {
+        let saved = std::fs::read_to_string(&config_path).map_err(|e| LearnError::Io(config_path.clone(), e))?;
+        if saved != config_toml {
+            return Err(LearnError::Config(format!(
+                "{} holds a checkpoint of a run with another configuration ({}); pass --restart to discard it or choose another run folder",
+                run_dir.display(),
+                config_path.display()
+            )));
+        }
+    }
+    std::fs::write(&config_path, config_toml).map_err(|e| LearnError::Io(config_path.clone(), e))?;
+
+    let device = options.device.clone().autodiff();
+    device.seed(o.seed);
+    let mut model = task.network(&device);
+    let mut optimizer = AdamConfig::new().with_weight_decay(Some(WeightDecayConfig::new(o.weight_decay as f32))).init();
+    let mut state = TrainState { step: 0, train_seconds: 0.0, last_validation: None };
+    let mut resumed_from = None;
+    if checkpoint_dir.exists() {
+        (model, optimizer, state) = load_checkpoint(&checkpoint_dir, model, optimizer)?;
+        resumed_from = Some(state.step);
+    }
+
+    let last_step = match options.stop_after {
+        Some(n) => (state.step + n).min(o.steps),
+        None => o.steps,
+    };
+    let batches = data::spawn_loader(task.clone(), o.batch_size, o.seed, state.step, last_step, loader_threads)?;
+    let bar = progress_bar(options.progress, o.steps, state.step);
+    let (input_shape, target_shape) = (task.input_shape(), task.target_shape());
+    let (mut loss_sum, mut loss_count) = (0.0, 0usize);
+    let mut session_start = Instant::now();
+    while state.step < last_step {
+        let batch = batches.recv().map_err(|_| LearnError::Data("the batch loader stopped".into()))??;
+        let [c, h, w] = input_shape;
+        let inputs = Tensor::<4>::from_data(TensorData::new(batch.inputs, [batch.size, c, h, w]), &device);
+        let [c, h, w] = target_shape;
+        let targets = Tensor::<4>::from_data(TensorData::new(batch.targets, [batch.size, c, h, w]), &device);
+        let loss = task.loss(model.forward(inputs), targets);
+        let loss_value = loss.clone().into_scalar::<f32>() as f64;
+        if !loss_value.is_finite() {
+            return Err(LearnError::Diverged { step: state.step, loss: loss_value });
+        }
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        model = optimizer.step(learning_rate(o, state.step), model, grads);
+        state.step += 1;
+        loss_sum += loss_value;
+        loss_count += 1;
+        bar.set_position(state.step as u64);
+        bar.set_message(format!("loss {:.3e}", loss_sum / loss_count as f64));
+        if state.step % o.validate_every == 0 || state.step == last_step {
+            state.train_seconds += session_start.elapsed().as_secs_f64();
+            let validation = Validation { step: state.step, train_loss: loss_sum / loss_count as f64, metrics: task.validate(&model.valid())? };
+            if options.progress {
+                bar.suspend(|| print_validation(&validation));
+            }
+            append_history(run_dir, &validation)?;
+            state.last_validation = Some(validation);
+            save_checkpoint(&checkpoint_dir, &model, &optimizer, &state)?;
+            (loss_sum, loss_count) = (0.0, 0);
+            session_start = Instant::now();
+        }
+    }
+    bar.finish_and_clear();
+    let finished = state.step == o.steps;
+    if finished {
+        task.save_model(&model.valid(), &run_dir.join(MODEL_DIR))?;
+    }
+    Ok(TrainReport { run_dir: run_dir.to_path_buf(), state, resumed_from, finished })
+}
+
+/// The keypoint network's task: crops of ground-truth instances, heatmap MSE.
+pub struct KeypointTask {
+    pub config: TrainConfig,
+    pub set: InstanceSet,
+}
+
+impl KeypointTask {
+    pub fn load(config: TrainConfig) -> Result<Self, LearnError> {
+        config.validate()?;
+        let set = InstanceSet::load(&config.data.datasets, config.data.val_modulus, config.data.min_visible_fraction)?;
+        Ok(Self { config, set })
+    }
+
+    /// Scores on (up to `max_val_instances`, evenly spread) held-out instances.
+    pub fn evaluate(&self, net: &KeypointNet) -> Result<Vec<InstanceEval>, LearnError> {
+        let (config, set) = (&self.config, &self.set);
+        let max = config.data.max_val_instances;
+        let mut picks = set.val.clone();
+        if max > 0 && picks.len() > max {
+            picks = (0..max).map(|i| set.val[i * set.val.len() / max]).collect();
+        }
+        if picks.is_empty() {
+            return Err(LearnError::Data(format!(
+                "no held-out instance: no scene has scene_id % {} == 0 (add scenes or lower val_modulus)",
+                config.data.val_modulus
+            )));
+        }
+        let samples = picks
+            .par_iter()
+            .map(|&pick| {
+                let (frame, instance) = set.instance(pick);
+                data::instance_sample(&config.network, frame, instance, None)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let device = net.devices().into_iter().next().unwrap_or_default();
+        let model = KeypointModel { config: config.network.clone(), net: net.clone(), device };
+        let inputs: Vec<Vec<f32>> = samples.iter().map(|s| s.input.clone()).collect();
+        let heatmaps = model.heatmaps(&inputs, config.optimizer.batch_size)?;
+        picks
+            .par_iter()
+            .zip(&samples)
+            .zip(&heatmaps)
+            .map(|((&pick, sample), heatmap)| {
+                let (_, instance) = set.instance(pick);
+                evaluation::evaluate_instance(&config.network, instance, heatmap, &sample.target, &sample.grid)
+            })
+            .collect()
+    }
+}
+
+impl Task for KeypointTask {
+    fn train_items(&self) -> usize {
+        self.set.train.len()
+    }
+
+    fn input_shape(&self) -> [usize; 3] {
+        let s = self.config.network.input_size;
+        [4, s, s]
+    }
+
+    fn target_shape(&self) -> [usize; 3] {
+        let n = self.config.network.heatmap_size();
+        [self.config.network.depth_bins, n, n]
+    }
+
+    fn training_example(&self, item: usize, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
+        let (frame, instance) = self.set.instance(self.set.train[item]);
+        let sample = data::instance_sample(&self.config.network, frame, instance, Some((&self.config.augment, rng)))?;
+        Ok((sample.input, sample.target))
+    }
+
+    fn network(&self, device: &Device) -> ResNetDeconv {
+        KeypointNet::keypoints(&self.config.network, device)
+    }
+
+    /// The paper's loss: mean squared error of the heatmap against the Gaussian target.
+    fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
+        (output - target).powi_scalar(2).mean()
+    }
+
+    fn validate(&self, net: &ResNetDeconv) -> Result<Vec<(String, f64)>, LearnError> {
+        Ok(evaluation::summarize(&self.evaluate(net)?).named())
+    }
+
+    fn save_model(&self, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
+        KeypointModel::save(&self.config.network, net, dir)
+    }
+}
+
+fn save_checkpoint(dir: &Path, model: &ResNetDeconv, optimizer: &ModuleOptimizer, state: &TrainState) -> Result<(), LearnError> {
+    write_dir_atomically(dir, |tmp| {
+        let path = tmp.join(inference::WEIGHTS_FILE);
+        model.clone().save_file(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))?;
+        let path = tmp.join(OPTIMIZER_FILE);
+        optimizer.save(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))?;
+        let path = tmp.join(STATE_FILE);
+        std::fs::write(&path, toml::to_string_pretty(state).expect("a TrainState serializes")).map_err(|e| LearnError::Io(path, e))
+    })
+}
+
+fn load_checkpoint(dir: &Path, model: ResNetDeconv, optimizer: ModuleOptimizer) -> Result<(ResNetDeconv, ModuleOptimizer, TrainState), LearnError> {
+    let bad = |path: PathBuf, e: String| LearnError::Checkpoint(path, format!("{e}; pass --restart to train from scratch"));
+    let path = dir.join(STATE_FILE);
+    let text = std::fs::read_to_string(&path).map_err(|e| bad(path.clone(), e.to_string()))?;
+    let state: TrainState = toml::from_str(&text).map_err(|e| bad(path.clone(), e.to_string()))?;
+    let path = dir.join(inference::WEIGHTS_FILE);
+    let model = model.try_load_file(&path).map_err(|e| bad(path.clone(), e.to_string()))?;
+    let path = dir.join(OPTIMIZER_FILE);
+    let optimizer = optimizer.load(&path).map_err(|e| bad(path.clone(), e.to_string()))?;
+    Ok((model, optimizer, state))
+}
+
+fn append_history(run_dir: &Path, v: &Validation) -> Result<(), LearnError> {
+    let path = run_dir.join(HISTORY_FILE);
+    let mut line = String::new();
+    if !path.exists() {
+        line.push_str("step,train_loss");
+        v.metrics.iter().for_each(|(name, _)| line.push_str(&format!(",{name}")));
+        line.push('\n');
+    }
+    line.push_str(&format!("{},{:.6e}", v.step, v.train_loss));
+    v.metrics.iter().for_each(|(_, value)| line.push_str(&format!(",{value}")));
+    line.push('\n');
+    let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&path).map_err(|e| LearnError::Io(path.clone(), e))?;
+    file.write_all(line.as_bytes()).map_err(|e| LearnError::Io(path, e))
+}
+
+pub fn print_validation(v: &Validation) {
+    let metrics: Vec<String> = v.metrics.iter().map(|(name, value)| format!("{name} {value:.4}")).collect();
+    println!("step {:>6}  train loss {:.3e}  held out: {}", v.step, v.train_loss, metrics.join(", "));
+}
+
+fn progress_bar(show: bool, steps: usize, start: usize) -> indicatif::ProgressBar {
+    if !show {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new(steps as u64).with_style(
+        indicatif::ProgressStyle::with_template("training {bar:30} {pos}/{len} steps [{elapsed_precise}<{eta_precise}, {per_sec}] {msg}")
+            .expect("a valid template"),
+    );
+    bar.set_position(start as u64);
+    bar.reset_eta();
+    bar
+}

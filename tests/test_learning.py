@@ -1,0 +1,147 @@
+"""`boxpose train`, `predict` and `eval` on a real tiny dataset (Drake scenes, Blender 64² renders):
+a tiny network for a few steps, interrupted and resumed; then its predictions and evaluation read
+back with pandas. The numbers of a 4-step network mean nothing; the plumbing and files are tested."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+
+from conftest import REPO, run_boxpose
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("learn") / "tiny"
+    r = subprocess.run(
+        [sys.executable, REPO / "scripts" / "make_scenes.py", "--recipe", "tiny", "--dataset", root, "--num-scenes", "4", "--no-inspect"],
+        capture_output=True, text=True, cwd=REPO, timeout=900,
+    )
+    assert r.returncode == 0, r.stderr
+    return root
+
+
+@pytest.fixture(scope="module")
+def trained(tiny_dataset, boxpose_bin, tmp_path_factory):
+    """A tiny model trained for 4 steps, interrupted after 2 and resumed."""
+    run = tmp_path_factory.mktemp("run") / "tiny-run"
+    args = ["train", "--config", REPO / "configs" / "tiny.toml", "--dataset", tiny_dataset, "--out", run]
+    first = run_boxpose(boxpose_bin, *args, "--stop-after", "2")
+    second = run_boxpose(boxpose_bin, *args)
+    return run, first, second
+
+
+def test_an_interrupted_run_resumes_from_its_checkpoint(trained):
+    run, first, second = trained
+    assert "stopped early" in first.stdout
+    assert not (run / "model").exists() or "resumed" in second.stdout
+    assert "resumed from the checkpoint at step 2" in second.stdout
+    history = pd.read_csv(run / "history.csv")
+    assert list(history.step) == [2, 4]  # validate_every = 2: one row per checkpoint, none repeated
+    assert np.isfinite(history.train_loss).all() and (history.train_loss > 0).all()
+    assert history.corner_recall.between(0, 1).all()
+    assert (run / "model" / "network.toml").is_file() and (run / "model" / "model.bpk").is_file()
+    assert not list(run.glob("*.tmp")) and not list(run.glob("*.old"))
+
+
+def test_the_same_seed_trains_the_same_network(trained, tiny_dataset, boxpose_bin, tmp_path):
+    run, _, _ = trained
+    again = tmp_path / "again"
+    run_boxpose(boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml", "--dataset", tiny_dataset, "--out", again)
+    assert pd.read_csv(again / "history.csv").train_loss.tolist() == pd.read_csv(run / "history.csv").train_loss.tolist()
+    assert (again / "model" / "model.bpk").read_bytes() == (run / "model" / "model.bpk").read_bytes()
+
+
+def test_a_changed_config_does_not_silently_resume(trained, tiny_dataset, boxpose_bin, tmp_path):
+    run, _, _ = trained
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    r = run_boxpose(boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml", "--dataset", tiny_dataset, "--out", copy, "--learning-rate", "0.5", check=False)
+    assert r.returncode != 0
+    assert "another configuration" in r.stderr and "--restart" in r.stderr
+
+
+def test_a_corrupt_checkpoint_is_one_clear_error(trained, tiny_dataset, boxpose_bin, tmp_path):
+    run, _, _ = trained
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    (copy / "checkpoint" / "model.bpk").write_bytes(b"not a burnpack")
+    r = run_boxpose(boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml", "--dataset", tiny_dataset, "--out", copy, check=False)
+    assert r.returncode != 0
+    assert "checkpoint/model.bpk" in r.stderr and "--restart" in r.stderr
+    assert "panicked" not in r.stderr
+
+
+def test_predict_writes_poses_peaks_and_an_overlay(trained, tiny_dataset, boxpose_bin, tmp_path):
+    run, _, _ = trained
+    instances = pd.read_parquet(tiny_dataset / "instances")
+    scene = int(instances.scene_id.iloc[0])
+    out = tmp_path / "predict"
+    r = run_boxpose(boxpose_bin, "predict", tiny_dataset, "--scene", scene, "--frame", 0, "--model", run / "model", "--out", out)
+    visible = instances[(instances.scene_id == scene) & (instances.frame_id == 0) & (instances.visible_pixels > 0)]
+    table = pd.read_parquet(out / "predictions.parquet")
+    assert sorted(table.object_id) == sorted(visible.object_id)
+    for row in table.itertuples():
+        assert len(row.peaks_camera_m) == 3 * len(row.peak_scores) and 1 <= len(row.peak_scores) <= 8
+        assert list(row.peak_scores) == sorted(row.peak_scores, reverse=True)
+        if row.fit_error is None:
+            assert len(row.corners_camera_m) == 24 and np.isfinite(row.corners_camera_m).all()
+            assert np.isclose(np.linalg.norm(row.pose_quat_wxyz), 1.0)
+    boxes = json.loads((out / "predictions.json").read_text())["boxes"]
+    assert len(boxes) == len(table)
+    overlay = np.asarray(Image.open(out / "overlay.png"))
+    assert overlay.shape == (64, 64, 3)
+    assert "overlay" in r.stdout
+
+
+def test_predict_from_files_with_given_boxes(trained, tiny_dataset, boxpose_bin, tmp_path):
+    run, _, _ = trained
+    import io
+    frames = pd.read_parquet(tiny_dataset / "frames")
+    instances = pd.read_parquet(tiny_dataset / "instances")
+    f = frames.iloc[0]
+    (tmp_path / "rgb.png").write_bytes(f.rgb_png)
+    depth = np.frombuffer(f.depth_m_f32le, "<f4").reshape(f.height, f.width)
+    Image.fromarray((depth * 1000).round().astype(np.uint16)).save(tmp_path / "depth.png")
+    inst = instances[(instances.scene_id == f.scene_id) & (instances.frame_id == f.frame_id) & (instances.visible_pixels > 0)].iloc[0]
+    bbox = ",".join(str(int(v)) for v in inst.visible_bbox_px)
+    out = tmp_path / "out"
+    run_boxpose(
+        boxpose_bin, "predict", "--rgb", tmp_path / "rgb.png", "--depth", tmp_path / "depth.png",
+        "--intrinsics", f"{f.fx},{f.fy},{f.cx},{f.cy}", "--bbox", bbox, "--model", run / "model", "--out", out,
+    )
+    table = pd.read_parquet(out / "predictions.parquet")
+    assert len(table) == 1 and table.object_id.isna().all()
+    # without ground truth the reference depth comes from the whole box: close to the box's own
+    assert abs(table.reference_depth_m.iloc[0] - inst.camera_box_translation_m[2]) < 0.3
+    r = run_boxpose(boxpose_bin, "predict", "--rgb", tmp_path / "rgb.png", "--depth", tmp_path / "rgb.png",
+                    "--intrinsics", "1,1,1,1", "--bbox", bbox, "--model", run / "model", "--out", out, check=False)
+    assert r.returncode != 0 and "rgb.png" in r.stderr and "16-bit" in r.stderr
+
+
+def test_eval_writes_metrics_a_summary_and_the_error_histogram(trained, tiny_dataset, boxpose_bin, tmp_path):
+    run, _, _ = trained
+    out = tmp_path / "eval"
+    r = run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", run / "model", "--out", out, "--min-visible-fraction", "0.05")
+    rows = pd.read_parquet(out / "eval.parquet")
+    assert set(rows.method) == {"paper_exact", "fast_exact", "robust", "size_and_pose"}
+    per_instance = rows.groupby(["scene_id", "frame_id", "object_id"])
+    assert (per_instance.size() == 4).all()
+    assert rows.corners_found.between(0, 8).all() and (rows.heatmap_mse > 0).all()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["instances"] == per_instance.ngroups
+    assert 0 <= summary["corner_recall"] <= 1
+    hist = Image.open(out / "paper_error_hist.png")
+    assert hist.size == (900, 540)
+    assert "corner recall" in r.stdout and "robust" in r.stdout
+
+
+def test_a_missing_model_is_one_clear_error(tiny_dataset, boxpose_bin, tmp_path):
+    r = run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", tmp_path / "nowhere", check=False)
+    assert r.returncode != 0 and "nowhere/network.toml" in r.stderr and "panicked" not in r.stderr
