@@ -129,12 +129,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let errors = |method: Method| -> Vec<f64> {
         fit_rows.iter().filter(|r| r.method == method).filter_map(|r| r.outcome.as_ref().ok().map(|s| s.paper_error)).collect()
     };
+    let series = [("paper's search", errors(Method::PaperExact)), ("robust fit", errors(Method::Robust)), ("size + pose fit", errors(Method::SizeAndPose))];
     let histogram = args.out.join("paper_error_hist.png");
-    plots::error_histogram(
-        &histogram,
-        &format!("paper's error on {} ({} instances)", args.dataset.file_name().unwrap_or_default().to_string_lossy(), evals.len()),
-        &[("paper's search", errors(Method::PaperExact)), ("robust fit", errors(Method::Robust)), ("size + pose fit", errors(Method::SizeAndPose))],
-    )?;
+    let plotted = series.iter().any(|(_, e)| e.iter().any(|v| *v > 0.0));
+    if plotted {
+        let title = format!("paper's error on {} ({} instances)", args.dataset.file_name().unwrap_or_default().to_string_lossy(), evals.len());
+        plots::error_histogram(&histogram, &title, &series)?;
+    }
 
     let crops = match args.crops {
         Crops::Gt => "ground-truth crops",
@@ -160,7 +161,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     );
     fit_table::print(&fit_rows);
     println!("per-instance metrics: {}", args.out.join("eval.parquet").display());
-    println!("error histogram (paper Fig. 6): {}", histogram.display());
+    if plotted {
+        println!("error histogram (paper Fig. 6): {}", histogram.display());
+    } else {
+        println!("no fit succeeded: no error histogram");
+    }
     Ok(())
 }
 

@@ -55,10 +55,10 @@ pub struct Args {
     #[arg(long)]
     depth: Option<PathBuf>,
     /// Its intrinsics: fx,fy,cx,cy in pixels.
-    #[arg(long, value_delimiter = ',', num_args = 4)]
+    #[arg(long, value_delimiter = ',')]
     intrinsics: Option<Vec<f64>>,
     /// A box to crop: x_min,y_min,x_max,y_max in pixels (repeat for several boxes).
-    #[arg(long, value_delimiter = ',', num_args = 4, action = clap::ArgAction::Append)]
+    #[arg(long, value_delimiter = ',', action = clap::ArgAction::Append)]
     bbox: Vec<i32>,
     /// Trained model folder (network.toml + model.bpk).
     #[arg(long, default_value = "models/keypoint-slim")]
@@ -90,6 +90,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             (frame, targets)
         }
         (None, Some(rgb)) => {
+            anyhow::ensure!(args.intrinsics.as_ref().is_none_or(|k| k.len() == 4), "--intrinsics takes 4 values: fx,fy,cx,cy");
+            anyhow::ensure!(args.bbox.len() % 4 == 0, "each --bbox takes 4 values: x_min,y_min,x_max,y_max");
             let frame = frame_from_files(rgb, args.depth.as_deref().context("--depth is required with --rgb")?, args.intrinsics.as_deref().context("--intrinsics is required with --rgb")?)?;
             if args.bbox.is_empty() {
                 let targets = predicted_targets(&frame, &model, &args.segmenter, args.backend)?;

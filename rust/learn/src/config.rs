@@ -116,6 +116,11 @@ pub struct OptimizerConfig {
     pub learning_rate: f64,
     pub final_lr_fraction: f64,
     pub weight_decay: f64,
+    /// Heatmap loss weight on voxels near a corner: each squared error is weighted by
+    /// 1 + positive_weight·target. 0 is the paper's plain MSE, which on a sparse 3D target first
+    /// learns to predict zero everywhere; the segmenter ignores it.
+    #[serde(default)]
+    pub positive_weight: f64,
     /// Validate and checkpoint every this many steps (and at the end).
     pub validate_every: usize,
     pub seed: u64,

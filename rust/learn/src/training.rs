@@ -267,9 +267,11 @@ impl Task for KeypointTask {
         KeypointNet::keypoints(&self.config.network, device)
     }
 
-    /// The paper's loss: mean squared error of the heatmap against the Gaussian target.
+    /// The paper's loss, mean squared error of the heatmap against the Gaussian target, with each
+    /// voxel weighted by 1 + positive_weight·target (see [`OptimizerConfig::positive_weight`]).
     fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
-        (output - target).powi_scalar(2).mean()
+        let weight = target.clone() * self.config.optimizer.positive_weight + 1.0;
+        ((output - target).powi_scalar(2) * weight).mean()
     }
 
     fn validate(&self, net: &ResNetDeconv) -> Result<Vec<(String, f64)>, LearnError> {
