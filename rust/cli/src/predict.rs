@@ -175,7 +175,7 @@ fn gt_targets(frame: &Frame, model: &KeypointModel) -> Vec<Target> {
         .iter()
         .filter_map(|instance| {
             let bbox = instance.visible_bbox?;
-            let label = (instance.object_id + 1) as u16;
+            let label = instance.mask_label();
             let crop = CropRequest::around(frame, &model.config, bbox, |i| frame.instance_mask[i] == label)?;
             Some(Target { object_id: Some(instance.object_id), bbox, crop })
         })

@@ -1,19 +1,18 @@
-//! `boxpose train`: the keypoint network from a TOML config, with command-line overrides.
+//! `boxpose train` and `boxpose train-segmenter`: a network from a TOML config, with
+//! command-line overrides, in a run folder that resumes after an interruption.
 
 use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
 use boxpose_learn::backend::BackendKind;
-use boxpose_learn::config::{Backbone, TrainConfig};
+use boxpose_learn::config::{Backbone, DataConfig, OptimizerConfig, TrainConfig};
 use boxpose_learn::segmentation::{SegmenterTask, SegmenterTrainConfig};
-use boxpose_learn::training::{self, KeypointTask, MODEL_DIR, TrainOptions};
+use boxpose_learn::training::{self, KeypointTask, MODEL_DIR, Task, TrainOptions};
 
+/// What both training commands take beside their config.
 #[derive(clap::Args)]
-pub struct Args {
-    /// Training config (TOML: [network], [augment], [optimizer], [data]); see configs/.
-    #[arg(long, default_value = "configs/keypoint-slim.toml")]
-    config: PathBuf,
+pub struct RunArgs {
     /// Run folder: config.toml, checkpoint/, history.csv and, when done, model/. A run folder
     /// with a checkpoint of the same config is resumed.
     #[arg(long)]
@@ -36,6 +35,56 @@ pub struct Args {
     /// Override [optimizer] seed.
     #[arg(long)]
     seed: Option<u64>,
+    /// Discard the run folder's checkpoint and train from scratch.
+    #[arg(long)]
+    restart: bool,
+    /// Stop after this many steps of this session, with a checkpoint (resume later).
+    #[arg(long)]
+    stop_after: Option<usize>,
+    /// Backend that runs the network (those not compiled in say how to enable them).
+    #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
+    backend: BackendKind,
+}
+
+impl RunArgs {
+    fn override_config(&self, data: &mut DataConfig, o: &mut OptimizerConfig) {
+        if !self.datasets.is_empty() {
+            data.datasets = self.datasets.clone();
+        }
+        o.steps = self.steps.unwrap_or(o.steps);
+        o.batch_size = self.batch_size.unwrap_or(o.batch_size);
+        o.learning_rate = self.learning_rate.unwrap_or(o.learning_rate);
+        o.validate_every = self.validate_every.unwrap_or(o.validate_every);
+        o.seed = self.seed.unwrap_or(o.seed);
+    }
+
+    /// Trains `task` and prints how the run ended.
+    fn train<T: Task>(&self, task: T, o: &OptimizerConfig, config_toml: &str, loader_threads: usize) -> anyhow::Result<()> {
+        let options = TrainOptions { device: self.backend.device()?, restart: self.restart, stop_after: self.stop_after, progress: true };
+        let report = training::train(Arc::new(task), o, config_toml, loader_threads, &self.out, options)?;
+        if let Some(step) = report.resumed_from {
+            println!("resumed from the checkpoint at step {step}");
+        }
+        println!("{} of {} steps done in {:.0} s of training", report.state.step, o.steps, report.state.train_seconds);
+        if let Some(v) = &report.state.last_validation {
+            training::print_validation(v);
+        }
+        if report.finished {
+            println!("model: {}", report.run_dir.join(MODEL_DIR).display());
+        } else {
+            println!("stopped early; run the same command again to resume");
+        }
+        Ok(())
+    }
+}
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Training config (TOML: [network], [augment], [optimizer], [data]); see configs/.
+    #[arg(long, default_value = "configs/keypoint-slim.toml")]
+    config: PathBuf,
+    #[command(flatten)]
+    run: RunArgs,
     /// Override [network] backbone.
     #[arg(long, value_parser = parse_backbone)]
     backbone: Option<Backbone>,
@@ -48,15 +97,6 @@ pub struct Args {
     /// Override [data] max_val_instances (0: every held-out instance).
     #[arg(long)]
     max_val_instances: Option<usize>,
-    /// Discard the run folder's checkpoint and train from scratch.
-    #[arg(long)]
-    restart: bool,
-    /// Stop after this many steps of this session, with a checkpoint (resume later).
-    #[arg(long)]
-    stop_after: Option<usize>,
-    /// Backend that runs the network (those not compiled in say how to enable them).
-    #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
-    backend: BackendKind,
 }
 
 fn parse_backbone(text: &str) -> Result<Backbone, String> {
@@ -65,15 +105,7 @@ fn parse_backbone(text: &str) -> Result<Backbone, String> {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut config = TrainConfig::load(&args.config)?;
-    if !args.datasets.is_empty() {
-        config.data.datasets = args.datasets.clone();
-    }
-    let o = &mut config.optimizer;
-    o.steps = args.steps.unwrap_or(o.steps);
-    o.batch_size = args.batch_size.unwrap_or(o.batch_size);
-    o.learning_rate = args.learning_rate.unwrap_or(o.learning_rate);
-    o.validate_every = args.validate_every.unwrap_or(o.validate_every);
-    o.seed = args.seed.unwrap_or(o.seed);
+    args.run.override_config(&mut config.data, &mut config.optimizer);
     let n = &mut config.network;
     n.backbone = args.backbone.unwrap_or(n.backbone);
     n.input_size = args.input_size.unwrap_or(n.input_size);
@@ -81,68 +113,35 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     config.data.max_val_instances = args.max_val_instances.unwrap_or(config.data.max_val_instances);
     config.validate().with_context(|| format!("{} with the command-line overrides", args.config.display()))?;
 
-    let device = args.backend.device()?;
+    let task = KeypointTask::load(config.clone())?;
     println!(
-        "training {:?} at {}² → {}×{}² heatmap on {} for {} steps of {} crops (backend {})",
+        "training {:?} at {}² → {}×{}² heatmap on {} training / {} held-out instances for {} steps of {} crops (backend {})",
         config.network.backbone,
         config.network.input_size,
         config.network.depth_bins,
         config.network.heatmap_size(),
-        config.data.datasets.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(", "),
+        task.set.train.len(),
+        task.set.val.len(),
         config.optimizer.steps,
         config.optimizer.batch_size,
-        args.backend.name(),
+        args.run.backend.name(),
     );
-    let task = Arc::new(KeypointTask::load(config.clone())?);
-    println!("{} training / {} held-out instances", task.set.train.len(), task.set.val.len());
-    let report = training::train(
-        task,
-        &config.optimizer,
-        &config.to_toml(),
-        config.data.loader_threads,
-        &args.out,
-        TrainOptions { device, restart: args.restart, stop_after: args.stop_after, progress: true },
-    )?;
-    print_report(&report, config.optimizer.steps)
+    args.run.train(task, &config.optimizer, &config.to_toml(), config.data.loader_threads)
 }
 
-/// `boxpose train-segmenter`: the instance segmenter from a TOML config.
 #[derive(clap::Args)]
 pub struct SegmenterArgs {
     /// Segmenter training config (TOML: [segmenter], [augment], [optimizer], [data]); see configs/.
     #[arg(long, default_value = "configs/segmenter-slim.toml")]
     config: PathBuf,
-    /// Run folder (resumed when it holds a checkpoint of the same config).
-    #[arg(long)]
-    out: PathBuf,
-    /// Train on these dataset folders instead of the config's [data] datasets.
-    #[arg(long = "dataset")]
-    datasets: Vec<PathBuf>,
-    /// Override [optimizer] steps.
-    #[arg(long)]
-    steps: Option<usize>,
-    /// Override [optimizer] learning_rate.
-    #[arg(long)]
-    learning_rate: Option<f64>,
-    /// Discard the run folder's checkpoint and train from scratch.
-    #[arg(long)]
-    restart: bool,
-    /// Stop after this many steps of this session, with a checkpoint (resume later).
-    #[arg(long)]
-    stop_after: Option<usize>,
-    #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
-    backend: BackendKind,
+    #[command(flatten)]
+    run: RunArgs,
 }
 
 pub fn run_segmenter(args: &SegmenterArgs) -> anyhow::Result<()> {
     let mut config = SegmenterTrainConfig::load(&args.config)?;
-    if !args.datasets.is_empty() {
-        config.data.datasets = args.datasets.clone();
-    }
-    config.optimizer.steps = args.steps.unwrap_or(config.optimizer.steps);
-    config.optimizer.learning_rate = args.learning_rate.unwrap_or(config.optimizer.learning_rate);
-    let device = args.backend.device()?;
-    let task = Arc::new(SegmenterTask::load(config.clone())?);
+    args.run.override_config(&mut config.data, &mut config.optimizer);
+    let task = SegmenterTask::load(config.clone())?;
     println!(
         "training the {:?} segmenter at {}×{} on {} training / {} held-out frames for {} steps of {} (backend {})",
         config.segmenter.backbone,
@@ -152,31 +151,7 @@ pub fn run_segmenter(args: &SegmenterArgs) -> anyhow::Result<()> {
         task.set.val_frames.len(),
         config.optimizer.steps,
         config.optimizer.batch_size,
-        args.backend.name()
+        args.run.backend.name()
     );
-    let report = training::train(
-        task,
-        &config.optimizer,
-        &config.to_toml(),
-        config.data.loader_threads,
-        &args.out,
-        TrainOptions { device, restart: args.restart, stop_after: args.stop_after, progress: true },
-    )?;
-    print_report(&report, config.optimizer.steps)
-}
-
-fn print_report(report: &training::TrainReport, steps: usize) -> anyhow::Result<()> {
-    if let Some(step) = report.resumed_from {
-        println!("resumed from the checkpoint at step {step}");
-    }
-    println!("{} of {steps} steps done in {:.0} s of training", report.state.step, report.state.train_seconds);
-    if let Some(v) = &report.state.last_validation {
-        training::print_validation(v);
-    }
-    if report.finished {
-        println!("model: {}", report.run_dir.join(MODEL_DIR).display());
-    } else {
-        println!("stopped early; run the same command again to resume");
-    }
-    Ok(())
+    args.run.train(task, &config.optimizer, &config.to_toml(), config.data.loader_threads)
 }

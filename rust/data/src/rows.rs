@@ -116,6 +116,13 @@ pub struct Instance {
     pub visible_fraction: f32,
 }
 
+impl Instance {
+    /// This box's value in its frame's `instance_mask` (object_id + 1; 0 is no box).
+    pub fn mask_label(&self) -> u16 {
+        (self.object_id + 1) as u16
+    }
+}
+
 /// One rendered view with decoded images and the instances seen in it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {

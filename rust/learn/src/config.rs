@@ -153,23 +153,41 @@ impl TrainConfig {
 
     pub fn validate(&self) -> Result<(), LearnError> {
         self.network.validate()?;
-        let o = &self.optimizer;
-        if o.batch_size == 0 || o.steps == 0 || o.validate_every == 0 {
-            return Err(LearnError::Config("batch_size, steps and validate_every must be positive".into()));
-        }
-        if !(o.learning_rate > 0.0) || !(0.0..=1.0).contains(&o.final_lr_fraction) {
-            return Err(LearnError::Config(format!(
-                "learning_rate {} must be > 0 and final_lr_fraction {} in [0, 1]",
-                o.learning_rate, o.final_lr_fraction
-            )));
-        }
-        if self.data.val_modulus < 2 {
-            return Err(LearnError::Config(format!("val_modulus {} must be at least 2", self.data.val_modulus)));
-        }
-        Ok(())
+        self.optimizer.validate()?;
+        self.data.validate()
     }
 
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).expect("a TrainConfig always serializes")
+    }
+}
+
+impl DataConfig {
+    pub fn validate(&self) -> Result<(), LearnError> {
+        if self.val_modulus < 2 {
+            return Err(LearnError::Config(format!("val_modulus {} must be at least 2", self.val_modulus)));
+        }
+        if self.datasets.is_empty() {
+            return Err(LearnError::Config("[data] datasets is empty: name at least one dataset folder".into()));
+        }
+        Ok(())
+    }
+}
+
+impl OptimizerConfig {
+    pub fn validate(&self) -> Result<(), LearnError> {
+        if self.batch_size == 0 || self.steps == 0 || self.validate_every == 0 {
+            return Err(LearnError::Config("batch_size, steps and validate_every must be positive".into()));
+        }
+        if !(self.learning_rate > 0.0) || !(0.0..=1.0).contains(&self.final_lr_fraction) {
+            return Err(LearnError::Config(format!(
+                "learning_rate {} must be > 0 and final_lr_fraction {} in [0, 1]",
+                self.learning_rate, self.final_lr_fraction
+            )));
+        }
+        if !(self.positive_weight >= 0.0) {
+            return Err(LearnError::Config(format!("positive_weight {} must be ≥ 0", self.positive_weight)));
+        }
+        Ok(())
     }
 }

@@ -211,7 +211,7 @@ pub fn instance_sample(
         instance.scene_id, instance.frame_id, instance.object_id
     )))?;
     let mut window = CropWindow::around(bbox, config.crop_margin);
-    let label = (instance.object_id + 1) as u16;
+    let label = instance.mask_label();
     match augment {
         Some((augment, rng)) => {
             window = window.jittered(augment, rng);

@@ -17,7 +17,7 @@ use std::path::PathBuf;
 /// Every way learning can fail, each naming what to fix.
 #[derive(Debug, thiserror::Error)]
 pub enum LearnError {
-    #[error("config: {0}")]
+    #[error("{0}")]
     Config(String),
     #[error("{0}")]
     Data(String),

@@ -77,8 +77,14 @@ impl SegmenterTrainConfig {
     pub fn load(path: &Path) -> Result<Self, LearnError> {
         let text = std::fs::read_to_string(path).map_err(|e| LearnError::Io(path.to_path_buf(), e))?;
         let config: Self = toml::from_str(&text).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
-        config.segmenter.validate().map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+        config.validate().map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
         Ok(config)
+    }
+
+    pub fn validate(&self) -> Result<(), LearnError> {
+        self.segmenter.validate()?;
+        self.optimizer.validate()?;
+        self.data.validate()
     }
 
     pub fn to_toml(&self) -> String {
@@ -335,7 +341,7 @@ pub fn true_masks(frame: &Frame) -> Vec<(i32, Vec<bool>, [i32; 4])> {
         .iter()
         .filter_map(|i| {
             let bbox = i.visible_bbox?;
-            let label = (i.object_id + 1) as u16;
+            let label = i.mask_label();
             Some((i.object_id, frame.instance_mask.iter().map(|&m| m == label).collect(), bbox))
         })
         .collect()
@@ -369,7 +375,7 @@ pub struct SegmenterTask {
 
 impl SegmenterTask {
     pub fn load(config: SegmenterTrainConfig) -> Result<Self, LearnError> {
-        config.segmenter.validate()?;
+        config.validate()?;
         let set = InstanceSet::load(&config.data.datasets, config.data.val_modulus, config.data.min_visible_fraction)?;
         Ok(Self { config, set })
     }
@@ -440,23 +446,14 @@ impl Task for SegmenterTask {
 /// that found it: detections in score order each take the unmatched instance they overlap most,
 /// if its mask IoU is at least `threshold`.
 pub fn match_detections(frame: &Frame, detections: &[Detection], threshold: f64) -> Vec<Option<usize>> {
+    let masks: Vec<Vec<bool>> = frame.instances.iter().map(|i| frame.instance_mask.iter().map(|&m| m == i.mask_label()).collect()).collect();
     let mut found = vec![None; frame.instances.len()];
     for (d, detection) in detections.iter().enumerate() {
-        let best = frame
-            .instances
+        let best = masks
             .iter()
             .enumerate()
             .filter(|(i, _)| found[*i].is_none())
-            .map(|(i, instance)| {
-                let label = (instance.object_id + 1) as u16;
-                let (mut inter, mut union) = (0usize, 0usize);
-                for (&m, &p) in frame.instance_mask.iter().zip(&detection.mask) {
-                    let t = m == label;
-                    inter += (t && p) as usize;
-                    union += (t || p) as usize;
-                }
-                (i, if union == 0 { 0.0 } else { inter as f64 / union as f64 })
-            })
+            .map(|(i, mask)| (i, mask_iou(mask, &detection.mask)))
             .filter(|(_, iou)| *iou >= threshold)
             .max_by(|a, b| a.1.total_cmp(&b.1));
         if let Some((i, _)) = best {
