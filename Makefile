@@ -52,13 +52,15 @@ schema: ## Regenerate python/boxpose_io/schema.json and the column reference in 
 scenes: setup ## Generate a dataset: Drake scenes then Blender renders, shard by shard, resumable (RECIPE=clutter SHARDS=1)
 	$(PY) scripts/make_scenes.py --recipe $(RECIPE) --dataset $(DATASET) --num-shards $(SHARDS) --boxpose $(BOXPOSE)
 
-TRAIN_CONFIG ?= configs/keypoint-slim.toml
-TRAIN_RUN ?= runs/keypoint-slim
 MODEL ?= models/keypoint-slim
-train: setup ## Train the keypoint network: render the `train` recipe (resumable), train (resumable), copy the model to $(MODEL)
+SEGMENTER ?= models/segmenter-slim
+train: setup ## Train the shipped networks: render the `train` recipe, train the keypoint network and the segmenter (all resumable), copy them to models/
 	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
-	$(BOXPOSE) train --config $(TRAIN_CONFIG) --out $(TRAIN_RUN)
-	mkdir -p $(MODEL) && cp $(TRAIN_RUN)/model/network.toml $(TRAIN_RUN)/model/model.bpk $(TRAIN_RUN)/history.csv $(TRAIN_RUN)/config.toml $(MODEL)/
+	$(BOXPOSE) train --config configs/keypoint-slim.toml --out runs/keypoint-slim
+	$(BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --out runs/segmenter-slim
+	mkdir -p $(MODEL) $(SEGMENTER)
+	cp runs/keypoint-slim/model/* runs/keypoint-slim/history.csv runs/keypoint-slim/config.toml $(MODEL)/
+	cp runs/segmenter-slim/model/* runs/segmenter-slim/history.csv runs/segmenter-slim/config.toml $(SEGMENTER)/
 
 DEMO_DATASET := datasets/generated/demo
 DEMO_RESULTS := results/demo
@@ -71,9 +73,10 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	$(BOXPOSE) eval-geometry $(DEMO_DATASET) --outliers 4 --out $(DEMO_RESULTS)/eval_geometry_4_outliers.parquet
 	@echo; echo "== re-render a 128×128 crop of scene 0 from Rust (embedded Blender)"
 	$(BOXPOSE) render $(DEMO_DATASET) --scene 0 --crop 256,176,384,304 --out $(DEMO_RESULTS)/rerender
-	@echo; echo "== the shipped keypoint network ($(MODEL)) on these freshly rendered scenes: one frame, then all of them"
-	$(BOXPOSE) predict $(DEMO_DATASET) --scene 0 --frame 0 --model $(MODEL) --out $(DEMO_RESULTS)/predict
-	$(BOXPOSE) eval $(DEMO_DATASET) --model $(MODEL) --out $(DEMO_RESULTS)/eval
+	@echo; echo "== the shipped networks ($(SEGMENTER), $(MODEL)) on these freshly rendered scenes: one frame, then all of them"
+	$(BOXPOSE) predict $(DEMO_DATASET) --scene 0 --frame 0 --crops predicted --model $(MODEL) --segmenter $(SEGMENTER) --out $(DEMO_RESULTS)/predict
+	$(BOXPOSE) eval $(DEMO_DATASET) --crops gt --model $(MODEL) --out $(DEMO_RESULTS)/eval_gt_crops
+	$(BOXPOSE) eval $(DEMO_DATASET) --crops predicted --model $(MODEL) --segmenter $(SEGMENTER) --out $(DEMO_RESULTS)/eval_predicted_crops
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
 
