@@ -8,7 +8,7 @@ use anyhow::Context;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::config::{Backbone, DataConfig, OptimizerConfig, TrainConfig};
 use boxpose_learn::segmentation::{SegmenterTask, SegmenterTrainConfig};
-use boxpose_learn::training::{self, KeypointTask, MODEL_DIR, Task, TrainOptions};
+use boxpose_learn::training::{self, KeypointTask, MODEL_DIR, RunConfig, Task, TrainOptions};
 
 /// What both training commands take beside their config.
 #[derive(clap::Args)]
@@ -59,9 +59,15 @@ impl RunArgs {
     }
 
     /// Trains `task` and prints how the run ended.
-    fn train<T: Task>(&self, task: T, o: &OptimizerConfig, config_toml: &str, loader_threads: usize) -> anyhow::Result<()> {
+    fn train<T: Task, C: RunConfig>(
+        &self,
+        task: T,
+        o: &OptimizerConfig,
+        config: &C,
+        loader_threads: usize,
+    ) -> anyhow::Result<()> {
         let options = TrainOptions { device: self.backend.device()?, restart: self.restart, stop_after: self.stop_after, progress: true };
-        let report = training::train(Arc::new(task), o, config_toml, loader_threads, &self.out, options)?;
+        let report = training::train(Arc::new(task), o, config, loader_threads, &self.out, options)?;
         if let Some(step) = report.resumed_from {
             println!("resumed from the checkpoint at step {step}");
         }
@@ -126,7 +132,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         config.optimizer.batch_size,
         args.run.backend.name(),
     );
-    args.run.train(task, &config.optimizer, &config.to_toml(), config.data.loader_threads)
+    args.run.train(task, &config.optimizer, &config, config.data.loader_threads)
 }
 
 #[derive(clap::Args)]
@@ -153,5 +159,5 @@ pub fn run_segmenter(args: &SegmenterArgs) -> anyhow::Result<()> {
         config.optimizer.batch_size,
         args.run.backend.name()
     );
-    args.run.train(task, &config.optimizer, &config.to_toml(), config.data.loader_threads)
+    args.run.train(task, &config.optimizer, &config, config.data.loader_threads)
 }

@@ -156,10 +156,6 @@ impl TrainConfig {
         self.optimizer.validate()?;
         self.data.validate()
     }
-
-    pub fn to_toml(&self) -> String {
-        toml::to_string_pretty(self).expect("a TrainConfig always serializes")
-    }
 }
 
 impl DataConfig {

@@ -86,10 +86,6 @@ impl SegmenterTrainConfig {
         self.optimizer.validate()?;
         self.data.validate()
     }
-
-    pub fn to_toml(&self) -> String {
-        toml::to_string_pretty(self).expect("a SegmenterTrainConfig always serializes")
-    }
 }
 
 /// One found box: its mask over the full frame (row-major), bounding box and score.

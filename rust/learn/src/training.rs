@@ -16,6 +16,7 @@ use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::LearnError;
@@ -99,17 +100,39 @@ pub fn learning_rate(o: &OptimizerConfig, step: usize) -> f64 {
     floor + (o.learning_rate - floor) * 0.5 * (1.0 + (std::f64::consts::PI * progress.min(1.0)).cos())
 }
 
-/// Trains `task` in `run_dir`, resuming its checkpoint when the run's configuration
-/// (`config_toml`, compared as text) is unchanged.
-pub fn train<T: Task>(
+/// Holds an exclusive lock on `run_dir/.lock` for as long as the returned file lives: two
+/// trainings in one run folder would overwrite each other's checkpoints.
+fn lock_run_dir(run_dir: &Path) -> Result<std::fs::File, LearnError> {
+    let path = run_dir.join(".lock");
+    let file = std::fs::File::create(&path).map_err(|e| LearnError::Io(path.clone(), e))?;
+    match file.try_lock() {
+        Ok(()) => Ok(file),
+        Err(std::fs::TryLockError::WouldBlock) => Err(LearnError::Config(format!(
+            "another training is running in {} (it holds {}); wait for it, stop it, or choose another run folder",
+            run_dir.display(),
+            path.display()
+        ))),
+        Err(std::fs::TryLockError::Error(e)) => Err(LearnError::Io(path, e)),
+    }
+}
+
+/// A training config as a run folder keeps it: written as TOML, read back and compared on resume.
+pub trait RunConfig: Serialize + DeserializeOwned + PartialEq {}
+impl<C: Serialize + DeserializeOwned + PartialEq> RunConfig for C {}
+
+/// Trains `task` in `run_dir`, resuming its checkpoint when the run's configuration is unchanged.
+/// The saved `config.toml` is compared as a value read with today's defaults, so a field added
+/// to the config since the checkpoint was written does not orphan it.
+pub fn train<T: Task, C: RunConfig>(
     task: Arc<T>,
     o: &OptimizerConfig,
-    config_toml: &str,
+    config: &C,
     loader_threads: usize,
     run_dir: &Path,
     options: TrainOptions,
 ) -> Result<TrainReport, LearnError> {
     std::fs::create_dir_all(run_dir).map_err(|e| LearnError::Io(run_dir.to_path_buf(), e))?;
+    let _lock = lock_run_dir(run_dir)?;
     let checkpoint_dir = run_dir.join(CHECKPOINT_DIR);
     inference::restore_interrupted(&checkpoint_dir, &run_dir.join(format!("{CHECKPOINT_DIR}.old")))?;
     let config_path = run_dir.join(CONFIG_FILE);
@@ -123,7 +146,7 @@ pub fn train<T: Task>(
         }
     } else if checkpoint_dir.exists() {
         let saved = std::fs::read_to_string(&config_path).map_err(|e| LearnError::Io(config_path.clone(), e))?;
-        if saved != config_toml {
+        if toml::from_str::<C>(&saved).ok().as_ref() != Some(config) {
             return Err(LearnError::Config(format!(
                 "{} holds a checkpoint of a run with another configuration ({}); pass --restart to discard it or choose another run folder",
                 run_dir.display(),
@@ -131,6 +154,7 @@ pub fn train<T: Task>(
             )));
         }
     }
+    let config_toml = toml::to_string_pretty(config).expect("a training config always serializes");
     std::fs::write(&config_path, config_toml).map_err(|e| LearnError::Io(config_path.clone(), e))?;
 
     let device = options.device.clone().autodiff();
@@ -337,4 +361,19 @@ fn progress_bar(show: bool, steps: usize, start: usize) -> indicatif::ProgressBa
     bar.set_position(start as u64);
     bar.reset_eta();
     bar
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_run_folder_admits_one_training_at_a_time() {
+        let dir = tempfile::tempdir().unwrap();
+        let held = lock_run_dir(dir.path()).unwrap();
+        let second = lock_run_dir(dir.path()).unwrap_err().to_string();
+        assert!(second.contains("another training is running"), "{second}");
+        drop(held);
+        lock_run_dir(dir.path()).expect("the lock is free once the first training ends");
+    }
 }
