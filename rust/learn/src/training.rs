@@ -165,6 +165,7 @@ pub fn train<T: Task, C: RunConfig>(
     let mut resumed_from = None;
     if checkpoint_dir.exists() {
         (model, optimizer, state) = load_checkpoint(&checkpoint_dir, model, optimizer)?;
+        trim_history(run_dir, state.step)?;
         resumed_from = Some(state.step);
     }
 
@@ -330,6 +331,29 @@ fn load_checkpoint(dir: &Path, model: ResNetDeconv, optimizer: ModuleOptimizer) 
     Ok((model, optimizer, state))
 }
 
+/// Drops the history rows after `step`: a run stopped between a validation and its checkpoint
+/// redoes those steps on resume and would otherwise list them twice.
+fn trim_history(run_dir: &Path, step: usize) -> Result<(), LearnError> {
+    let path = run_dir.join(HISTORY_FILE);
+    let text = match std::fs::read_to_string(&path) {
+        Ok(text) => text,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(LearnError::Io(path, e)),
+    };
+    let row_step = |line: &str| line.split(',').next().and_then(|field| field.parse::<usize>().ok());
+    let kept: String = text
+        .lines()
+        .filter(|line| row_step(line).is_none_or(|row| row <= step))
+        .map(|line| format!("{line}\n"))
+        .collect();
+    if kept == text {
+        return Ok(());
+    }
+    let partial = run_dir.join(format!("{HISTORY_FILE}.partial"));
+    std::fs::write(&partial, kept).map_err(|e| LearnError::Io(partial.clone(), e))?;
+    std::fs::rename(&partial, &path).map_err(|e| LearnError::Io(path, e))
+}
+
 fn append_history(run_dir: &Path, v: &Validation) -> Result<(), LearnError> {
     let path = run_dir.join(HISTORY_FILE);
     let mut line = String::new();
@@ -375,5 +399,16 @@ mod tests {
         assert!(second.contains("another training is running"), "{second}");
         drop(held);
         lock_run_dir(dir.path()).expect("the lock is free once the first training ends");
+    }
+
+    #[test]
+    fn resuming_drops_the_history_rows_after_the_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(HISTORY_FILE);
+        std::fs::write(&path, "step,train_loss\n250,0.5\n500,0.4\n750,0.3\n").unwrap();
+        trim_history(dir.path(), 500).unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "step,train_loss\n250,0.5\n500,0.4\n");
+        trim_history(dir.path(), 0).unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), "step,train_loss\n");
     }
 }
