@@ -149,6 +149,16 @@ def test_eval_writes_metrics_a_summary_and_the_error_histogram(trained, tiny_dat
     assert "corner recall" in r.stdout and "robust" in r.stdout
 
 
+def test_eval_held_out_keeps_only_the_held_out_scenes(trained, tiny_dataset, boxpose_bin, tmp_path):
+    everything = tmp_path / "all"
+    held_out = tmp_path / "held_out"
+    run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", trained[0] / "model", "--out", everything, "--min-visible-fraction", "0.05")
+    run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", trained[0] / "model", "--out", held_out, "--min-visible-fraction", "0.05", "--held-out", "2")
+    all_scenes = set(pd.read_parquet(everything / "eval.parquet").scene_id)
+    held_out_scenes = set(pd.read_parquet(held_out / "eval.parquet").scene_id)
+    assert held_out_scenes == {s for s in all_scenes if s % 2 == 0} and held_out_scenes != all_scenes
+
+
 def test_a_missing_model_is_one_clear_error(tiny_dataset, boxpose_bin, tmp_path):
     r = run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", tmp_path / "nowhere", check=False)
     assert r.returncode != 0 and "nowhere/network.toml" in r.stderr and "panicked" not in r.stderr

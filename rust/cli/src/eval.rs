@@ -43,6 +43,9 @@ pub struct Args {
     /// Trained segmenter folder, for --crops predicted.
     #[arg(long, default_value = "models/segmenter-slim")]
     segmenter: PathBuf,
+    /// Only the scenes a training run held out: scene_id % N == 0 (its config's val_modulus).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(2..))]
+    held_out: Option<u32>,
     /// Crops per forward pass.
     #[arg(long, default_value_t = 16)]
     batch_size: usize,
@@ -57,7 +60,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         Crops::Gt => None,
     };
     let dataset = Dataset::open(&args.dataset)?;
-    let frames: Vec<_> = dataset.frames()?.collect::<Result<_, _>>()?;
+    let mut frames: Vec<_> = dataset.frames()?.collect::<Result<_, _>>()?;
+    if let Some(modulus) = args.held_out {
+        frames.retain(|frame| frame.scene_id.rem_euclid(i64::from(modulus)) == 0);
+    }
     let mut all_detections = Vec::new();
     let total: usize = frames.iter().map(|f| f.instances.len()).sum();
     let bar = ProgressBar::new(total as u64)
