@@ -103,7 +103,8 @@ def bench_torch(layout, batch, size, depth_bins, steps):
 
 
 def bench_burn(layout, batch, size, depth_bins, steps):
-    cmd = ["cargo", "bench", "--quiet", "-p", "boxpose-learn", "--bench", "keypoint_step", "--",
+    # --workspace, not -p: the same feature set as `make setup`'s build, so burn is not rebuilt
+    cmd = ["cargo", "bench", "--quiet", "--workspace", "--bench", "keypoint_step", "--",
            "--backbone", layout, "--batch", str(batch), "--size", str(size), "--depth-bins", str(depth_bins), "--steps", str(steps)]
     out = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
@@ -120,14 +121,14 @@ def main():
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     print(f"keypoint network, batch {args.batch}, {args.size}² input, {args.depth_bins}×{args.size // 4}² heatmap, {args.threads} threads")
-    print(f"{'layout':<10} {'implementation':<16} {'train step':>11} {'crop (b=1)':>11} {'crop (b=16)':>12}")
+    print(f"{'layout':<10} {'implementation':<20} {'train step':>11} {'crop (b=1)':>11} {'crop (b=16)':>12}")
     for layout in args.layouts.split(","):
         rows = [bench_burn(layout, args.batch, args.size, args.depth_bins, args.steps),
                 bench_torch(layout, args.batch, args.size, args.depth_bins, args.steps)]
         for r in rows:
-            print(f"{layout:<10} {r['implementation']:<16} {r['train_step_ms']:>8.0f} ms {r['crop_ms_batch1']:>8.1f} ms {r['crop_ms_batch16']:>9.1f} ms")
+            print(f"{layout:<10} {r['implementation']:<20} {r['train_step_ms']:>8.0f} ms {r['crop_ms_batch1']:>8.1f} ms {r['crop_ms_batch16']:>9.1f} ms")
         burn, ref = rows
-        print(f"{layout:<10} {'burn / pytorch':<16} {burn['train_step_ms'] / ref['train_step_ms']:>10.2f}× "
+        print(f"{layout:<10} {'burn / pytorch':<20} {burn['train_step_ms'] / ref['train_step_ms']:>10.2f}× "
               f"{burn['crop_ms_batch1'] / ref['crop_ms_batch1']:>10.2f}× {burn['crop_ms_batch16'] / ref['crop_ms_batch16']:>11.2f}×")
 
 
