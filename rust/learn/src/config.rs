@@ -3,9 +3,18 @@
 
 use std::path::{Path, PathBuf};
 
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::LearnError;
+
+/// Reads a training config file and checks it with `validate`; errors name the file.
+pub(crate) fn read_config<C: DeserializeOwned>(path: &Path, validate: impl FnOnce(&C) -> Result<(), LearnError>) -> Result<C, LearnError> {
+    let text = std::fs::read_to_string(path).map_err(|e| LearnError::Io(path.to_path_buf(), e))?;
+    let config: C = toml::from_str(&text).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+    validate(&config).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+    Ok(config)
+}
 
 /// Backbone layouts. `resnet18`/`resnet34` are the paper's family (ResNet-34 in the paper);
 /// `slim` halves every width of ResNet-18 for CPU training, `tiny` is for tests.
@@ -144,11 +153,7 @@ pub struct DataConfig {
 
 impl TrainConfig {
     pub fn load(path: &Path) -> Result<Self, LearnError> {
-        let text = std::fs::read_to_string(path).map_err(|e| LearnError::Io(path.to_path_buf(), e))?;
-        let config: TrainConfig =
-            toml::from_str(&text).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
-        config.validate().map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
-        Ok(config)
+        read_config(path, Self::validate)
     }
 
     pub fn validate(&self) -> Result<(), LearnError> {

@@ -9,16 +9,51 @@ use boxpose_geometry::heatmap::{self, NmsParams, Peak, VoxelGrid};
 use boxpose_geometry::size_fit::{self, SizeFitParams, SizedBoxFit};
 use burn::prelude::*;
 use nalgebra::Point3;
+use serde::Serialize;
+use serde::de::DeserializeOwned;
 
 use crate::LearnError;
 use crate::config::NetworkConfig;
 use crate::data::{self, CropWindow};
-use crate::model::KeypointNet;
+use crate::model::{KeypointNet, ResNetDeconv};
 
 pub const NETWORK_FILE: &str = "network.toml";
 pub const WEIGHTS_FILE: &str = "model.bpk";
 /// Peaks taken from each heatmap: one per box corner, as the paper.
 pub const PEAK_COUNT: usize = 8;
+
+/// Reads a trained network's folder: its config (TOML, `config_file`), checked by `validate`,
+/// and its weights (`model.bpk`), loaded into the untrained network `build` makes from it.
+pub(crate) fn load_model_dir<C: DeserializeOwned>(
+    dir: &Path,
+    config_file: &str,
+    validate: impl FnOnce(&C) -> Result<(), LearnError>,
+    build: impl FnOnce(&C) -> ResNetDeconv,
+) -> Result<(C, ResNetDeconv), LearnError> {
+    let config_path = dir.join(config_file);
+    let text = std::fs::read_to_string(&config_path).map_err(|e| LearnError::Io(config_path.clone(), e))?;
+    let config: C = toml::from_str(&text).map_err(|e| LearnError::Checkpoint(config_path.clone(), e.to_string()))?;
+    validate(&config).map_err(|e| LearnError::Checkpoint(config_path, e.to_string()))?;
+    let weights = dir.join(WEIGHTS_FILE);
+    if !weights.is_file() {
+        return Err(LearnError::Checkpoint(weights, "missing: is this a model folder written by `boxpose train` or `train-segmenter`?".into()));
+    }
+    let net = build(&config)
+        .try_load_file(&weights)
+        .map_err(|e| LearnError::Checkpoint(weights.clone(), format!("cannot load the weights ({e}); were they trained with this {config_file}?")))?;
+    Ok((config, net.valid()))
+}
+
+/// Writes a trained network's folder (`config_file` and `model.bpk`) atomically: into `dir.tmp`,
+/// then renamed.
+pub(crate) fn save_model_dir<C: Serialize>(dir: &Path, config_file: &str, config: &C, net: &ResNetDeconv) -> Result<(), LearnError> {
+    write_dir_atomically(dir, |tmp| {
+        let path = tmp.join(config_file);
+        std::fs::write(&path, toml::to_string_pretty(config).expect("a network config serializes")).map_err(|e| LearnError::Io(path, e))?;
+        let path = tmp.join(WEIGHTS_FILE);
+        net.clone().save_file(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))
+    })
+}
 
 /// A trained keypoint network, ready for inference on one device.
 pub struct KeypointModel {
@@ -30,29 +65,13 @@ pub struct KeypointModel {
 impl KeypointModel {
     /// Loads `dir/network.toml` and `dir/model.bpk`.
     pub fn load(dir: &Path, device: Device) -> Result<Self, LearnError> {
-        let config_path = dir.join(NETWORK_FILE);
-        let text = std::fs::read_to_string(&config_path).map_err(|e| LearnError::Io(config_path.clone(), e))?;
-        let config: NetworkConfig =
-            toml::from_str(&text).map_err(|e| LearnError::Checkpoint(config_path.clone(), e.to_string()))?;
-        config.validate().map_err(|e| LearnError::Checkpoint(config_path, e.to_string()))?;
-        let weights = dir.join(WEIGHTS_FILE);
-        if !weights.is_file() {
-            return Err(LearnError::Checkpoint(weights, "missing: is this a model folder written by `boxpose train`?".into()));
-        }
-        let net = KeypointNet::keypoints(&config, &device)
-            .try_load_file(&weights)
-            .map_err(|e| LearnError::Checkpoint(weights.clone(), format!("cannot load the weights ({e}); were they trained with this network.toml?")))?;
-        Ok(Self { config, net: net.valid(), device })
+        let (config, net) = load_model_dir(dir, NETWORK_FILE, NetworkConfig::validate, |c: &NetworkConfig| KeypointNet::keypoints(c, &device))?;
+        Ok(Self { config, net, device })
     }
 
     /// Writes the model folder (network.toml, model.bpk) atomically: into `dir.tmp`, then renamed.
     pub fn save(config: &NetworkConfig, net: &KeypointNet, dir: &Path) -> Result<(), LearnError> {
-        write_dir_atomically(dir, |tmp| {
-            let path = tmp.join(NETWORK_FILE);
-            std::fs::write(&path, toml::to_string_pretty(config).expect("a NetworkConfig serializes")).map_err(|e| LearnError::Io(path, e))?;
-            let path = tmp.join(WEIGHTS_FILE);
-            net.clone().save_file(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))
-        })
+        save_model_dir(dir, NETWORK_FILE, config, net)
     }
 
     /// Heatmaps `[D·H·W]` of prepared inputs `[4·S·S]` each, in batches of `batch_size`.

@@ -14,9 +14,9 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::LearnError;
-use crate::config::{AugmentConfig, Backbone, DataConfig, OptimizerConfig};
+use crate::config::{self, AugmentConfig, Backbone, DataConfig, OptimizerConfig};
 use crate::data::{self, InstanceSet};
-use crate::inference::{WEIGHTS_FILE, write_dir_atomically};
+use crate::inference::{load_model_dir, save_model_dir};
 use crate::model::ResNetDeconv;
 use crate::training::Task;
 
@@ -75,10 +75,7 @@ pub struct SegmenterTrainConfig {
 
 impl SegmenterTrainConfig {
     pub fn load(path: &Path) -> Result<Self, LearnError> {
-        let text = std::fs::read_to_string(path).map_err(|e| LearnError::Io(path.to_path_buf(), e))?;
-        let config: Self = toml::from_str(&text).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
-        config.validate().map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
-        Ok(config)
+        config::read_config(path, Self::validate)
     }
 
     pub fn validate(&self) -> Result<(), LearnError> {
@@ -229,25 +226,17 @@ pub struct SegmenterModel {
 }
 
 impl SegmenterModel {
+    /// Loads `dir/segmenter.toml` and `dir/model.bpk`.
     pub fn load(dir: &Path, device: Device) -> Result<Self, LearnError> {
-        let path = dir.join(SEGMENTER_FILE);
-        let text = std::fs::read_to_string(&path).map_err(|e| LearnError::Io(path.clone(), e))?;
-        let config: SegmenterConfig = toml::from_str(&text).map_err(|e| LearnError::Checkpoint(path.clone(), e.to_string()))?;
-        config.validate().map_err(|e| LearnError::Checkpoint(path, e.to_string()))?;
-        let weights = dir.join(WEIGHTS_FILE);
-        let net = ResNetDeconv::new(config.backbone, OUTPUTS, &device)
-            .try_load_file(&weights)
-            .map_err(|e| LearnError::Checkpoint(weights.clone(), format!("cannot load the weights ({e}); is this a segmenter folder?")))?;
-        Ok(Self { config, net: net.valid(), device })
+        let (config, net) = load_model_dir(dir, SEGMENTER_FILE, SegmenterConfig::validate, |c: &SegmenterConfig| {
+            ResNetDeconv::new(c.backbone, OUTPUTS, &device)
+        })?;
+        Ok(Self { config, net, device })
     }
 
+    /// Writes the model folder (segmenter.toml, model.bpk) atomically.
     pub fn save(config: &SegmenterConfig, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
-        write_dir_atomically(dir, |tmp| {
-            let path = tmp.join(SEGMENTER_FILE);
-            std::fs::write(&path, toml::to_string_pretty(config).expect("a SegmenterConfig serializes")).map_err(|e| LearnError::Io(path, e))?;
-            let path = tmp.join(WEIGHTS_FILE);
-            net.clone().save_file(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))
-        })
+        save_model_dir(dir, SEGMENTER_FILE, config, net)
     }
 
     /// The boxes found in each frame.
