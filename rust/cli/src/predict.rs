@@ -3,8 +3,9 @@
 //! paper's Fig. 5 (true box white, NMS peaks black, fitted box grey).
 //!
 //! The frame is a dataset row (`DATASET --scene S --frame F`) or files (`--rgb`, `--depth`,
-//! `--intrinsics`). Boxes are cropped around ground-truth boxes (`--crops gt`, dataset rows) or
-//! around the bounding boxes given with `--bbox`.
+//! `--intrinsics`). Boxes are cropped around the ground-truth boxes (`--crops gt`, dataset rows
+//! only), around the boxes the segmenter finds (`--crops predicted`, and files without `--bbox`),
+//! or around the bounding boxes given with `--bbox` (max exclusive).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -102,7 +103,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 .chunks(4)
                 .map(|b| {
                     let bbox = [b[0], b[1], b[2], b[3]];
-                    let crop = CropRequest::around(&frame, &model.config, bbox, |_| true)
+                    // no mask: the reference depth is the median inside the given box (max exclusive)
+                    let width = frame.width;
+                    let inside = |i: usize| {
+                        let (x, y) = ((i % width) as i32, (i / width) as i32);
+                        (bbox[0]..bbox[2]).contains(&x) && (bbox[1]..bbox[3]).contains(&y)
+                    };
+                    let crop = CropRequest::around(&frame, &model.config, bbox, inside)
                         .with_context(|| format!("--bbox {bbox:?} has no depth measurement inside"))?;
                     Ok(Target { object_id: None, bbox, crop })
                 })

@@ -105,6 +105,22 @@ pub struct AugmentConfig {
     pub depth_dropout: f64,
 }
 
+impl AugmentConfig {
+    pub fn validate(&self) -> Result<(), LearnError> {
+        let fields = [("shift", self.shift), ("scale", self.scale), ("color", self.color), ("depth_noise_m", self.depth_noise_m), ("depth_dropout", self.depth_dropout)];
+        if let Some((name, value)) = fields.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            return Err(LearnError::Config(format!("[augment] {name} = {value} must be a number ≥ 0")));
+        }
+        if self.scale >= 1.0 || self.color >= 1.0 || self.depth_dropout > 1.0 {
+            return Err(LearnError::Config(format!(
+                "[augment] scale {} and color {} must be below 1, depth_dropout {} at most 1",
+                self.scale, self.color, self.depth_dropout
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// Everything `boxpose train` needs; a TOML file with these sections.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -158,6 +174,7 @@ impl TrainConfig {
 
     pub fn validate(&self) -> Result<(), LearnError> {
         self.network.validate()?;
+        self.augment.validate()?;
         self.optimizer.validate()?;
         self.data.validate()
     }
@@ -190,5 +207,24 @@ impl OptimizerConfig {
             return Err(LearnError::Config(format!("positive_weight {} must be ≥ 0", self.positive_weight)));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn augmentation_that_would_crash_the_loader_is_refused_up_front() {
+        let fine = AugmentConfig { shift: 0.1, scale: 0.15, color: 0.2, depth_noise_m: 0.002, depth_dropout: 0.02 };
+        fine.validate().unwrap();
+        for bad in [
+            AugmentConfig { shift: -0.1, ..fine.clone() },
+            AugmentConfig { scale: 1.0, ..fine.clone() },
+            AugmentConfig { depth_dropout: f64::NAN, ..fine.clone() },
+        ] {
+            let message = bad.validate().unwrap_err().to_string();
+            assert!(message.starts_with("[augment]"), "{message}");
+        }
     }
 }

@@ -236,7 +236,8 @@ pub fn sample_at(
 ) -> Result<Sample, LearnError> {
     let input = crop_input(frame, window, z_ref, config.input_size, augment);
     let grid = voxel_grid(config, &frame.intrinsics, window, z_ref);
-    let target = target_heatmap(config, &grid, corners_camera)?;
+    let target = target_heatmap(config, &grid, corners_camera)
+        .map_err(|e| LearnError::Data(format!("scene {} frame {}: a box's target heatmap: {e}", frame.scene_id, frame.frame_id)))?;
     Ok(Sample { input, target, grid })
 }
 

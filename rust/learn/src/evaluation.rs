@@ -106,12 +106,18 @@ impl Summary {
 }
 
 /// Fraction of `evals` whose `method` fit has MSSD below `fraction` of the diameter.
-pub fn mssd_recall(evals: &[InstanceEval], method: Method, fraction: f64) -> f64 {
+fn mssd_recall(evals: &[InstanceEval], method: Method, fraction: f64) -> f64 {
     let hits = evals
         .iter()
         .filter(|e| e.fits.iter().any(|(m, s)| *m == method && s.as_ref().is_ok_and(|s| s.mssd_m < fraction * e.diameter_m)))
         .count();
     hits as f64 / evals.len().max(1) as f64
+}
+
+/// The mean, or NaN for no values (every box missed has no heatmap to score).
+fn mean(values: impl Iterator<Item = f64>) -> f64 {
+    let (sum, count) = values.fold((0.0, 0usize), |(sum, count), v| (sum + v, count + 1));
+    if count == 0 { f64::NAN } else { sum / count as f64 }
 }
 
 pub fn summarize(evals: &[InstanceEval]) -> Summary {
@@ -123,7 +129,7 @@ pub fn summarize(evals: &[InstanceEval]) -> Summary {
     paper_errors.sort_by(f64::total_cmp);
     Summary {
         instances: evals.len(),
-        heatmap_mse: evals.iter().filter(|e| !e.missed).map(|e| e.heatmap_mse).sum::<f64>() / evals.iter().filter(|e| !e.missed).count().max(1) as f64,
+        heatmap_mse: mean(evals.iter().filter(|e| !e.missed).map(|e| e.heatmap_mse)),
         corner_recall: evals.iter().map(|e| e.corners_found as f64 / 8.0).sum::<f64>() / n,
         robust_mssd_recall_005: mssd_recall(evals, Method::Robust, 0.05),
         robust_mssd_recall_010: mssd_recall(evals, Method::Robust, 0.1),

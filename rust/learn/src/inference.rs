@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use boxpose_data::Frame;
+use boxpose_geometry::GeometryError;
 use boxpose_geometry::heatmap::{self, NmsParams, Peak, VoxelGrid};
 use boxpose_geometry::size_fit::{self, SizeFitParams, SizedBoxFit};
 use burn::prelude::*;
@@ -112,7 +113,6 @@ impl CropRequest {
 /// What the pipeline recovers for one box.
 #[derive(Debug, Clone)]
 pub struct BoxPrediction {
-    pub grid: VoxelGrid,
     /// NMS peaks (best first) and their back-projections, camera frame, metres.
     pub peaks: Vec<Peak>,
     pub points: Vec<Point3<f64>>,
@@ -120,10 +120,14 @@ pub struct BoxPrediction {
     pub fit: Result<SizedBoxFit, String>,
 }
 
-/// NMS on one heatmap, and the peaks back-projected through the crop's voxel grid.
+/// NMS on one heatmap, and the peaks back-projected through the crop's voxel grid. A heatmap
+/// with no positive voxel has no peak: the fits that follow fail for that box alone.
 pub fn decode(config: &NetworkConfig, heatmap: &[f32], grid: &VoxelGrid) -> Result<(Vec<Peak>, Vec<Point3<f64>>), LearnError> {
     let params = NmsParams { count: PEAK_COUNT, sigma: config.sigma_voxels, refine_radius: 1 };
-    let peaks = heatmap::non_maximum_suppression(heatmap, data::heatmap_dims(config), &params)?;
+    let peaks = match heatmap::non_maximum_suppression(heatmap, data::heatmap_dims(config), &params) {
+        Err(GeometryError::EmptyHeatmap) => Vec::new(),
+        peaks => peaks?,
+    };
     let points = peaks.iter().map(|p| grid.back_project(&p.coord)).collect::<Result<Vec<_>, _>>()?;
     Ok((peaks, points))
 }
@@ -140,7 +144,7 @@ pub fn predict(model: &KeypointModel, frame: &Frame, crops: &[CropRequest], batc
             let grid = data::voxel_grid(&model.config, &frame.intrinsics, &crop.window, crop.z_ref);
             let (peaks, points) = decode(&model.config, heatmap, &grid)?;
             let fit = size_fit::fit_pose_and_size(&points, &SizeFitParams::default()).map_err(|e| e.to_string());
-            Ok(BoxPrediction { grid, peaks, points, fit })
+            Ok(BoxPrediction { peaks, points, fit })
         })
         .collect()
 }

@@ -59,6 +59,15 @@ impl SegmenterConfig {
         if !(self.centre_sigma > 0.0) {
             return Err(LearnError::Config("centre_sigma must be positive".into()));
         }
+        if !((0.0..=1.0).contains(&self.foreground_threshold) && (0.0..=1.0).contains(&self.centre_threshold)) {
+            return Err(LearnError::Config(format!(
+                "foreground_threshold {} and centre_threshold {} must lie in [0, 1]",
+                self.foreground_threshold, self.centre_threshold
+            )));
+        }
+        if self.min_pixels == 0 {
+            return Err(LearnError::Config("min_pixels must be at least 1: an instance needs a pixel".into()));
+        }
         Ok(())
     }
 }
@@ -80,6 +89,7 @@ impl SegmenterTrainConfig {
 
     pub fn validate(&self) -> Result<(), LearnError> {
         self.segmenter.validate()?;
+        self.augment.validate()?;
         self.optimizer.validate()?;
         self.data.validate()
     }
@@ -247,6 +257,9 @@ impl SegmenterModel {
             let flat: Vec<f32> = chunk.iter().flat_map(|f| frame_input(&self.config, f, None)).collect();
             let output = self.net.forward(Tensor::<4>::from_data(TensorData::new(flat, [chunk.len(), 4, h, w]), &self.device));
             let values: Vec<f32> = output.into_data().try_to_vec::<f32>().map_err(|e| LearnError::Backend(format!("{e:?}")))?;
+            if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
+                return Err(LearnError::Backend(format!("the segmenter output a non-finite value ({bad}): corrupt weights?")));
+            }
             let per_frame = values.len() / chunk.len();
             out.extend(chunk.iter().zip(values.chunks(per_frame)).map(|(frame, output)| decode(&self.config, frame, output)));
         }

@@ -138,11 +138,7 @@ pub fn train<T: Task, C: RunConfig>(
     let config_path = run_dir.join(CONFIG_FILE);
     if options.restart {
         for stale in [checkpoint_dir.clone(), run_dir.join(MODEL_DIR), run_dir.join(HISTORY_FILE)] {
-            let removed = if stale.is_dir() { std::fs::remove_dir_all(&stale) } else { std::fs::remove_file(&stale) };
-            match removed {
-                Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(LearnError::Io(stale, e)),
-                _ => {}
-            }
+            remove_if_present(&stale)?;
         }
     } else if checkpoint_dir.exists() {
         let saved = std::fs::read_to_string(&config_path).map_err(|e| LearnError::Io(config_path.clone(), e))?;
@@ -167,6 +163,9 @@ pub fn train<T: Task, C: RunConfig>(
         (model, optimizer, state) = load_checkpoint(&checkpoint_dir, model, optimizer)?;
         trim_history(run_dir, state.step)?;
         resumed_from = Some(state.step);
+    } else {
+        // a run that stopped before its first checkpoint starts again from step 0, with a new history
+        remove_if_present(&run_dir.join(HISTORY_FILE))?;
     }
 
     let last_step = match options.stop_after {
@@ -180,6 +179,8 @@ pub fn train<T: Task, C: RunConfig>(
     let mut session_start = Instant::now();
     while state.step < last_step {
         let batch = batches.recv().map_err(|_| LearnError::Data("the batch loader stopped".into()))??;
+        // workers build batches in parallel; the trainer must still see them in step order
+        assert_eq!(batch.step, state.step, "the batch loader delivered a batch out of order");
         let [c, h, w] = input_shape;
         let inputs = Tensor::<4>::from_data(TensorData::new(batch.inputs, [batch.size, c, h, w]), &device);
         let [c, h, w] = target_shape;
@@ -329,6 +330,15 @@ fn load_checkpoint(dir: &Path, model: ResNetDeconv, optimizer: ModuleOptimizer) 
     let path = dir.join(OPTIMIZER_FILE);
     let optimizer = optimizer.load(&path).map_err(|e| bad(path.clone(), e.to_string()))?;
     Ok((model, optimizer, state))
+}
+
+/// Removes a file or folder; one that is not there is fine.
+fn remove_if_present(path: &Path) -> Result<(), LearnError> {
+    let removed = if path.is_dir() { std::fs::remove_dir_all(path) } else { std::fs::remove_file(path) };
+    match removed {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(LearnError::Io(path.to_path_buf(), e)),
+        _ => Ok(()),
+    }
 }
 
 /// Drops the history rows after `step`: a run stopped between a validation and its checkpoint
