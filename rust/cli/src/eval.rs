@@ -62,7 +62,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let dataset = Dataset::open(&args.dataset)?;
     let mut frames: Vec<_> = dataset.frames()?.collect::<Result<_, _>>()?;
     if let Some(modulus) = args.held_out {
-        frames.retain(|frame| frame.scene_id.rem_euclid(i64::from(modulus)) == 0);
+        frames.retain(|frame| data::is_held_out(frame.scene_id, i64::from(modulus)));
     }
     let mut all_detections = Vec::new();
     let total: usize = frames.iter().map(|f| f.instances.len()).sum();

@@ -21,7 +21,7 @@ use boxpose_geometry::pipeline;
 
 use crate::fit_table::{self, FitRow};
 use indicatif::{ProgressBar, ProgressStyle};
-use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -87,11 +87,6 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn pose(quat_wxyz: [f64; 4], translation: [f64; 3]) -> Isometry3<f64> {
-    let [w, x, y, z] = quat_wxyz;
-    Isometry3::from_parts(Translation3::from(Vector3::from(translation)), UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)))
-}
-
 /// Crop (square, around the projected corners) and depth range (around the box centre) of the
 /// heatmap, as the keypoint network's input crop would be.
 fn voxel_grid(k: &Intrinsics, instance: &Instance, diameter: f64, resolution: usize) -> VoxelGrid {
@@ -114,7 +109,7 @@ fn voxel_grid(k: &Intrinsics, instance: &Instance, diameter: f64, resolution: us
 
 fn evaluate(args: &Args, k: &Intrinsics, instance: &Instance, rng: &mut ChaCha8Rng) -> anyhow::Result<Vec<FitRow>> {
     let model = BoxModel::new(Vector3::from(instance.size))?;
-    let truth = pose(instance.camera_box.quat_wxyz, instance.camera_box.translation);
+    let truth = pipeline::isometry(instance.camera_box.quat_wxyz, instance.camera_box.translation);
     let truth_corners: Vec<Point3<f64>> = instance.corners_camera.iter().map(|c| Point3::from(*c)).collect();
     let grid = voxel_grid(k, instance, model.diameter(), args.resolution);
     let n = args.resolution;

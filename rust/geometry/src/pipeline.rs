@@ -4,7 +4,7 @@
 
 use std::time::Instant;
 
-use nalgebra::{Isometry3, Matrix3, Point3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
 use crate::correspondence::{fast_exact_search, paper_exact_search};
 use crate::box_model::{CORNER_COUNT, corner_signs};
@@ -37,6 +37,12 @@ impl Method {
             Method::SizeAndPose => "size_and_pose",
         }
     }
+}
+
+/// A pose as the dataset stores it: a unit quaternion (w, x, y, z) and a translation in metres.
+pub fn isometry(quat_wxyz: [f64; 4], translation: [f64; 3]) -> Isometry3<f64> {
+    let [w, x, y, z] = quat_wxyz;
+    Isometry3::from_parts(Translation3::from(Vector3::from(translation)), UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)))
 }
 
 /// How far one fit is from the truth.
@@ -151,7 +157,6 @@ fn closest_labelling(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use nalgebra::{Translation3, Vector3};
 
     fn truth() -> (BoxModel, Isometry3<f64>, Vec<Point3<f64>>) {
         let model = BoxModel::new(Vector3::new(0.3, 0.2, 0.1)).unwrap();

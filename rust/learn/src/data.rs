@@ -3,7 +3,6 @@
 //! input and normalized, and the target: a 3D Gaussian at every ground-truth corner in the
 //! (z-bin, v, u) volume. Batches are prepared on worker threads ahead of the optimizer.
 
-use std::path::Path;
 use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
@@ -18,7 +17,7 @@ use rayon::prelude::*;
 
 use crate::LearnError;
 use crate::training::Task;
-use crate::config::{AugmentConfig, NetworkConfig};
+use crate::config::{AugmentConfig, DataConfig, NetworkConfig};
 
 /// RGB is normalized as (x/255 − mean)/std with these (a neutral grey; boxes are not ImageNet).
 const RGB_MEAN: f32 = 0.5;
@@ -258,11 +257,18 @@ pub struct InstanceSet {
     pub val_frames: Vec<usize>,
 }
 
+/// Whether a scene is held out from training: every `val_modulus`-th scene id, all its views.
+pub fn is_held_out(scene_id: i64, val_modulus: i64) -> bool {
+    scene_id.rem_euclid(val_modulus) == 0
+}
+
 impl InstanceSet {
-    pub fn load(datasets: &[impl AsRef<Path>], val_modulus: i64, min_visible_fraction: f32) -> Result<Self, LearnError> {
+    /// Every frame of the `[data]` datasets, split into training and held-out scenes.
+    pub fn load(data: &DataConfig) -> Result<Self, LearnError> {
+        let (val_modulus, min_visible_fraction) = (data.val_modulus, data.min_visible_fraction);
         let mut frames = Vec::new();
-        for path in datasets {
-            let dataset = Dataset::open(path.as_ref())?;
+        for path in &data.datasets {
+            let dataset = Dataset::open(path)?;
             for frame in dataset.frames()? {
                 frames.push(frame?);
             }
@@ -270,12 +276,13 @@ impl InstanceSet {
         let (mut train, mut val) = (Vec::new(), Vec::new());
         let (mut train_frames, mut val_frames) = (Vec::new(), Vec::new());
         for (f, frame) in frames.iter().enumerate() {
-            if frame.scene_id.rem_euclid(val_modulus) == 0 { val_frames.push(f) } else { train_frames.push(f) }
+            let held_out = is_held_out(frame.scene_id, val_modulus);
+            if held_out { val_frames.push(f) } else { train_frames.push(f) }
             for (i, instance) in frame.instances.iter().enumerate() {
                 if instance.visible_fraction < min_visible_fraction || instance.visible_bbox.is_none() {
                     continue;
                 }
-                if frame.scene_id.rem_euclid(val_modulus) == 0 { val.push((f, i)) } else { train.push((f, i)) }
+                if held_out { val.push((f, i)) } else { train.push((f, i)) }
             }
         }
         Ok(Self { frames, train, val, train_frames, val_frames })

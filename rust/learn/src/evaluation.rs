@@ -5,7 +5,7 @@ use boxpose_data::Instance;
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::heatmap::VoxelGrid;
 use boxpose_geometry::pipeline::{self, Method, Scores};
-use nalgebra::{Isometry3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::LearnError;
 use crate::config::NetworkConfig;
@@ -28,11 +28,7 @@ pub struct InstanceEval {
 
 /// The box's true pose in the camera frame.
 pub fn true_pose(instance: &Instance) -> Isometry3<f64> {
-    let [w, x, y, z] = instance.camera_box.quat_wxyz;
-    Isometry3::from_parts(
-        Translation3::from(Vector3::from(instance.camera_box.translation)),
-        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
-    )
+    pipeline::isometry(instance.camera_box.quat_wxyz, instance.camera_box.translation)
 }
 
 /// Scores one heatmap (from the crop `grid`) against its instance's truth and `target`.

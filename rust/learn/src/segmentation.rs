@@ -374,7 +374,7 @@ pub struct SegmenterTask {
 impl SegmenterTask {
     pub fn load(config: SegmenterTrainConfig) -> Result<Self, LearnError> {
         config.validate()?;
-        let set = InstanceSet::load(&config.data.datasets, config.data.val_modulus, config.data.min_visible_fraction)?;
+        let set = InstanceSet::load(&config.data)?;
         Ok(Self { config, set })
     }
 }

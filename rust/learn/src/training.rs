@@ -227,7 +227,7 @@ pub struct KeypointTask {
 impl KeypointTask {
     pub fn load(config: TrainConfig) -> Result<Self, LearnError> {
         config.validate()?;
-        let set = InstanceSet::load(&config.data.datasets, config.data.val_modulus, config.data.min_visible_fraction)?;
+        let set = InstanceSet::load(&config.data)?;
         Ok(Self { config, set })
     }
 
