@@ -1,0 +1,27 @@
+//! Statistics for boxpose's rare-failure search, with no knowledge of scenes.
+//!
+//! The search writes every scene as a deterministic function of a fixed-length vector
+//! z ∈ R^d of standard normals, so the nominal density is exactly p(z) = N(0, I_d). Everything
+//! here acts on that z-space:
+//!
+//! - [`stats`]: binomial intervals (Clopper–Pearson, Wilson), the normal quantile, and the
+//!   importance-sampling estimate of a failure probability ([`stats::ImportanceEstimate`]) with
+//!   the ratio estimator for redrawn invalid samples and post-stratification.
+//! - [`proposal`]: the defensive Gaussian-mixture proposal q(z), its exact density and
+//!   likelihood ratio, sampling, and the weighted maximum-likelihood update.
+//! - [`ce`]: one stateless step of the multilevel cross-entropy method, its configuration, and
+//!   an in-memory reference driver for cheap score functions (tests, benchmarks).
+//! - [`rng`]: per-sample random generators, so sample `i`'s z depends only on its id.
+
+pub mod ce;
+pub mod proposal;
+pub mod rng;
+pub mod stats;
+
+pub use ce::{CeConfig, CeError, CeRun, CeStep, ce_step, run_in_memory};
+pub use proposal::{Component, Proposal, ProposalError, log_nominal};
+pub use rng::sample_rng;
+pub use stats::{
+    CiMethod, EstimateError, EstimatorKind, ImportanceEstimate, WeightedSample, clopper_pearson,
+    normal_cdf, normal_quantile, wilson,
+};

@@ -1,0 +1,503 @@
+//! The defensive Gaussian-mixture proposal over the search's z-space.
+
+use rand::Rng;
+use rand_distr::{Distribution, StandardNormal};
+use serde::{Deserialize, Serialize};
+
+/// Smallest per-dimension standard deviation a fit may produce.
+pub const MIN_STD: f64 = 0.05;
+
+/// Smallest mixture weight a fit with K > 1 keeps for a component (then renormalised), so no
+/// component dies.
+pub const MIN_COMPONENT_WEIGHT: f64 = 1e-3;
+
+/// EM iterations per [`Proposal::fit`] when K > 1.
+pub const EM_STEPS: usize = 8;
+
+const LN_2PI: f64 = 1.837_877_066_409_345_5;
+
+/// log N(z; 0, I_d) = −(d/2) ln 2π − ‖z‖²/2, the exact nominal density of the search's z-space.
+pub fn log_nominal(z: &[f64]) -> f64 {
+    -0.5 * (z.len() as f64 * LN_2PI + z.iter().map(|x| x * x).sum::<f64>())
+}
+
+fn logsumexp(terms: &[f64]) -> f64 {
+    let max = terms.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if max == f64::NEG_INFINITY {
+        return max;
+    }
+    max + terms.iter().map(|t| (t - max).exp()).sum::<f64>().ln()
+}
+
+/// One mixture component N(μ, diag σ²) with its mixture weight π.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Component {
+    /// Mixture weight π_k (the weights of a proposal's components sum to 1).
+    pub weight: f64,
+    /// Mean μ_k.
+    pub mean: Vec<f64>,
+    /// Per-dimension standard deviation σ_k (all > 0).
+    pub std: Vec<f64>,
+}
+
+impl Component {
+    fn standard(dim: usize, weight: f64) -> Self {
+        Self {
+            weight,
+            mean: vec![0.0; dim],
+            std: vec![1.0; dim],
+        }
+    }
+
+    /// log N(z; μ, diag σ²).
+    pub fn log_density(&self, z: &[f64]) -> f64 {
+        let mut acc = -0.5 * z.len() as f64 * LN_2PI;
+        for ((x, m), s) in z.iter().zip(&self.mean).zip(&self.std) {
+            let u = (x - m) / s;
+            acc -= 0.5 * u * u + s.ln();
+        }
+        acc
+    }
+}
+
+/// Why a proposal or its fit is malformed.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ProposalError {
+    /// `defensive` (λ) is not in [0, 1].
+    #[error("defensive weight λ = {0} is not in [0, 1]")]
+    BadDefensive(f64),
+    /// No component.
+    #[error("a proposal needs at least one component")]
+    NoComponents,
+    /// A component's mean or std has the wrong length, a non-finite entry, or a std ≤ 0.
+    #[error("component {0}: mean and std must have the proposal's dimension, be finite, std > 0")]
+    BadComponent(usize),
+    /// Mixture weights negative, non-finite or summing to zero.
+    #[error("mixture weights must be non-negative with a positive sum")]
+    BadWeights,
+    /// `fit` got different numbers of points and weights, no positive weight, a point of the
+    /// wrong dimension, or a smoothing outside [0, 1].
+    #[error("fit: {0}")]
+    BadFit(String),
+}
+
+/// The defensive mixture proposal over R^d:
+///
+/// q(z) = λ N(z; 0, I_d) + (1 − λ) Σ_k π_k N(z; μ_k, diag σ_k²),  K ≥ 1, Σ_k π_k = 1.
+///
+/// λ = `defensive` ∈ [0, 1]; λ = 1 is the nominal itself, and λ > 0 bounds the likelihood ratio
+/// w(z) = p(z)/q(z) ≤ 1/λ. Serialises to JSON so a run can store it at each iteration barrier.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Proposal {
+    /// Dimension d of z.
+    pub dim: usize,
+    /// Defensive weight λ of the nominal N(0, I_d).
+    pub defensive: f64,
+    /// The adapted components (K ≥ 1).
+    pub components: Vec<Component>,
+}
+
+impl Proposal {
+    /// Builds and checks a proposal; mixture weights are renormalised to sum to 1.
+    pub fn new(
+        dim: usize,
+        defensive: f64,
+        mut components: Vec<Component>,
+    ) -> Result<Self, ProposalError> {
+        if !(0.0..=1.0).contains(&defensive) {
+            return Err(ProposalError::BadDefensive(defensive));
+        }
+        if components.is_empty() {
+            return Err(ProposalError::NoComponents);
+        }
+        for (k, c) in components.iter().enumerate() {
+            let ok = c.mean.len() == dim
+                && c.std.len() == dim
+                && c.mean.iter().all(|m| m.is_finite())
+                && c.std.iter().all(|s| s.is_finite() && *s > 0.0);
+            if !ok {
+                return Err(ProposalError::BadComponent(k));
+            }
+        }
+        let total: f64 = components.iter().map(|c| c.weight).sum();
+        if components
+            .iter()
+            .any(|c| !c.weight.is_finite() || c.weight < 0.0)
+            || !(total > 0.0 && total.is_finite())
+        {
+            return Err(ProposalError::BadWeights);
+        }
+        for c in &mut components {
+            c.weight /= total;
+        }
+        Ok(Self {
+            dim,
+            defensive,
+            components,
+        })
+    }
+
+    /// The nominal N(0, I_d) itself: λ = 1, one standard component.
+    pub fn nominal(dim: usize) -> Self {
+        Self {
+            dim,
+            defensive: 1.0,
+            components: vec![Component::standard(dim, 1.0)],
+        }
+    }
+
+    /// The starting proposal of a cross-entropy search with `components` (K ≥ 1) mixture
+    /// components: λ = 0 and K copies of N(0, I_d) with equal weights, i.e. the nominal
+    /// distribution. The first [`Proposal::fit`] with K > 1 seeds the components apart.
+    pub fn tuning_start(dim: usize, components: usize) -> Self {
+        let k = components.max(1);
+        Self {
+            dim,
+            defensive: 0.0,
+            components: (0..k)
+                .map(|_| Component::standard(dim, 1.0 / k as f64))
+                .collect(),
+        }
+    }
+
+    /// The same components with defensive weight λ (clamped to [0, 1]).
+    pub fn with_defensive(&self, lambda: f64) -> Self {
+        Self {
+            defensive: lambda.clamp(0.0, 1.0),
+            ..self.clone()
+        }
+    }
+
+    /// Draws one z ~ q: with probability λ from N(0, I), else from component k with
+    /// probability π_k.
+    pub fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> Vec<f64> {
+        let u: f64 = rng.random();
+        if u < self.defensive || self.defensive >= 1.0 {
+            return (0..self.dim).map(|_| StandardNormal.sample(rng)).collect();
+        }
+        let mut v: f64 = rng.random();
+        let mut chosen = self.components.len() - 1;
+        for (k, c) in self.components.iter().enumerate() {
+            if v < c.weight {
+                chosen = k;
+                break;
+            }
+            v -= c.weight;
+        }
+        let c = &self.components[chosen];
+        c.mean
+            .iter()
+            .zip(&c.std)
+            .map(|(m, s)| {
+                let e: f64 = StandardNormal.sample(rng);
+                m + s * e
+            })
+            .collect()
+    }
+
+    /// log q(z), exact, by log-sum-exp over the nominal and the components.
+    pub fn log_density(&self, z: &[f64]) -> f64 {
+        let nominal = log_nominal(z);
+        if self.defensive >= 1.0 {
+            return nominal;
+        }
+        let mut terms = Vec::with_capacity(self.components.len() + 1);
+        if self.defensive > 0.0 {
+            terms.push(self.defensive.ln() + nominal);
+        }
+        let rest = (1.0 - self.defensive).ln();
+        for c in &self.components {
+            if c.weight > 0.0 {
+                terms.push(rest + c.weight.ln() + c.log_density(z));
+            }
+        }
+        logsumexp(&terms)
+    }
+
+    /// log w(z) = log p(z) − log q(z), the log likelihood ratio of the nominal over q
+    /// (exactly 0 when λ = 1; at most ln(1/λ) when λ > 0).
+    pub fn log_weight(&self, z: &[f64]) -> f64 {
+        if self.defensive >= 1.0 {
+            return 0.0;
+        }
+        log_nominal(z) - self.log_density(z)
+    }
+
+    /// Weighted maximum-likelihood update of the components (λ is kept), smoothed:
+    ///
+    /// - K = 1: μ = Σ w_i z_i / Σ w_i, σ_j² = Σ w_i (z_ij − μ_j)² / Σ w_i (closed form);
+    /// - K > 1: [`EM_STEPS`] steps of weighted EM initialised from the current components
+    ///   (or, when they coincide, from farthest-point seeds among the heaviest points), mixture
+    ///   weights floored at [`MIN_COMPONENT_WEIGHT`].
+    ///
+    /// σ is floored at [`MIN_STD`]. Smoothing acts on (μ, σ) and on the mixture weights π:
+    /// θ_new = α θ_fit + (1 − α) θ_old, with α = `smoothing` ∈ [0, 1] (α = 1: no smoothing).
+    /// `weights` need not be normalised (they are self-normalised) and must be non-negative.
+    pub fn fit(
+        &self,
+        zs: &[Vec<f64>],
+        weights: &[f64],
+        smoothing: f64,
+    ) -> Result<Proposal, ProposalError> {
+        if zs.len() != weights.len() {
+            return Err(ProposalError::BadFit(format!(
+                "{} points but {} weights",
+                zs.len(),
+                weights.len()
+            )));
+        }
+        if !(0.0..=1.0).contains(&smoothing) {
+            return Err(ProposalError::BadFit(format!(
+                "smoothing {smoothing} is not in [0, 1]"
+            )));
+        }
+        if weights.iter().any(|w| !w.is_finite() || *w < 0.0) {
+            return Err(ProposalError::BadFit(
+                "weights must be finite and non-negative".into(),
+            ));
+        }
+        let total: f64 = weights.iter().sum();
+        if total.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return Err(ProposalError::BadFit("no positive weight".into()));
+        }
+        if zs.iter().any(|z| z.len() != self.dim) {
+            return Err(ProposalError::BadFit(format!(
+                "a point's dimension differs from {}",
+                self.dim
+            )));
+        }
+        let fitted = if self.components.len() == 1 {
+            let (mean, std) = weighted_moments(zs, weights, |_| 1.0, self.dim);
+            vec![Component {
+                weight: 1.0,
+                mean,
+                std,
+            }]
+        } else {
+            self.em(zs, weights)
+        };
+        let a = smoothing;
+        let components = fitted
+            .into_iter()
+            .zip(&self.components)
+            .map(|(f, old)| Component {
+                weight: a * f.weight + (1.0 - a) * old.weight,
+                mean: f
+                    .mean
+                    .iter()
+                    .zip(&old.mean)
+                    .map(|(n, o)| a * n + (1.0 - a) * o)
+                    .collect(),
+                std: f
+                    .std
+                    .iter()
+                    .zip(&old.std)
+                    .map(|(n, o)| (a * n + (1.0 - a) * o).max(MIN_STD))
+                    .collect(),
+            })
+            .collect();
+        Proposal::new(self.dim, self.defensive, components)
+    }
+
+    fn em(&self, zs: &[Vec<f64>], weights: &[f64]) -> Vec<Component> {
+        let k = self.components.len();
+        let mut comps = self.components.clone();
+        if components_coincide(&comps) {
+            for (c, seed) in comps.iter_mut().zip(farthest_point_seeds(zs, weights, k)) {
+                c.mean = zs[seed].clone();
+            }
+        }
+        let mut resp = vec![0.0; zs.len() * k];
+        let mut terms = vec![0.0; k];
+        for _ in 0..EM_STEPS {
+            for (i, z) in zs.iter().enumerate() {
+                for (t, c) in terms.iter_mut().zip(&comps) {
+                    *t = c.weight.ln() + c.log_density(z);
+                }
+                let norm = logsumexp(&terms);
+                for j in 0..k {
+                    resp[i * k + j] = if norm.is_finite() {
+                        (terms[j] - norm).exp()
+                    } else {
+                        1.0 / k as f64
+                    };
+                }
+            }
+            let mut new = Vec::with_capacity(k);
+            for (j, old) in comps.iter().enumerate() {
+                let mass: f64 = weights
+                    .iter()
+                    .enumerate()
+                    .map(|(i, w)| w * resp[i * k + j])
+                    .sum();
+                if mass > 0.0 {
+                    let (mean, std) = weighted_moments(zs, weights, |i| resp[i * k + j], self.dim);
+                    new.push(Component {
+                        weight: mass,
+                        mean,
+                        std,
+                    });
+                } else {
+                    new.push(Component {
+                        weight: 0.0,
+                        ..old.clone()
+                    });
+                }
+            }
+            let total: f64 = new.iter().map(|c| c.weight).sum();
+            for c in &mut new {
+                c.weight = (c.weight / total).max(MIN_COMPONENT_WEIGHT);
+            }
+            let total: f64 = new.iter().map(|c| c.weight).sum();
+            for c in &mut new {
+                c.weight /= total;
+            }
+            comps = new;
+        }
+        comps
+    }
+}
+
+/// Weighted mean and floored std with per-point extra factor `r(i)`.
+fn weighted_moments(
+    zs: &[Vec<f64>],
+    weights: &[f64],
+    r: impl Fn(usize) -> f64,
+    dim: usize,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut mean = vec![0.0; dim];
+    let mut total = 0.0;
+    for (i, (z, w)) in zs.iter().zip(weights).enumerate() {
+        let v = w * r(i);
+        total += v;
+        for (m, x) in mean.iter_mut().zip(z) {
+            *m += v * x;
+        }
+    }
+    for m in &mut mean {
+        *m /= total;
+    }
+    let mut var = vec![0.0; dim];
+    for (i, (z, w)) in zs.iter().zip(weights).enumerate() {
+        let v = w * r(i);
+        for ((s, x), m) in var.iter_mut().zip(z).zip(&mean) {
+            *s += v * (x - m) * (x - m);
+        }
+    }
+    let std = var
+        .into_iter()
+        .map(|s| (s / total).sqrt().max(MIN_STD))
+        .collect();
+    (mean, std)
+}
+
+fn components_coincide(comps: &[Component]) -> bool {
+    comps.windows(2).all(|w| {
+        w[0].mean
+            .iter()
+            .zip(&w[1].mean)
+            .all(|(a, b)| (a - b).abs() < 1e-9)
+    })
+}
+
+/// Deterministic farthest-point seeding: the heaviest point first, then repeatedly the point
+/// maximising weight × squared distance to the nearest chosen seed.
+fn farthest_point_seeds(zs: &[Vec<f64>], weights: &[f64], k: usize) -> Vec<usize> {
+    let dist2 = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+    let first = (0..zs.len())
+        .max_by(|&a, &b| weights[a].total_cmp(&weights[b]))
+        .unwrap_or(0);
+    let mut seeds = vec![first];
+    let mut nearest: Vec<f64> = zs.iter().map(|z| dist2(z, &zs[first])).collect();
+    while seeds.len() < k {
+        let next = (0..zs.len())
+            .max_by(|&a, &b| (weights[a] * nearest[a]).total_cmp(&(weights[b] * nearest[b])))
+            .unwrap_or(0);
+        seeds.push(next);
+        for (d, z) in nearest.iter_mut().zip(zs) {
+            *d = d.min(dist2(z, &zs[next]));
+        }
+    }
+    seeds
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::rng::sample_rng;
+
+    #[test]
+    fn nominal_has_zero_log_weight() {
+        let p = Proposal::nominal(5);
+        let z = [0.3, -1.0, 2.0, 0.0, 0.5];
+        assert_eq!(p.log_weight(&z), 0.0);
+        assert!((p.log_density(&z) - log_nominal(&z)).abs() < 1e-12);
+        // λ = 0 with the standard component is the nominal too, up to rounding.
+        assert!(Proposal::tuning_start(5, 2).log_weight(&z).abs() < 1e-12);
+    }
+
+    #[test]
+    fn density_by_hand_one_dimension() {
+        let p = Proposal::new(
+            1,
+            0.25,
+            vec![Component {
+                weight: 1.0,
+                mean: vec![2.0],
+                std: vec![0.5],
+            }],
+        )
+        .unwrap();
+        let z = 1.7;
+        let n = |x: f64, m: f64, s: f64| {
+            (-(x - m) * (x - m) / (2.0 * s * s)).exp() / (s * (2.0 * std::f64::consts::PI).sqrt())
+        };
+        let q = 0.25 * n(z, 0.0, 1.0) + 0.75 * n(z, 2.0, 0.5);
+        assert!((p.log_density(&[z]) - q.ln()).abs() < 1e-12);
+        assert!((p.log_weight(&[z]) - (n(z, 0.0, 1.0) / q).ln()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn single_component_fit_is_weighted_moments() {
+        let zs = vec![vec![0.0, 1.0], vec![2.0, 1.0], vec![4.0, 1.0]];
+        let w = [1.0, 2.0, 1.0];
+        let f = Proposal::tuning_start(2, 1).fit(&zs, &w, 1.0).unwrap();
+        let c = &f.components[0];
+        assert!((c.mean[0] - 2.0).abs() < 1e-12);
+        assert!((c.std[0] - 2.0f64.sqrt()).abs() < 1e-12); // (4 + 0 + 4)/4
+        assert_eq!(c.std[1], MIN_STD);
+        // smoothing α = 0.5 against N(0, 1)
+        let g = Proposal::tuning_start(2, 1).fit(&zs, &w, 0.5).unwrap();
+        assert!((g.components[0].mean[0] - 1.0).abs() < 1e-12);
+        assert!((g.components[0].std[0] - (0.5 * 2.0f64.sqrt() + 0.5)).abs() < 1e-12);
+        assert!(Proposal::nominal(2).fit(&zs, &[0.0; 3], 1.0).is_err());
+        assert!(Proposal::nominal(2).fit(&zs, &w, 1.5).is_err());
+    }
+
+    #[test]
+    fn em_separates_two_clusters() {
+        let mut zs = Vec::new();
+        for i in 0..400u64 {
+            let mut r = sample_rng(1, 0, i);
+            let sign = if i % 2 == 0 { 3.0 } else { -3.0 };
+            let e: f64 = StandardNormal.sample(&mut r);
+            zs.push(vec![sign + 0.2 * e, 0.0]);
+        }
+        let w = vec![1.0; zs.len()];
+        let f = Proposal::tuning_start(2, 2).fit(&zs, &w, 1.0).unwrap();
+        let mut means: Vec<f64> = f.components.iter().map(|c| c.mean[0]).collect();
+        means.sort_by(f64::total_cmp);
+        assert!((means[0] + 3.0).abs() < 0.1 && (means[1] - 3.0).abs() < 0.1);
+        for c in &f.components {
+            assert!((c.weight - 0.5).abs() < 0.05);
+            assert!((c.std[0] - 0.2).abs() < 0.05);
+        }
+    }
+
+    #[test]
+    fn json_round_trip() {
+        let p = Proposal::tuning_start(3, 2).with_defensive(0.1);
+        let s = serde_json::to_string(&p).unwrap();
+        assert_eq!(serde_json::from_str::<Proposal>(&s).unwrap(), p);
+    }
+}
