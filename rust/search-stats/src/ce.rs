@@ -29,6 +29,11 @@ pub struct CeConfig {
     pub final_samples: usize,
     /// Mixture components K ≥ 1 of the proposal.
     pub components: usize,
+    /// Floor on every fitted standard deviation (> 0). Above 1/√2 (default 0.75) the
+    /// likelihood ratio of each component has finite variance even without the defensive
+    /// nominal; a diagonal Gaussian fitted to a failure set that is not axis-aligned otherwise
+    /// shrinks some σ below it and gives heavy-tailed weights and under-covering intervals.
+    pub min_std: f64,
 }
 
 impl Default for CeConfig {
@@ -41,6 +46,7 @@ impl Default for CeConfig {
             defensive_lambda: 0.1,
             final_samples: 2000,
             components: 1,
+            min_std: 0.75,
         }
     }
 }
@@ -110,6 +116,9 @@ impl CeConfig {
         if self.components < 1 {
             return Err(bad("components", "must be at least 1"));
         }
+        if !(self.min_std.is_finite() && self.min_std > 0.0) {
+            return Err(bad("min_std", format!("{} must be > 0", self.min_std)));
+        }
         Ok(())
     }
 }
@@ -135,17 +144,19 @@ pub struct CeStep {
 /// `zs` were drawn from `current`; `scores[i]` is sample i's score (larger = closer to
 /// failure, failure ⇔ score ≥ γ = `failure_level`; NaN marks an invalid sample, which is never
 /// an elite). The ρ-quantile q is the ⌊ρ n⌋-th smallest of the n finite scores (0-based,
-/// clamped), the level is min(γ, q), and the elites are the samples with score ≥ level. The
-/// next proposal is the weighted MLE ([`Proposal::fit`], smoothing α = `alpha`) on the elites
-/// with self-normalised likelihood-ratio weights w_i ∝ p(z_i)/q_current(z_i).
+/// clamped), ρ = `config.rho`; the level is min(γ, q), and the elites are the samples with
+/// score ≥ level. The next proposal is the weighted MLE ([`Proposal::fit_floored`], smoothing
+/// α = `config.alpha`, σ floor `config.min_std`) on the elites with self-normalised
+/// likelihood-ratio weights w_i ∝ p(z_i)/q_current(z_i). Only `rho`, `alpha` and `min_std` of
+/// `config` are read (and checked).
 pub fn ce_step(
     current: &Proposal,
     zs: &[Vec<f64>],
     scores: &[f64],
     failure_level: f64,
-    rho: f64,
-    alpha: f64,
+    config: &CeConfig,
 ) -> Result<CeStep, CeError> {
+    let (rho, alpha) = (config.rho, config.alpha);
     if zs.len() != scores.len() {
         return Err(CeError::Input(format!(
             "{} samples but {} scores",
@@ -155,6 +166,12 @@ pub fn ce_step(
     }
     if !(rho > 0.0 && rho < 1.0) {
         return Err(bad("rho", format!("{rho} is not in (0, 1)")));
+    }
+    if !(alpha > 0.0 && alpha <= 1.0) {
+        return Err(bad("alpha", format!("{alpha} is not in (0, 1]")));
+    }
+    if !(config.min_std.is_finite() && config.min_std > 0.0) {
+        return Err(bad("min_std", format!("{} must be > 0", config.min_std)));
     }
     let mut finite: Vec<f64> = scores.iter().copied().filter(|s| !s.is_nan()).collect();
     if finite.is_empty() {
@@ -174,7 +191,7 @@ pub fn ce_step(
     let max = log_w.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let weights: Vec<f64> = log_w.iter().map(|l| (l - max).exp()).collect();
     let elite_zs: Vec<Vec<f64>> = elite.iter().map(|&i| zs[i].clone()).collect();
-    let next = current.fit(&elite_zs, &weights, alpha)?;
+    let next = current.fit_floored(&elite_zs, &weights, alpha, config.min_std)?;
     Ok(CeStep {
         next,
         level,
@@ -227,14 +244,7 @@ pub fn run_in_memory(
             .collect();
         let scores: Vec<f64> = zs.iter().map(|z| score(z)).collect();
         tuning_evaluations += zs.len() as u64;
-        let step = ce_step(
-            &proposal,
-            &zs,
-            &scores,
-            failure_level,
-            config.rho,
-            config.alpha,
-        )?;
+        let step = ce_step(&proposal, &zs, &scores, failure_level, config)?;
         proposal = step.next;
         levels.push(step.level);
         if step.reached {
@@ -273,7 +283,14 @@ mod tests {
     fn config_errors_name_the_key() {
         let ok = CeConfig::default();
         assert!(ok.validate().is_ok());
-        let cases: [(CeConfig, &str); 6] = [
+        let cases: [(CeConfig, &str); 7] = [
+            (
+                CeConfig {
+                    min_std: 0.0,
+                    ..ok.clone()
+                },
+                "min_std",
+            ),
             (
                 CeConfig {
                     rho: 1.0,
@@ -324,7 +341,7 @@ mod tests {
             }
         }
         let json = r#"{"samples_per_iteration":10,"max_iterations":1,"rho":0.9,"alpha":1,
-            "defensive_lambda":0.1,"final_samples":1,"components":1,"bogus":1}"#;
+            "defensive_lambda":0.1,"final_samples":1,"components":1,"min_std":0.75,"bogus":1}"#;
         assert!(
             serde_json::from_str::<CeConfig>(json)
                 .unwrap_err()
@@ -340,13 +357,19 @@ mod tests {
         let mut scores: Vec<f64> = (0..10).map(|i| i as f64).collect();
         scores[0] = f64::NAN;
         // 9 finite scores 1..9, ⌊0.8·9⌋ = 7 → quantile 8
-        let s = ce_step(&p, &zs, &scores, 100.0, 0.8, 1.0).unwrap();
+        let config = CeConfig {
+            rho: 0.8,
+            alpha: 1.0,
+            min_std: 0.01,
+            ..CeConfig::default()
+        };
+        let s = ce_step(&p, &zs, &scores, 100.0, &config).unwrap();
         assert_eq!(
             (s.quantile, s.level, s.reached, s.elites),
             (8.0, 8.0, false, 2)
         );
         assert!((s.next.components[0].mean[0] - 8.5).abs() < 0.05);
-        let s = ce_step(&p, &zs, &scores, 5.0, 0.8, 1.0).unwrap();
+        let s = ce_step(&p, &zs, &scores, 5.0, &config).unwrap();
         assert_eq!((s.level, s.reached, s.elites), (5.0, true, 5));
     }
 }

@@ -4,7 +4,7 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
-/// Smallest per-dimension standard deviation a fit may produce.
+/// Smallest per-dimension standard deviation [`Proposal::fit`] may produce.
 pub const MIN_STD: f64 = 0.05;
 
 /// Smallest mixture weight a fit with K > 1 keeps for a component (then renormalised), so no
@@ -230,7 +230,7 @@ impl Proposal {
     ///   (or, when they coincide, from farthest-point seeds among the heaviest points), mixture
     ///   weights floored at [`MIN_COMPONENT_WEIGHT`].
     ///
-    /// σ is floored at [`MIN_STD`]. Smoothing acts on (μ, σ) and on the mixture weights π:
+    /// σ is floored at [`MIN_STD`] ([`Proposal::fit_floored`] takes the floor). Smoothing acts on (μ, σ) and on the mixture weights π:
     /// θ_new = α θ_fit + (1 − α) θ_old, with α = `smoothing` ∈ [0, 1] (α = 1: no smoothing).
     /// `weights` need not be normalised (they are self-normalised) and must be non-negative.
     pub fn fit(
@@ -239,6 +239,24 @@ impl Proposal {
         weights: &[f64],
         smoothing: f64,
     ) -> Result<Proposal, ProposalError> {
+        self.fit_floored(zs, weights, smoothing, MIN_STD)
+    }
+
+    /// [`Proposal::fit`] with every fitted and smoothed σ floored at `min_std` (> 0) instead of
+    /// [`MIN_STD`]. A floor above 1/√2 keeps E_q[w²] finite for every component even without
+    /// the defensive nominal, since ∫ N(0,1)²/N(μ,σ²) is finite iff σ² > 1/2.
+    pub fn fit_floored(
+        &self,
+        zs: &[Vec<f64>],
+        weights: &[f64],
+        smoothing: f64,
+        min_std: f64,
+    ) -> Result<Proposal, ProposalError> {
+        if !(min_std.is_finite() && min_std > 0.0) {
+            return Err(ProposalError::BadFit(format!(
+                "min_std {min_std} must be > 0"
+            )));
+        }
         if zs.len() != weights.len() {
             return Err(ProposalError::BadFit(format!(
                 "{} points but {} weights",
@@ -267,14 +285,14 @@ impl Proposal {
             )));
         }
         let fitted = if self.components.len() == 1 {
-            let (mean, std) = weighted_moments(zs, weights, |_| 1.0, self.dim);
+            let (mean, std) = weighted_moments(zs, weights, |_| 1.0, self.dim, min_std);
             vec![Component {
                 weight: 1.0,
                 mean,
                 std,
             }]
         } else {
-            self.em(zs, weights)
+            self.em(zs, weights, min_std)
         };
         let a = smoothing;
         let components = fitted
@@ -292,14 +310,14 @@ impl Proposal {
                     .std
                     .iter()
                     .zip(&old.std)
-                    .map(|(n, o)| (a * n + (1.0 - a) * o).max(MIN_STD))
+                    .map(|(n, o)| (a * n + (1.0 - a) * o).max(min_std))
                     .collect(),
             })
             .collect();
         Proposal::new(self.dim, self.defensive, components)
     }
 
-    fn em(&self, zs: &[Vec<f64>], weights: &[f64]) -> Vec<Component> {
+    fn em(&self, zs: &[Vec<f64>], weights: &[f64], min_std: f64) -> Vec<Component> {
         let k = self.components.len();
         let mut comps = self.components.clone();
         if components_coincide(&comps) {
@@ -331,7 +349,8 @@ impl Proposal {
                     .map(|(i, w)| w * resp[i * k + j])
                     .sum();
                 if mass > 0.0 {
-                    let (mean, std) = weighted_moments(zs, weights, |i| resp[i * k + j], self.dim);
+                    let (mean, std) =
+                        weighted_moments(zs, weights, |i| resp[i * k + j], self.dim, min_std);
                     new.push(Component {
                         weight: mass,
                         mean,
@@ -358,12 +377,13 @@ impl Proposal {
     }
 }
 
-/// Weighted mean and floored std with per-point extra factor `r(i)`.
+/// Weighted mean and std (floored at `min_std`) with per-point extra factor `r(i)`.
 fn weighted_moments(
     zs: &[Vec<f64>],
     weights: &[f64],
     r: impl Fn(usize) -> f64,
     dim: usize,
+    min_std: f64,
 ) -> (Vec<f64>, Vec<f64>) {
     let mut mean = vec![0.0; dim];
     let mut total = 0.0;
@@ -386,7 +406,7 @@ fn weighted_moments(
     }
     let std = var
         .into_iter()
-        .map(|s| (s / total).sqrt().max(MIN_STD))
+        .map(|s| (s / total).sqrt().max(min_std))
         .collect();
     (mean, std)
 }
