@@ -15,7 +15,9 @@
 //! - [`metrics`]: the paper's error (step 7) and the usual pose metrics.
 //! - [`pipeline`]: peaks → every pose fit → scores, as each evaluation runs them.
 
+pub mod adaptive;
 pub mod align;
+pub mod benchmark;
 pub mod box_model;
 pub mod correspondence;
 pub mod error;

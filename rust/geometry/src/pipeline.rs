@@ -6,28 +6,44 @@ use std::time::Instant;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
 
-use crate::correspondence::{fast_exact_search, paper_exact_search};
+use crate::adaptive::FitConfidence;
 use crate::box_model::{CORNER_COUNT, corner_signs};
-use crate::{BoxModel, metrics, robust, size_fit};
+use crate::correspondence::{fast_exact_search, paper_exact_search};
+use crate::{BoxModel, GeometryError, metrics, robust, size_fit};
 
 /// Peaks the paper's search fits (m).
 const PAPER_M: usize = 5;
 
-/// The pose fits compared; all but `SizeAndPose` know the box's size.
+/// The pose fits compared; all but the two size-and-pose fits know the box's size.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Method {
     /// The paper's exhaustive correspondence search over the m best peaks.
     PaperExact,
     /// The same optimum by branch and bound.
     FastExact,
-    /// Hypothesize-and-verify with truncated least squares: survives outlier peaks.
+    /// Hypothesize-and-verify with the noise-adaptive cost ([`robust::adaptive_fit`]): survives
+    /// outlier peaks with no threshold in box units.
     Robust,
-    /// Pose and box size together, for a box of unknown size.
+    /// Pose and box size together, for a box of unknown size, by the same design
+    /// ([`size_fit::robust_size_fit`]).
     SizeAndPose,
+    /// The former robust fit: truncated least squares at a quarter of the shortest side
+    /// ([`robust::robust_fit`]), kept for comparison.
+    RobustFixedThreshold,
+    /// The former size-and-pose fit: least-squares scaling ICP from principal axes
+    /// ([`size_fit::fit_pose_and_size`] with default parameters), kept for comparison.
+    SizeAndPoseLeastSquares,
 }
 
 impl Method {
-    pub const ALL: [Method; 4] = [Method::PaperExact, Method::FastExact, Method::Robust, Method::SizeAndPose];
+    pub const ALL: [Method; 6] = [
+        Method::PaperExact,
+        Method::FastExact,
+        Method::Robust,
+        Method::SizeAndPose,
+        Method::RobustFixedThreshold,
+        Method::SizeAndPoseLeastSquares,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -35,17 +51,113 @@ impl Method {
             Method::FastExact => "fast_exact",
             Method::Robust => "robust",
             Method::SizeAndPose => "size_and_pose",
+            Method::RobustFixedThreshold => "robust_fixed",
+            Method::SizeAndPoseLeastSquares => "size_and_pose_ls",
         }
     }
+
+    /// Whether the fit estimates the box's size rather than taking the known one.
+    pub fn fits_size(self) -> bool {
+        matches!(self, Method::SizeAndPose | Method::SizeAndPoseLeastSquares)
+    }
+}
+
+/// What one fit returned: the box it fitted (the known model, or the fitted size) and its pose,
+/// with the confidence the fit computed itself, if it does.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fitted {
+    pub model: BoxModel,
+    pub pose: Isometry3<f64>,
+    pub fits_size: bool,
+    pub own_confidence: Option<FitConfidence>,
+}
+
+impl Fitted {
+    /// The fit's own confidence, or else the noise-adaptive assessment of its box on `points`
+    /// ([`robust::assess_pose`] or [`size_fit::assess_sized_box`]).
+    pub fn confidence(&self, points: &[Point3<f64>]) -> Result<FitConfidence, GeometryError> {
+        match self.own_confidence {
+            Some(c) => Ok(c),
+            None if self.fits_size => size_fit::assess_sized_box(points, &self.model, &self.pose),
+            None => robust::assess_pose(&self.model, points, &self.pose),
+        }
+    }
+
+    /// MSSD against the true box: the BOP MSSD for a fit of known size, and for a fitted size
+    /// the largest distance between its corners and the true ones under the axis labelling that
+    /// matches them best (so a wrong size counts).
+    pub fn mssd(&self, true_model: &BoxModel, truth: &Isometry3<f64>) -> f64 {
+        if self.fits_size {
+            let truth_corners: Vec<Point3<f64>> =
+                true_model.corners().iter().map(|c| truth * c).collect();
+            closest_labelling(&self.model, &self.pose, &truth_corners).2
+        } else {
+            metrics::mssd(true_model, &self.pose, truth).unwrap_or(f64::INFINITY)
+        }
+    }
+}
+
+/// Runs one fit on `points` (with NMS `scores`, best first; only the paper's searches use them).
+pub fn fit_method(
+    method: Method,
+    model: &BoxModel,
+    points: &[Point3<f64>],
+    scores: &[f64],
+) -> Result<Fitted, GeometryError> {
+    let known = |pose: Isometry3<f64>, own_confidence: Option<FitConfidence>| Fitted {
+        model: *model,
+        pose,
+        fits_size: false,
+        own_confidence,
+    };
+    Ok(match method {
+        Method::PaperExact => known(
+            paper_exact_search(model, points, scores, PAPER_M)?.pose,
+            None,
+        ),
+        Method::FastExact => known(
+            fast_exact_search(model, points, scores, PAPER_M)?.pose,
+            None,
+        ),
+        Method::Robust => {
+            let fit = robust::adaptive_fit(model, points, &robust::AdaptiveParams::default())?;
+            known(fit.pose, Some(fit.confidence))
+        }
+        Method::RobustFixedThreshold => known(
+            robust::robust_fit(model, points, &robust::RobustParams::for_box(model))?.pose,
+            None,
+        ),
+        Method::SizeAndPose => {
+            let fit = size_fit::robust_size_fit(points, &size_fit::RobustSizeParams::default())?;
+            Fitted {
+                model: fit.model,
+                pose: fit.pose,
+                fits_size: true,
+                own_confidence: Some(fit.confidence),
+            }
+        }
+        Method::SizeAndPoseLeastSquares => {
+            let fit = size_fit::fit_pose_and_size(points, &size_fit::SizeFitParams::default())?;
+            Fitted {
+                model: fit.model,
+                pose: fit.pose,
+                fits_size: true,
+                own_confidence: None,
+            }
+        }
+    })
 }
 
 /// A pose as the dataset stores it: a unit quaternion (w, x, y, z) and a translation in metres.
 pub fn isometry(quat_wxyz: [f64; 4], translation: [f64; 3]) -> Isometry3<f64> {
     let [w, x, y, z] = quat_wxyz;
-    Isometry3::from_parts(Translation3::from(Vector3::from(translation)), UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)))
+    Isometry3::from_parts(
+        Translation3::from(Vector3::from(translation)),
+        UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z)),
+    )
 }
 
-/// How far one fit is from the truth.
+/// How far one fit is from the truth, and how far the fit trusts itself.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Scores {
     /// [`metrics::paper_error`] of the fitted corners against the true ones.
@@ -55,14 +167,25 @@ pub struct Scores {
     pub rotation_error_deg: f64,
     pub translation_error_m: f64,
     pub fit_time_us: f64,
+    /// [`FitConfidence::confidence`] in [0, 1): the fit's own (`robust`, `size_and_pose`) or the
+    /// noise-adaptive assessment of its pose (the others). Not counted in `fit_time_us`.
+    pub confidence: f64,
+    /// [`FitConfidence::margin_nats`].
+    pub margin_nats: f64,
+    /// [`FitConfidence::noise_scale_m`].
+    pub noise_scale_m: f64,
+    /// [`FitConfidence::inliers`].
+    pub inliers: usize,
+    /// [`FitConfidence::mirror_ambiguous`].
+    pub mirror_ambiguous: bool,
 }
 
 /// Runs every [`Method`] on `points` (with NMS `scores`, best first) and scores each against the
 /// true pose of `model`; a fit that fails gives its error message instead of scores.
 ///
-/// The size-known fits are scored with the true model. The size-and-pose fit is scored as the
-/// box it fitted: its MSSD and ADD-S compare its own corners with the true ones, so a wrong size
-/// counts, and its rotation is taken in the axis labels that best match the true corners.
+/// The size-known fits are scored with the true model. The size-and-pose fits are scored as the
+/// box they fitted: their MSSD and ADD-S compare their own corners with the true ones, so a wrong
+/// size counts, and their rotation is taken in the axis labels that best match the true corners.
 pub fn fit_and_score(
     model: &BoxModel,
     truth: &Isometry3<f64>,
@@ -70,54 +193,59 @@ pub fn fit_and_score(
     scores: &[f64],
 ) -> Vec<(Method, Result<Scores, String>)> {
     let truth_corners: Vec<Point3<f64>> = model.corners().iter().map(|c| truth * c).collect();
-    let text = |e: crate::GeometryError| e.to_string();
-    let known_size = |pose: &Isometry3<f64>, start: Instant| -> Result<Scores, String> {
-        let fit_time_us = start.elapsed().as_secs_f64() * 1e6;
+    let text = |e: GeometryError| e.to_string();
+    let score = |fitted: &Fitted, fit_time_us: f64| -> Result<Scores, String> {
+        let confidence = fitted.confidence(points).map_err(text)?;
+        let (mssd_m, add_s_m, rotation_error_deg) = if fitted.fits_size {
+            let (relabelled, corners, mssd_m) =
+                closest_labelling(&fitted.model, &fitted.pose, &truth_corners);
+            let add_s_m = corners
+                .iter()
+                .map(|c| {
+                    truth_corners
+                        .iter()
+                        .map(|t| (c - t).norm())
+                        .fold(f64::INFINITY, f64::min)
+                })
+                .sum::<f64>()
+                / corners.len() as f64;
+            (
+                mssd_m,
+                add_s_m,
+                metrics::rotation_error_deg(model, &relabelled, truth).map_err(text)?,
+            )
+        } else {
+            (
+                metrics::mssd(model, &fitted.pose, truth).map_err(text)?,
+                metrics::add_s(model, &fitted.pose, truth).map_err(text)?,
+                metrics::rotation_error_deg(model, &fitted.pose, truth).map_err(text)?,
+            )
+        };
         Ok(Scores {
-            paper_error: metrics::paper_error(model, pose, &truth_corners).map_err(text)?,
-            mssd_m: metrics::mssd(model, pose, truth).map_err(text)?,
-            add_s_m: metrics::add_s(model, pose, truth).map_err(text)?,
-            rotation_error_deg: metrics::rotation_error_deg(model, pose, truth).map_err(text)?,
-            translation_error_m: metrics::translation_error(pose, truth).map_err(text)?,
-            fit_time_us,
-        })
-    };
-    let unknown_size = |fitted: &BoxModel, pose: &Isometry3<f64>, start: Instant| -> Result<Scores, String> {
-        let fit_time_us = start.elapsed().as_secs_f64() * 1e6;
-        let (relabelled, corners, mssd_m) = closest_labelling(fitted, pose, &truth_corners);
-        let add_s_m = corners
-            .iter()
-            .map(|c| truth_corners.iter().map(|t| (c - t).norm()).fold(f64::INFINITY, f64::min))
-            .sum::<f64>()
-            / corners.len() as f64;
-        Ok(Scores {
-            paper_error: metrics::paper_error(fitted, pose, &truth_corners).map_err(text)?,
+            paper_error: metrics::paper_error(&fitted.model, &fitted.pose, &truth_corners)
+                .map_err(text)?,
             mssd_m,
             add_s_m,
-            rotation_error_deg: metrics::rotation_error_deg(model, &relabelled, truth).map_err(text)?,
-            translation_error_m: metrics::translation_error(pose, truth).map_err(text)?,
+            rotation_error_deg,
+            translation_error_m: metrics::translation_error(&fitted.pose, truth).map_err(text)?,
             fit_time_us,
+            confidence: confidence.confidence,
+            margin_nats: confidence.margin_nats,
+            noise_scale_m: confidence.noise_scale_m,
+            inliers: confidence.inliers,
+            mirror_ambiguous: confidence.mirror_ambiguous,
         })
     };
     Method::ALL
         .into_iter()
         .map(|method| {
             let start = Instant::now();
-            let outcome = match method {
-                Method::PaperExact => {
-                    paper_exact_search(model, points, scores, PAPER_M).map_err(text).and_then(|f| known_size(&f.pose, start))
-                }
-                Method::FastExact => {
-                    fast_exact_search(model, points, scores, PAPER_M).map_err(text).and_then(|f| known_size(&f.pose, start))
-                }
-                Method::Robust => robust::robust_fit(model, points, &robust::RobustParams::for_box(model))
-                    .map_err(text)
-                    .and_then(|f| known_size(&f.pose, start)),
-                Method::SizeAndPose => size_fit::fit_pose_and_size(points, &size_fit::SizeFitParams::default())
-                    .map_err(text)
-                    .and_then(|f| unknown_size(&f.model, &f.pose, start)),
-            };
-            (method, outcome)
+            let fitted = fit_method(method, model, points, scores);
+            let fit_time_us = start.elapsed().as_secs_f64() * 1e6;
+            (
+                method,
+                fitted.map_err(text).and_then(|f| score(&f, fit_time_us)),
+            )
         })
         .collect()
 }
@@ -135,17 +263,38 @@ fn closest_labelling(
 ) -> (Isometry3<f64>, Vec<Point3<f64>>, f64) {
     let axes = pose.rotation.to_rotation_matrix();
     let mut best = (f64::INFINITY, *pose, Vec::new());
-    for perm in [[0, 1, 2], [1, 2, 0], [2, 0, 1], [0, 2, 1], [2, 1, 0], [1, 0, 2]] {
+    for perm in [
+        [0, 1, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [0, 2, 1],
+        [2, 1, 0],
+        [1, 0, 2],
+    ] {
         for signs in 0..8 {
-            let relabel = Matrix3::from_fn(|r, c| if perm[c] == r { if signs >> c & 1 == 1 { -1.0 } else { 1.0 } } else { 0.0 });
+            let relabel = Matrix3::from_fn(|r, c| {
+                if perm[c] == r {
+                    if signs >> c & 1 == 1 { -1.0 } else { 1.0 }
+                } else {
+                    0.0
+                }
+            });
             if relabel.determinant() < 0.0 {
                 continue;
             }
-            let candidate = Isometry3::from_parts(pose.translation, UnitQuaternion::from_matrix(&(axes.matrix() * relabel)));
+            let candidate = Isometry3::from_parts(
+                pose.translation,
+                UnitQuaternion::from_matrix(&(axes.matrix() * relabel)),
+            );
             let size = Vector3::from_fn(|c, _| fitted.size()[perm[c]]);
-            let corners: Vec<Point3<f64>> =
-                (0..CORNER_COUNT).map(|i| candidate * Point3::from(corner_signs(i).component_mul(&size) * 0.5)).collect();
-            let worst = corners.iter().zip(truth_corners).map(|(c, t)| (c - t).norm()).fold(0.0, f64::max);
+            let corners: Vec<Point3<f64>> = (0..CORNER_COUNT)
+                .map(|i| candidate * Point3::from(corner_signs(i).component_mul(&size) * 0.5))
+                .collect();
+            let worst = corners
+                .iter()
+                .zip(truth_corners)
+                .map(|(c, t)| (c - t).norm())
+                .fold(0.0, f64::max);
             if worst < best.0 {
                 best = (worst, candidate, corners);
             }
@@ -160,7 +309,10 @@ mod tests {
 
     fn truth() -> (BoxModel, Isometry3<f64>, Vec<Point3<f64>>) {
         let model = BoxModel::new(Vector3::new(0.3, 0.2, 0.1)).unwrap();
-        let pose = Isometry3::from_parts(Translation3::new(0.1, -0.2, 1.0), UnitQuaternion::from_euler_angles(0.3, -0.2, 0.7));
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.1, -0.2, 1.0),
+            UnitQuaternion::from_euler_angles(0.3, -0.2, 0.7),
+        );
         let corners = model.corners().iter().map(|c| pose * c).collect();
         (model, pose, corners)
     }
@@ -171,7 +323,10 @@ mod tests {
         // its axes named (y, z, x): sizes 0.2, 0.1, 0.3 along the true y, z and x axes
         let fitted = BoxModel::new(Vector3::new(0.2, 0.1, 0.3)).unwrap();
         let relabel = Matrix3::new(0.0, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0);
-        let fitted_pose = Isometry3::from_parts(pose.translation, pose.rotation * UnitQuaternion::from_matrix(&relabel));
+        let fitted_pose = Isometry3::from_parts(
+            pose.translation,
+            pose.rotation * UnitQuaternion::from_matrix(&relabel),
+        );
         let (relabelled, _, mssd) = closest_labelling(&fitted, &fitted_pose, &corners);
         assert!(mssd < 1e-9, "{mssd}");
         assert!(relabelled.rotation.angle_to(&pose.rotation) < 1e-6);
@@ -182,7 +337,11 @@ mod tests {
         // the true sizes with the long side where the middle one should be: axes that a
         // relabelling aligns exactly with the true ones, corners up to 7 cm off
         let (model, pose, corners) = truth();
-        let turned = Isometry3::from_parts(pose.translation, pose.rotation * UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2));
+        let turned = Isometry3::from_parts(
+            pose.translation,
+            pose.rotation
+                * UnitQuaternion::from_euler_angles(0.0, 0.0, std::f64::consts::FRAC_PI_2),
+        );
         let (_, _, mssd) = closest_labelling(&model, &turned, &corners);
         assert!((mssd - 0.05 * 2f64.sqrt()).abs() < 1e-9, "{mssd}");
     }

@@ -4,10 +4,13 @@
 //! deterministically, scored by a truncated least-squares cost over all peaks, and the best one is
 //! refined on its inliers.
 
-use nalgebra::{Isometry3, Point3};
+use std::sync::OnceLock;
 
+use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+
+use crate::adaptive::{self, CostModel, FitConfidence, Placed, Refined};
 use crate::align::{kabsch, quaternion_kabsch};
-use crate::box_model::{BoxModel, CORNER_COUNT};
+use crate::box_model::{BoxModel, CORNER_COUNT, ShapeClass};
 use crate::correspondence::ensure_spread_in_two_directions;
 use crate::error::{GeometryError, Result, ensure_finite_points};
 
@@ -253,4 +256,300 @@ fn canonical_corner_triples(model: &BoxModel) -> Vec<[usize; 3]> {
         }
     }
     triples
+}
+
+/// Settings of [`adaptive_fit`]. None of them is a threshold on the residuals: the cost
+/// ([`crate::adaptive`]) estimates the peaks' noise per hypothesis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AdaptiveParams {
+    /// Hypothesis gate: 3 peaks are matched with 3 corners only if their pairwise distances agree
+    /// within this (metres). It decides which hypotheses are tried, not how they are scored, and
+    /// may be generous; `None` is half the shortest side or 4 cm, whichever is larger.
+    pub pair_tolerance: Option<f64>,
+    /// How many of the best mutually different hypotheses are refined and compared.
+    pub refine_top: usize,
+    /// Upper bound on refinement rounds per hypothesis.
+    pub max_refinements: usize,
+}
+
+impl Default for AdaptiveParams {
+    fn default() -> Self {
+        Self {
+            pair_tolerance: None,
+            refine_top: 6,
+            max_refinements: 10,
+        }
+    }
+}
+
+/// The result of [`adaptive_fit`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct AdaptiveFit {
+    /// Maps box-frame points into the camera frame.
+    pub pose: Isometry3<f64>,
+    /// Per input point: whether the cost counts it as an inlier.
+    pub inliers: Vec<bool>,
+    /// Per input point: the model corner nearest to it under the fitted pose.
+    pub nearest_corners: Vec<usize>,
+    /// Per input point: its distance (metres) to that corner.
+    pub residuals: Vec<f64>,
+    /// How many points are inliers (at least 3, at least 4 when there are 4 points or more).
+    pub inlier_count: usize,
+    /// The cost that chose this pose (nats; see [`crate::adaptive`]).
+    pub cost: f64,
+    /// Margin to the best different pose, inliers, noise scale, mirror ambiguity.
+    pub confidence: FitConfidence,
+}
+
+/// Pose of a box of known size from unordered corner peaks, up to half of which may be outliers,
+/// with no threshold in box units: every triple of peaks is matched with every triple of corners
+/// whose pairwise distances agree within [`AdaptiveParams::pair_tolerance`] (symmetric corner
+/// triples once), each hypothesis is scored by the noise-adaptive cost of [`crate::adaptive`]
+/// (a profile likelihood over the inlier count and the noise scale), the best
+/// [`AdaptiveParams::refine_top`] hypotheses that differ by more than a tenth of the box's
+/// diameter are refined (re-assign the cost's inliers to their nearest corners, re-fit with
+/// [`kabsch`], while the cost decreases), and the best refined pose wins. Exhaustive and
+/// deterministic; needs at least 3 points spanning a plane.
+///
+/// Four inliers in one plane fit the box and its mirror image alike. The cost then adds a small
+/// prior ([`crate::adaptive`]: one nat per inlier matched to a corner the box hides from the
+/// camera at the origin), which prefers the pose whose inliers the camera sees; when that does not
+/// separate them either, [`FitConfidence::mirror_ambiguous`] is set.
+pub fn adaptive_fit(
+    model: &BoxModel,
+    points: &[Point3<f64>],
+    params: &AdaptiveParams,
+) -> Result<AdaptiveFit> {
+    let search = KnownSizeSearch::new(model, points, params)?;
+    let refined = search.refined_candidates();
+    let separation = 0.1 * model.diameter();
+    let (best, confidence) = adaptive::choose(refined, points, separation)
+        .ok_or(GeometryError::NoConsensus { needed: 3 })?;
+    let inlier_set = best.inlier_indices();
+    let mut inliers = vec![false; points.len()];
+    for &i in &inlier_set {
+        inliers[i] = true;
+    }
+    Ok(AdaptiveFit {
+        pose: isometry_of(&best.placed),
+        inliers,
+        nearest_corners: best.nearest.iter().map(|n| n.0).collect(),
+        residuals: best.nearest.iter().map(|n| n.1.sqrt()).collect(),
+        inlier_count: inlier_set.len(),
+        cost: best.cost,
+        confidence,
+    })
+}
+
+/// The confidence of any pose of a box of known size on `points` (from any fit): its cost under
+/// the noise-adaptive model against the best refined hypothesis of [`adaptive_fit`]'s search that
+/// differs from it by more than a tenth of the diameter. Negative margin (confidence 0) when the
+/// search found a better different pose.
+pub fn assess_pose(
+    model: &BoxModel,
+    points: &[Point3<f64>],
+    pose: &Isometry3<f64>,
+) -> Result<FitConfidence> {
+    let search = KnownSizeSearch::new(model, points, &AdaptiveParams::default())?;
+    let refined = search.refined_candidates();
+    let given = Refined::new(placed_of(model, pose), points, &search.cost_model);
+    let separation = 0.1 * model.diameter();
+    let runner_up = refined
+        .iter()
+        .filter(|r| r.placed.corner_distance(&given.placed) > separation)
+        .map(|r| r.profile.cost)
+        .fold(f64::INFINITY, f64::min);
+    Ok(adaptive::confidence_of(
+        &given,
+        runner_up - given.profile.cost,
+        points,
+    ))
+}
+
+struct KnownSizeSearch<'a> {
+    model: &'a BoxModel,
+    points: &'a [Point3<f64>],
+    params: AdaptiveParams,
+    cost_model: CostModel,
+}
+
+impl<'a> KnownSizeSearch<'a> {
+    fn new(
+        model: &'a BoxModel,
+        points: &'a [Point3<f64>],
+        params: &AdaptiveParams,
+    ) -> Result<Self> {
+        ensure_finite_points("points", points)?;
+        if let Some(t) = params.pair_tolerance
+            && !(t.is_finite() && t > 0.0)
+        {
+            return Err(GeometryError::InvalidParameter {
+                name: "pair_tolerance",
+                reason: "must be finite and positive",
+            });
+        }
+        if params.refine_top == 0 {
+            return Err(GeometryError::InvalidParameter {
+                name: "refine_top",
+                reason: "must be at least 1",
+            });
+        }
+        if points.len() < 3 {
+            return Err(GeometryError::TooFewPoints {
+                what: "adaptive robust fit",
+                needed: 3,
+                got: points.len(),
+            });
+        }
+        ensure_spread_in_two_directions(points)?;
+        Ok(Self {
+            model,
+            points,
+            params: *params,
+            cost_model: CostModel::new(points, 6),
+        })
+    }
+
+    /// Every gated minimal hypothesis, scored, best first.
+    fn hypotheses(&self) -> Vec<(f64, Placed)> {
+        let corners = self.model.corners();
+        let half = self.model.size() * 0.5;
+        let tolerance = self
+            .params
+            .pair_tolerance
+            .unwrap_or((0.5 * self.model.size().min()).max(0.04));
+        let points = self.points;
+        let n = points.len();
+        let corner_distance: [[f64; CORNER_COUNT]; CORNER_COUNT] =
+            std::array::from_fn(|a| std::array::from_fn(|b| (corners[a] - corners[b]).norm()));
+        let point_distance: Vec<Vec<f64>> = (0..n)
+            .map(|i| (0..n).map(|j| (points[i] - points[j]).norm()).collect())
+            .collect();
+        let agrees = |i: usize, j: usize, a: usize, b: usize| {
+            (point_distance[i][j] - corner_distance[a][b]).abs() <= tolerance
+        };
+        let triples = cached_corner_triples(self.model);
+        let mut scratch = Vec::with_capacity(n);
+        let mut hypotheses = Vec::new();
+        for i in 0..n {
+            for j in i + 1..n {
+                for k in j + 1..n {
+                    for &[a, b, c] in triples {
+                        if !(agrees(i, j, a, b) && agrees(i, k, a, c) && agrees(j, k, b, c)) {
+                            continue;
+                        }
+                        let Some(rotation) = triad(
+                            [&corners[a], &corners[b], &corners[c]],
+                            [&points[i], &points[j], &points[k]],
+                        ) else {
+                            continue;
+                        };
+                        let source_mean =
+                            (corners[a].coords + corners[b].coords + corners[c].coords) / 3.0;
+                        let target_mean =
+                            (points[i].coords + points[j].coords + points[k].coords) / 3.0;
+                        let placed = Placed {
+                            rotation,
+                            centre: target_mean - rotation * source_mean,
+                            half,
+                        };
+                        let profile = placed.cost(points, &self.cost_model, &mut scratch);
+                        hypotheses.push((profile.cost, placed));
+                    }
+                }
+            }
+        }
+        hypotheses.sort_by(|a, b| a.0.total_cmp(&b.0));
+        hypotheses
+    }
+
+    /// The best mutually different hypotheses, each refined.
+    fn refined_candidates(&self) -> Vec<Refined> {
+        let hypotheses = self.hypotheses();
+        let separation = 0.1 * self.model.diameter();
+        adaptive::distinct(&hypotheses, separation, self.params.refine_top)
+            .into_iter()
+            .map(|placed| self.refine(placed))
+            .collect()
+    }
+
+    fn refine(&self, placed: Placed) -> Refined {
+        let corners = self.model.corners();
+        let mut best = Refined::new(placed, self.points, &self.cost_model);
+        for _ in 0..self.params.max_refinements {
+            let (sources, targets): (Vec<_>, Vec<_>) = best
+                .inlier_indices()
+                .into_iter()
+                .map(|i| (corners[best.nearest[i].0], self.points[i]))
+                .unzip();
+            let Ok(pose) = kabsch(&sources, &targets) else {
+                break;
+            };
+            let next = Refined::new(placed_of(self.model, &pose), self.points, &self.cost_model);
+            if next.cost >= best.cost {
+                break;
+            }
+            best = next;
+        }
+        best
+    }
+}
+
+fn placed_of(model: &BoxModel, pose: &Isometry3<f64>) -> Placed {
+    Placed {
+        rotation: pose.rotation.to_rotation_matrix(),
+        centre: pose.translation.vector,
+        half: model.size() * 0.5,
+    }
+}
+
+fn isometry_of(placed: &Placed) -> Isometry3<f64> {
+    Isometry3::from_parts(
+        Translation3::from(placed.centre),
+        UnitQuaternion::from_rotation_matrix(&placed.rotation),
+    )
+}
+
+/// The rotation taking the frame of `source` (first edge, triangle normal) onto that of
+/// `target`; `None` when either triangle is degenerate.
+pub(crate) fn triad(
+    source: [&Point3<f64>; 3],
+    target: [&Point3<f64>; 3],
+) -> Option<Rotation3<f64>> {
+    let frame = |p: [&Point3<f64>; 3]| -> Option<Matrix3<f64>> {
+        let (u, v) = (p[1] - p[0], p[2] - p[0]);
+        let normal = u.cross(&v);
+        let scale = u.norm_squared() * v.norm_squared();
+        if normal.norm_squared() <= 1e-12 * scale || scale == 0.0 {
+            return None;
+        }
+        let e1 = u.normalize();
+        let e3 = normal.normalize();
+        Some(Matrix3::from_columns(&[e1, e3.cross(&e1), e3]))
+    };
+    let (s, t) = (frame(source)?, frame(target)?);
+    Some(Rotation3::from_matrix_unchecked(t * s.transpose()))
+}
+
+/// [`canonical_corner_triples`] per symmetry class, computed once.
+fn cached_corner_triples(model: &BoxModel) -> &'static [[usize; 3]] {
+    static TABLES: OnceLock<[Vec<[usize; 3]>; 5]> = OnceLock::new();
+    let tables = TABLES.get_or_init(|| {
+        let of = |size: [f64; 3]| {
+            canonical_corner_triples(&BoxModel::new(Vector3::from(size)).expect("positive sides"))
+        };
+        [
+            of([1.0, 2.0, 3.0]),
+            of([1.0, 2.0, 2.0]),
+            of([2.0, 1.0, 2.0]),
+            of([2.0, 2.0, 1.0]),
+            of([1.0, 1.0, 1.0]),
+        ]
+    });
+    let index = match model.shape_class(BoxModel::DEFAULT_SYMMETRY_TOLERANCE) {
+        ShapeClass::Generic => 0,
+        ShapeClass::SquareFaced { axis } => 1 + axis,
+        ShapeClass::Cube => 4,
+    };
+    &tables[index]
 }

@@ -3,6 +3,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
+use crate::adaptive::{self, CostModel, FitConfidence, Placed, Refined};
 use crate::align::kabsch;
 use crate::box_model::{BoxModel, CORNER_COUNT, corner_signs};
 use crate::error::{GeometryError, Result, ensure_finite_points};
@@ -378,4 +379,331 @@ fn truncated_cost(residuals: &[f64], truncation: f64) -> f64 {
         .iter()
         .map(|&r| (r * r).min(truncation * truncation))
         .sum()
+}
+
+/// Settings of [`robust_size_fit`]; as for [`crate::robust::AdaptiveParams`], nothing here
+/// thresholds residuals.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RobustSizeParams {
+    /// Hypothesis gate: three peaks are taken as a corner and its two edge neighbours when the
+    /// cosine of the angle between the edges is below this.
+    pub right_angle_cosine: f64,
+    /// How many of the best mutually different hypotheses are refined and compared.
+    pub refine_top: usize,
+    /// Upper bound on refinement rounds per hypothesis.
+    pub max_refinements: usize,
+}
+
+impl Default for RobustSizeParams {
+    fn default() -> Self {
+        Self {
+            right_angle_cosine: 0.25,
+            refine_top: 6,
+            max_refinements: 20,
+        }
+    }
+}
+
+/// The result of [`robust_size_fit`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RobustSizedFit {
+    /// The box with the estimated side lengths (axis order as the fitted frame gives it).
+    pub model: BoxModel,
+    /// Maps box-frame points into the camera frame.
+    pub pose: Isometry3<f64>,
+    /// Per input point: the nearest corner of the fitted box.
+    pub nearest_corners: Vec<usize>,
+    /// Per input point: its distance (metres) to that corner.
+    pub residuals: Vec<f64>,
+    /// Per input point: whether the cost counts it as an inlier.
+    pub inliers: Vec<bool>,
+    pub inlier_count: usize,
+    /// The cost that chose this box (nats; see [`crate::adaptive`]).
+    pub cost: f64,
+    /// Margin to the best different box, inliers, noise scale, mirror ambiguity.
+    pub confidence: FitConfidence,
+}
+
+/// Pose and side lengths of a box of unknown size from unordered corner peaks, some of which may
+/// be outliers, by the hypothesis-and-score design of [`crate::robust::adaptive_fit`].
+///
+/// Minimal sets fix the rotation and the sides they span:
+/// - a peak with two others at a right angle from it (cosine below
+///   [`RobustSizeParams::right_angle_cosine`]) is a corner with its two edge neighbours: two axes
+///   and two sides; each further peak off that face gives the third side (and the side of the
+///   face the box lies on);
+/// - any three peaks forming an acute triangle may be three corners pairwise joined by face
+///   diagonals: the triangle's sides fix all three box sides (X² = (d₁₂² + d₁₃² − d₂₃²)/2, …) and
+///   the frame, up to the mirror image through the triangle's plane (both are tried).
+///
+/// Every 4-corner subset of a box that is not coplanar contains one of these, so 4 inliers not in
+/// one plane suffice. Each hypothesis is scored by the noise-adaptive cost (9 parameters), the
+/// best [`RobustSizeParams::refine_top`] that differ by more than a tenth of their diameter are
+/// refined (nearest-corner assignment of the cost's inliers, [`kabsch`], closed-form sides and
+/// centre, while the cost decreases), and the best wins. Deterministic; needs at least 4 points
+/// not in one plane.
+pub fn robust_size_fit(
+    points: &[Point3<f64>],
+    params: &RobustSizeParams,
+) -> Result<RobustSizedFit> {
+    let search = SizeSearch::new(points, params)?;
+    let refined = search.refined_candidates();
+    let separation = 0.1
+        * refined
+            .iter()
+            .map(|r| r.placed.diameter())
+            .fold(f64::INFINITY, f64::min);
+    let (best, confidence) = adaptive::choose(refined, points, separation)
+        .ok_or(GeometryError::Degenerate("no box hypothesis"))?;
+    let inlier_set = best.inlier_indices();
+    let mut inliers = vec![false; points.len()];
+    for &i in &inlier_set {
+        inliers[i] = true;
+    }
+    Ok(RobustSizedFit {
+        model: BoxModel::new(best.placed.half * 2.0)?,
+        pose: Isometry3::from_parts(
+            Translation3::from(best.placed.centre),
+            UnitQuaternion::from_rotation_matrix(&best.placed.rotation),
+        ),
+        nearest_corners: best.nearest.iter().map(|n| n.0).collect(),
+        residuals: best.nearest.iter().map(|n| n.1.sqrt()).collect(),
+        inliers,
+        inlier_count: inlier_set.len(),
+        cost: best.cost,
+        confidence,
+    })
+}
+
+/// The confidence of any box (size and pose, from any fit) on `points`: its cost under the
+/// noise-adaptive model against the best refined hypothesis of [`robust_size_fit`]'s search that
+/// differs from it by more than a tenth of its diameter.
+pub fn assess_sized_box(
+    points: &[Point3<f64>],
+    model: &BoxModel,
+    pose: &Isometry3<f64>,
+) -> Result<FitConfidence> {
+    let search = SizeSearch::new(points, &RobustSizeParams::default())?;
+    let refined = search.refined_candidates();
+    let placed = Placed {
+        rotation: pose.rotation.to_rotation_matrix(),
+        centre: pose.translation.vector,
+        half: model.size() * 0.5,
+    };
+    let given = Refined::new(placed, points, &search.cost_model);
+    let separation = 0.1 * model.diameter();
+    let runner_up = refined
+        .iter()
+        .filter(|r| r.placed.corner_distance(&given.placed) > separation)
+        .map(|r| r.profile.cost)
+        .fold(f64::INFINITY, f64::min);
+    Ok(adaptive::confidence_of(
+        &given,
+        runner_up - given.profile.cost,
+        points,
+    ))
+}
+
+struct SizeSearch<'a> {
+    points: &'a [Point3<f64>],
+    params: RobustSizeParams,
+    cost_model: CostModel,
+    /// The largest distance between two points: no side may exceed it by much.
+    extent: f64,
+}
+
+impl<'a> SizeSearch<'a> {
+    fn new(points: &'a [Point3<f64>], params: &RobustSizeParams) -> Result<Self> {
+        ensure_finite_points("points", points)?;
+        if !(params.right_angle_cosine > 0.0 && params.right_angle_cosine < 1.0) {
+            return Err(GeometryError::InvalidParameter {
+                name: "right_angle_cosine",
+                reason: "must be in (0, 1)",
+            });
+        }
+        if params.refine_top == 0 {
+            return Err(GeometryError::InvalidParameter {
+                name: "refine_top",
+                reason: "must be at least 1",
+            });
+        }
+        if points.len() < 4 {
+            return Err(GeometryError::TooFewPoints {
+                what: "robust pose and size fit",
+                needed: 4,
+                got: points.len(),
+            });
+        }
+        let extent = points
+            .iter()
+            .flat_map(|a| points.iter().map(move |b| (a - b).norm()))
+            .fold(0.0, f64::max);
+        if extent == 0.0 {
+            return Err(GeometryError::Degenerate("coincident points"));
+        }
+        if adaptive::coplanar(points, 1e-10 * extent) {
+            return Err(GeometryError::Degenerate("coplanar points"));
+        }
+        Ok(Self {
+            points,
+            params: *params,
+            cost_model: CostModel::new(points, 9),
+            extent,
+        })
+    }
+
+    fn hypotheses(&self) -> Vec<(f64, Placed)> {
+        let points = self.points;
+        let n = points.len();
+        let min_side = 1e-3 * self.extent;
+        let max_side = 1.5 * self.extent;
+        let plausible = |half: &Vector3<f64>| {
+            half.iter()
+                .all(|&h| 2.0 * h >= min_side && 2.0 * h <= max_side)
+        };
+        let mut scratch = Vec::with_capacity(n);
+        let mut hypotheses = Vec::new();
+        let mut push = |placed: Placed, hypotheses: &mut Vec<(f64, Placed)>| {
+            if plausible(&placed.half) {
+                let profile = placed.cost(points, &self.cost_model, &mut scratch);
+                hypotheses.push((profile.cost, placed));
+            }
+        };
+        // A corner with its two edge neighbours, and a fourth peak for the depth.
+        for a in 0..n {
+            for b in (0..n).filter(|&b| b != a) {
+                for c in (b + 1..n).filter(|&c| c != a) {
+                    let (u, v) = (points[b] - points[a], points[c] - points[a]);
+                    let (lu, lv) = (u.norm(), v.norm());
+                    if lu == 0.0
+                        || lv == 0.0
+                        || (u.dot(&v) / (lu * lv)).abs() > self.params.right_angle_cosine
+                    {
+                        continue;
+                    }
+                    let x = u / lu;
+                    let y = (v - x * x.dot(&v)).normalize();
+                    let z = x.cross(&y);
+                    let rotation =
+                        Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z]));
+                    let (side_x, side_y) = (lu, y.dot(&v));
+                    for q in (0..n).filter(|&q| q != a && q != b && q != c) {
+                        let depth = z.dot(&(points[q] - points[a]));
+                        let half = Vector3::new(0.5 * side_x, 0.5 * side_y, 0.5 * depth.abs());
+                        let centre = points[a].coords + x * half.x + y * half.y + z * (0.5 * depth);
+                        push(
+                            Placed {
+                                rotation,
+                                centre,
+                                half,
+                            },
+                            &mut hypotheses,
+                        );
+                    }
+                }
+            }
+        }
+        // Three corners pairwise joined by face diagonals, in both orientations.
+        for a in 0..n {
+            for b in a + 1..n {
+                for c in b + 1..n {
+                    for (p, q, r) in [(a, b, c), (a, c, b)] {
+                        let (ab, ac, bc) = (
+                            (points[q] - points[p]).norm_squared(),
+                            (points[r] - points[p]).norm_squared(),
+                            (points[r] - points[q]).norm_squared(),
+                        );
+                        let sides_sq = Vector3::new(
+                            0.5 * (ab + ac - bc),
+                            0.5 * (ab + bc - ac),
+                            0.5 * (ac + bc - ab),
+                        );
+                        if sides_sq.min() <= 0.0 {
+                            break;
+                        }
+                        let s = sides_sq.map(f64::sqrt);
+                        // In the box frame with corner p at the origin: q = (X, Y, 0), r = (X, 0, Z).
+                        let local = [
+                            Point3::origin(),
+                            Point3::new(s.x, s.y, 0.0),
+                            Point3::new(s.x, 0.0, s.z),
+                        ];
+                        let Some(rotation) = crate::robust::triad(
+                            [&local[0], &local[1], &local[2]],
+                            [&points[p], &points[q], &points[r]],
+                        ) else {
+                            break;
+                        };
+                        let local_mean = (local[1].coords + local[2].coords) / 3.0;
+                        let target_mean =
+                            (points[p].coords + points[q].coords + points[r].coords) / 3.0;
+                        let origin = target_mean - rotation * local_mean;
+                        let centre = origin + rotation * (s * 0.5);
+                        push(
+                            Placed {
+                                rotation,
+                                centre,
+                                half: s * 0.5,
+                            },
+                            &mut hypotheses,
+                        );
+                    }
+                }
+            }
+        }
+        hypotheses.sort_by(|a, b| a.0.total_cmp(&b.0));
+        hypotheses
+    }
+
+    fn refined_candidates(&self) -> Vec<Refined> {
+        let hypotheses = self.hypotheses();
+        // Distinct by a tenth of the best hypothesis's diameter.
+        let separation = hypotheses.first().map_or(0.0, |h| 0.1 * h.1.diameter());
+        adaptive::distinct(&hypotheses, separation, self.params.refine_top)
+            .into_iter()
+            .map(|placed| self.refine(placed))
+            .collect()
+    }
+
+    fn refine(&self, placed: Placed) -> Refined {
+        let mut best = Refined::new(placed, self.points, &self.cost_model);
+        for _ in 0..self.params.max_refinements {
+            let inliers = best.inlier_indices();
+            let assignment: Vec<usize> = best.nearest.iter().map(|n| n.0).collect();
+            let mut state = Alternation {
+                rotation: best.placed.rotation,
+                centre: best.placed.centre,
+                half_size: best.placed.half,
+                cost: best.cost,
+            };
+            let sources: Vec<Point3<f64>> = inliers
+                .iter()
+                .map(|&i| state.corner(assignment[i]))
+                .collect();
+            let targets: Vec<Point3<f64>> = inliers.iter().map(|&i| self.points[i]).collect();
+            let Ok(pose) = kabsch(&sources, &targets) else {
+                break;
+            };
+            state.rotation = pose.rotation.to_rotation_matrix();
+            state.centre = pose.translation.vector;
+            state.solve_size_and_centre(&inliers, &assignment, self.points);
+            if !state.half_size.iter().all(|&h| h > 0.0 && h.is_finite()) {
+                break;
+            }
+            let next = Refined::new(
+                Placed {
+                    rotation: state.rotation,
+                    centre: state.centre,
+                    half: state.half_size,
+                },
+                self.points,
+                &self.cost_model,
+            );
+            if next.cost >= best.cost {
+                break;
+            }
+            best = next;
+        }
+        best
+    }
 }
