@@ -233,8 +233,22 @@ pub fn run_in_memory(
     failure_level: f64,
     score: impl Fn(&[f64]) -> f64,
 ) -> Result<CeRun, CeError> {
+    let start = Proposal::tuning_start(dim, config.components);
+    run_in_memory_from(config, &start, seed, failure_level, score)
+}
+
+/// [`run_in_memory`] tuning from `start` instead of [`Proposal::tuning_start`], e.g. with
+/// rotation blocks: `Proposal::tuning_start(dim, config.components).with_rotation_blocks(&[0])?`.
+/// `config.components` is not read here (the start's components are used).
+pub fn run_in_memory_from(
+    config: &CeConfig,
+    start: &Proposal,
+    seed: u64,
+    failure_level: f64,
+    score: impl Fn(&[f64]) -> f64,
+) -> Result<CeRun, CeError> {
     config.validate()?;
-    let mut proposal = Proposal::tuning_start(dim, config.components);
+    let mut proposal = start.clone();
     let mut levels = Vec::new();
     let mut reached = false;
     let mut tuning_evaluations = 0u64;

@@ -8,18 +8,21 @@
 //!   importance-sampling estimate of a failure probability ([`stats::ImportanceEstimate`]) with
 //!   the ratio estimator for redrawn invalid samples and post-stratification.
 //! - [`proposal`]: the defensive Gaussian-mixture proposal q(z), its exact density and
-//!   likelihood ratio, sampling, and the weighted maximum-likelihood update.
+//!   likelihood ratio, sampling, and the weighted maximum-likelihood update; optional rotation
+//!   blocks (4 dimensions whose direction is an orientation) carry an angular central Gaussian
+//!   direction instead of a diagonal Gaussian ([`acg`]).
 //! - [`ce`]: one stateless step of the multilevel cross-entropy method, its configuration, and
 //!   an in-memory reference driver for cheap score functions (tests, benchmarks).
 //! - [`rng`]: per-sample random generators, so sample `i`'s z depends only on its id.
 
+pub mod acg;
 pub mod ce;
 pub mod proposal;
 pub mod rng;
 pub mod stats;
 
-pub use ce::{CeConfig, CeError, CeRun, CeStep, ce_step, run_in_memory};
-pub use proposal::{Component, Proposal, ProposalError, log_nominal};
+pub use ce::{CeConfig, CeError, CeRun, CeStep, ce_step, run_in_memory, run_in_memory_from};
+pub use proposal::{Component, Proposal, ProposalError, RotationShape, log_nominal};
 pub use rng::sample_rng;
 pub use stats::{
     CiMethod, EstimateError, EstimatorKind, ImportanceEstimate, WeightedSample, clopper_pearson,

@@ -4,6 +4,8 @@ use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use serde::{Deserialize, Serialize};
 
+use crate::acg::{self, Sym4};
+
 /// Smallest per-dimension standard deviation [`Proposal::fit`] may produce.
 pub const MIN_STD: f64 = 0.05;
 
@@ -13,6 +15,16 @@ pub const MIN_COMPONENT_WEIGHT: f64 = 1e-3;
 
 /// EM iterations per [`Proposal::fit`] when K > 1.
 pub const EM_STEPS: usize = 8;
+
+/// Smallest eigenvalue of a fitted rotation-block shape Λ (kept at trace 4), the analogue of
+/// [`MIN_STD`]: a block's likelihood ratio is then at most |Λ|^{1/2}/λ_min² ≤ 1/0.05² = 400.
+pub const MIN_SHAPE_EIGENVALUE: f64 = 0.05;
+
+/// Tyler fixed-point iterations per rotation block and fit (or EM step).
+pub const TYLER_STEPS: usize = 10;
+
+/// Dimensions of a rotation block (a quaternion).
+pub const ROTATION_BLOCK_DIM: usize = 4;
 
 const LN_2PI: f64 = 1.837_877_066_409_345_5;
 
@@ -29,15 +41,40 @@ fn logsumexp(terms: &[f64]) -> f64 {
     max + terms.iter().map(|t| (t - max).exp()).sum::<f64>().ln()
 }
 
-/// One mixture component N(μ, diag σ²) with its mixture weight π.
+/// The shape of one rotation block z[start..start + 4] within a component: the block's
+/// direction u = z_B/‖z_B‖ is ACG(Λ) on S³ and its radius ‖z_B‖ keeps the nominal χ₄ law, so
+/// the block's density in R⁴ is N(z_B; 0, I₄) · |Λ|^{-1/2} (uᵀΛ⁻¹u)^{-2}.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RotationShape {
+    /// Index of the block's first dimension.
+    pub start: usize,
+    /// Λ: symmetric positive definite 4×4 (row-major); only its direction matters (fits keep
+    /// trace 4). Λ = I is the nominal (uniform rotation).
+    pub shape: Sym4,
+}
+
+/// One mixture component with its mixture weight π: N(μ, diag σ²) on the dimensions outside
+/// its rotation blocks, and on each rotation block the nominal radius with an ACG(Λ)
+/// direction ([`RotationShape`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Component {
     /// Mixture weight π_k (the weights of a proposal's components sum to 1).
     pub weight: f64,
-    /// Mean μ_k.
+    /// Mean μ_k (entries in rotation blocks are unused; fits keep them at 0).
     pub mean: Vec<f64>,
-    /// Per-dimension standard deviation σ_k (all > 0).
+    /// Per-dimension standard deviation σ_k, all > 0 (entries in rotation blocks are unused;
+    /// fits keep them at 1).
     pub std: Vec<f64>,
+    /// The rotation blocks, by increasing `start` (empty: the plain diagonal Gaussian). Every
+    /// component of a proposal has the same block starts.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub rotations: Vec<RotationShape>,
+}
+
+fn in_block(rotations: &[RotationShape], j: usize) -> bool {
+    rotations
+        .iter()
+        .any(|r| (r.start..r.start + ROTATION_BLOCK_DIM).contains(&j))
 }
 
 impl Component {
@@ -46,17 +83,61 @@ impl Component {
             weight,
             mean: vec![0.0; dim],
             std: vec![1.0; dim],
+            rotations: Vec::new(),
         }
     }
 
-    /// log N(z; μ, diag σ²).
+    /// log of the component's density: log N(z; μ, diag σ²) over the dimensions outside the
+    /// rotation blocks, plus, per block B, log N(z_B; 0, I₄) + log ACG(z_B/‖z_B‖; Λ) (ACG
+    /// relative to the uniform measure on S³).
     pub fn log_density(&self, z: &[f64]) -> f64 {
         let mut acc = -0.5 * z.len() as f64 * LN_2PI;
-        for ((x, m), s) in z.iter().zip(&self.mean).zip(&self.std) {
+        for (j, ((x, m), s)) in z.iter().zip(&self.mean).zip(&self.std).enumerate() {
+            if !self.rotations.is_empty() && in_block(&self.rotations, j) {
+                acc -= 0.5 * x * x;
+                continue;
+            }
             let u = (x - m) / s;
             acc -= 0.5 * u * u + s.ln();
         }
+        for r in &self.rotations {
+            if r.shape == acg::IDENTITY {
+                continue;
+            }
+            let l = acg::cholesky(&r.shape).expect("validated shape");
+            acc += acg::log_acg_rel(&l, &z[r.start..r.start + ROTATION_BLOCK_DIM]);
+        }
         acc
+    }
+
+    fn sample<R: Rng + ?Sized>(&self, rng: &mut R) -> Vec<f64> {
+        let mut z: Vec<f64> = self
+            .mean
+            .iter()
+            .zip(&self.std)
+            .enumerate()
+            .map(|(j, (m, s))| {
+                let e: f64 = StandardNormal.sample(rng);
+                if !self.rotations.is_empty() && in_block(&self.rotations, j) {
+                    e
+                } else {
+                    m + s * e
+                }
+            })
+            .collect();
+        for r in &self.rotations {
+            // radius ‖N(0, I₄)‖ ~ χ₄ (from the block's own draws), direction L e/‖L e‖
+            let block = &mut z[r.start..r.start + ROTATION_BLOCK_DIM];
+            let radius = block.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let l = acg::cholesky(&r.shape).expect("validated shape");
+            let e: [f64; 4] = std::array::from_fn(|_| StandardNormal.sample(rng));
+            let x: [f64; 4] = std::array::from_fn(|i| (0..=i).map(|k| l[i][k] * e[k]).sum());
+            let norm = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+            for (b, v) in block.iter_mut().zip(x) {
+                *b = radius * v / norm;
+            }
+        }
+        z
     }
 }
 
@@ -79,6 +160,10 @@ pub enum ProposalError {
     /// wrong dimension, or a smoothing outside [0, 1].
     #[error("fit: {0}")]
     BadFit(String),
+    /// Rotation blocks overlap, leave the dimension, differ between components, or a shape Λ
+    /// is not symmetric positive definite.
+    #[error("rotation blocks: {0}")]
+    BadRotationBlocks(String),
 }
 
 /// The defensive mixture proposal over R^d:
@@ -87,6 +172,15 @@ pub enum ProposalError {
 ///
 /// λ = `defensive` ∈ [0, 1]; λ = 1 is the nominal itself, and λ > 0 bounds the likelihood ratio
 /// w(z) = p(z)/q(z) ≤ 1/λ. Serialises to JSON so a run can store it at each iteration barrier.
+///
+/// **Rotation blocks.** When z[s..s + 4] normalised is an orientation (a unit quaternion,
+/// uniform on SO(3) under the nominal, q ≡ −q), declare it a rotation block:
+/// `Proposal::tuning_start(dim, k).with_rotation_blocks(&[s])?`. In every component that block
+/// is then not a diagonal Gaussian but the nominal radius ‖z_B‖ ~ χ₄ with an angular central
+/// Gaussian direction ACG(Λ_k) (see [`RotationShape`]), whose likelihood ratio against the
+/// nominal is 1/ACG(u; Λ) ≤ |Λ|^{1/2}/λ_min(Λ)² (≤ 1/[`MIN_SHAPE_EIGENVALUE`]² after a fit).
+/// The block's mean and std entries are unused. [`Proposal::fit`] and the cross-entropy step
+/// keep the blocks.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Proposal {
     /// Dimension d of z.
@@ -117,6 +211,28 @@ impl Proposal {
                 && c.std.iter().all(|s| s.is_finite() && *s > 0.0);
             if !ok {
                 return Err(ProposalError::BadComponent(k));
+            }
+        }
+        let starts: Vec<usize> = components[0].rotations.iter().map(|r| r.start).collect();
+        check_blocks(dim, &starts)?;
+        for (k, c) in components.iter().enumerate() {
+            if !c
+                .rotations
+                .iter()
+                .map(|r| r.start)
+                .eq(starts.iter().copied())
+            {
+                return Err(ProposalError::BadRotationBlocks(format!(
+                    "component {k} has other block starts than component 0 ({starts:?})"
+                )));
+            }
+            for r in &c.rotations {
+                if !acg::is_symmetric(&r.shape) || acg::cholesky(&r.shape).is_none() {
+                    return Err(ProposalError::BadRotationBlocks(format!(
+                        "component {k}, block at {}: Λ is not symmetric positive definite",
+                        r.start
+                    )));
+                }
             }
         }
         let total: f64 = components.iter().map(|c| c.weight).sum();
@@ -160,6 +276,44 @@ impl Proposal {
         }
     }
 
+    /// The same proposal with rotation blocks z[s..s + 4] for each s in `starts` (replacing any
+    /// present): in every component each block gets Λ = I (so the distribution of a component
+    /// whose block entries were mean 0, std 1 is unchanged) and its mean/std entries are reset
+    /// to 0/1. Blocks must lie inside the dimension and not overlap; `&[]` removes the blocks.
+    ///
+    /// E.g. the starting proposal of a search whose z[0..4] is an orientation:
+    /// `Proposal::tuning_start(dim, k).with_rotation_blocks(&[0])?`.
+    pub fn with_rotation_blocks(&self, starts: &[usize]) -> Result<Self, ProposalError> {
+        let mut starts = starts.to_vec();
+        starts.sort_unstable();
+        check_blocks(self.dim, &starts)?;
+        let mut out = self.clone();
+        for c in &mut out.components {
+            c.rotations = starts
+                .iter()
+                .map(|&start| RotationShape {
+                    start,
+                    shape: acg::IDENTITY,
+                })
+                .collect();
+            for &s in &starts {
+                for j in s..s + ROTATION_BLOCK_DIM {
+                    c.mean[j] = 0.0;
+                    c.std[j] = 1.0;
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// The start indices of the rotation blocks (empty when there are none).
+    pub fn rotation_blocks(&self) -> Vec<usize> {
+        self.components
+            .first()
+            .map(|c| c.rotations.iter().map(|r| r.start).collect())
+            .unwrap_or_default()
+    }
+
     /// The same components with defensive weight λ (clamped to [0, 1]).
     pub fn with_defensive(&self, lambda: f64) -> Self {
         Self {
@@ -184,15 +338,7 @@ impl Proposal {
             }
             v -= c.weight;
         }
-        let c = &self.components[chosen];
-        c.mean
-            .iter()
-            .zip(&c.std)
-            .map(|(m, s)| {
-                let e: f64 = StandardNormal.sample(rng);
-                m + s * e
-            })
-            .collect()
+        self.components[chosen].sample(rng)
     }
 
     /// log q(z), exact, by log-sum-exp over the nominal and the components.
@@ -232,6 +378,14 @@ impl Proposal {
     ///
     /// σ is floored at [`MIN_STD`] ([`Proposal::fit_floored`] takes the floor). Smoothing acts on (μ, σ) and on the mixture weights π:
     /// θ_new = α θ_fit + (1 − α) θ_old, with α = `smoothing` ∈ [0, 1] (α = 1: no smoothing).
+    ///
+    /// Rotation blocks: per component and block, [`TYLER_STEPS`] iterations of the weighted
+    /// Tyler fixed point (the ACG's MLE) from the current Λ, with u_i = z_iB/‖z_iB‖ and weights
+    /// v_i = w_i (times the EM responsibility when K > 1):
+    /// Λ ← 4 Σ_i v_i u_i u_iᵀ/(u_iᵀΛ⁻¹u_i) / Σ_i v_i, each iterate projected to trace 4 with
+    /// every eigenvalue ≥ [`MIN_SHAPE_EIGENVALUE`] (the fitted shape's direction-only density
+    /// then gives a block likelihood ratio ≤ |Λ|^{1/2}/λ_min² ≤ 1/[`MIN_SHAPE_EIGENVALUE`]²),
+    /// then smoothed Λ_new = α Λ_fit + (1 − α) Λ_old (which keeps trace 4 and the floor).
     /// `weights` need not be normalised (they are self-normalised) and must be non-negative.
     pub fn fit(
         &self,
@@ -285,12 +439,14 @@ impl Proposal {
             )));
         }
         let fitted = if self.components.len() == 1 {
-            let (mean, std) = weighted_moments(zs, weights, |_| 1.0, self.dim, min_std);
-            vec![Component {
-                weight: 1.0,
-                mean,
-                std,
-            }]
+            vec![fit_component(
+                &self.components[0],
+                zs,
+                weights,
+                |_| 1.0,
+                min_std,
+                1.0,
+            )]
         } else {
             self.em(zs, weights, min_std)
         };
@@ -298,20 +454,33 @@ impl Proposal {
         let components = fitted
             .into_iter()
             .zip(&self.components)
-            .map(|(f, old)| Component {
-                weight: a * f.weight + (1.0 - a) * old.weight,
-                mean: f
-                    .mean
-                    .iter()
-                    .zip(&old.mean)
-                    .map(|(n, o)| a * n + (1.0 - a) * o)
-                    .collect(),
-                std: f
-                    .std
-                    .iter()
-                    .zip(&old.std)
-                    .map(|(n, o)| (a * n + (1.0 - a) * o).max(min_std))
-                    .collect(),
+            .map(|(f, old)| {
+                let mut c = Component {
+                    weight: a * f.weight + (1.0 - a) * old.weight,
+                    mean: f
+                        .mean
+                        .iter()
+                        .zip(&old.mean)
+                        .map(|(n, o)| a * n + (1.0 - a) * o)
+                        .collect(),
+                    std: f
+                        .std
+                        .iter()
+                        .zip(&old.std)
+                        .map(|(n, o)| (a * n + (1.0 - a) * o).max(min_std))
+                        .collect(),
+                    rotations: f
+                        .rotations
+                        .iter()
+                        .zip(&old.rotations)
+                        .map(|(n, o)| RotationShape {
+                            start: n.start,
+                            shape: smooth_shape(&n.shape, &o.shape, a),
+                        })
+                        .collect(),
+                };
+                reset_block_entries(&mut c);
+                c
             })
             .collect();
         Proposal::new(self.dim, self.defensive, components)
@@ -321,8 +490,24 @@ impl Proposal {
         let k = self.components.len();
         let mut comps = self.components.clone();
         if components_coincide(&comps) {
-            for (c, seed) in comps.iter_mut().zip(farthest_point_seeds(zs, weights, k)) {
+            let seeds = farthest_point_seeds(zs, weights, k, &comps[0].rotations);
+            for (c, seed) in comps.iter_mut().zip(seeds) {
                 c.mean = zs[seed].clone();
+                for r in &mut c.rotations {
+                    // a mild concentration on the seed's axis: Λ ∝ I + 3 u uᵀ
+                    let x = &zs[seed][r.start..r.start + ROTATION_BLOCK_DIM];
+                    let n2: f64 = x.iter().map(|v| v * v).sum();
+                    let mut shape = acg::IDENTITY;
+                    if n2 > 0.0 {
+                        for i in 0..4 {
+                            for j in 0..4 {
+                                shape[i][j] += 3.0 * x[i] * x[j] / n2;
+                            }
+                        }
+                    }
+                    r.shape = acg::floor_trace4(&shape, MIN_SHAPE_EIGENVALUE);
+                }
+                reset_block_entries(c);
             }
         }
         let mut resp = vec![0.0; zs.len() * k];
@@ -349,13 +534,14 @@ impl Proposal {
                     .map(|(i, w)| w * resp[i * k + j])
                     .sum();
                 if mass > 0.0 {
-                    let (mean, std) =
-                        weighted_moments(zs, weights, |i| resp[i * k + j], self.dim, min_std);
-                    new.push(Component {
-                        weight: mass,
-                        mean,
-                        std,
-                    });
+                    new.push(fit_component(
+                        old,
+                        zs,
+                        weights,
+                        |i| resp[i * k + j],
+                        min_std,
+                        mass,
+                    ));
                 } else {
                     new.push(Component {
                         weight: 0.0,
@@ -377,11 +563,97 @@ impl Proposal {
     }
 }
 
+/// The weighted MLE of one component with per-point extra factor `r(i)` (an EM
+/// responsibility, or 1): weighted moments on the dimensions outside the rotation blocks (σ
+/// floored at `min_std`), and per block the weighted, floored Tyler fixed point started from
+/// `old`'s Λ. Block entries of mean/std are reset to 0/1.
+fn fit_component(
+    old: &Component,
+    zs: &[Vec<f64>],
+    weights: &[f64],
+    r: impl Fn(usize) -> f64,
+    min_std: f64,
+    weight: f64,
+) -> Component {
+    let (mean, std) = weighted_moments(zs, weights, &r, old.mean.len(), min_std);
+    let rotations = old
+        .rotations
+        .iter()
+        .map(|rot| {
+            let xs: Vec<[f64; 4]> = zs
+                .iter()
+                .map(|z| std::array::from_fn(|i| z[rot.start + i]))
+                .collect();
+            let v: Vec<f64> = weights.iter().enumerate().map(|(i, w)| w * r(i)).collect();
+            RotationShape {
+                start: rot.start,
+                shape: acg::tyler(&xs, &v, &rot.shape, MIN_SHAPE_EIGENVALUE, TYLER_STEPS),
+            }
+        })
+        .collect();
+    let mut c = Component {
+        weight,
+        mean,
+        std,
+        rotations,
+    };
+    reset_block_entries(&mut c);
+    c
+}
+
+/// Mean 0 and std 1 on the (unused) rotation-block entries.
+fn reset_block_entries(c: &mut Component) {
+    for r in &c.rotations {
+        for j in r.start..r.start + ROTATION_BLOCK_DIM {
+            c.mean[j] = 0.0;
+            c.std[j] = 1.0;
+        }
+    }
+}
+
+/// α Λ_fit + (1 − α) Λ_old, renormalised to trace 4. Both have trace 4 and λ_min ≥ the floor,
+/// and λ_min is concave, so the result keeps the floor.
+fn smooth_shape(new: &Sym4, old: &Sym4, a: f64) -> Sym4 {
+    let mut s = [[0.0; 4]; 4];
+    for i in 0..4 {
+        for j in 0..4 {
+            s[i][j] = a * new[i][j] + (1.0 - a) * old[i][j];
+        }
+    }
+    let tr: f64 = (0..4).map(|i| s[i][i]).sum();
+    if tr > 0.0 {
+        for row in &mut s {
+            for x in row {
+                *x *= 4.0 / tr;
+            }
+        }
+    }
+    s
+}
+
+/// The start indices of `blocks` must be increasing, non-overlapping and inside `dim`.
+fn check_blocks(dim: usize, starts: &[usize]) -> Result<(), ProposalError> {
+    for (i, &s) in starts.iter().enumerate() {
+        if s + ROTATION_BLOCK_DIM > dim {
+            return Err(ProposalError::BadRotationBlocks(format!(
+                "block at {s} leaves dimension {dim}"
+            )));
+        }
+        if i > 0 && starts[i - 1] + ROTATION_BLOCK_DIM > s {
+            return Err(ProposalError::BadRotationBlocks(format!(
+                "blocks at {} and {s} overlap",
+                starts[i - 1]
+            )));
+        }
+    }
+    Ok(())
+}
+
 /// Weighted mean and std (floored at `min_std`) with per-point extra factor `r(i)`.
 fn weighted_moments(
     zs: &[Vec<f64>],
     weights: &[f64],
-    r: impl Fn(usize) -> f64,
+    r: &impl Fn(usize) -> f64,
     dim: usize,
     min_std: f64,
 ) -> (Vec<f64>, Vec<f64>) {
@@ -417,13 +689,40 @@ fn components_coincide(comps: &[Component]) -> bool {
             .iter()
             .zip(&w[1].mean)
             .all(|(a, b)| (a - b).abs() < 1e-9)
+            && w[0].rotations == w[1].rotations
     })
 }
 
 /// Deterministic farthest-point seeding: the heaviest point first, then repeatedly the point
-/// maximising weight × squared distance to the nearest chosen seed.
-fn farthest_point_seeds(zs: &[Vec<f64>], weights: &[f64], k: usize) -> Vec<usize> {
-    let dist2 = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+/// maximising weight × squared distance to the nearest chosen seed. In rotation blocks the
+/// distance is axial, 4 (1 − (u·v)²) between the directions, so q and −q coincide.
+fn farthest_point_seeds(
+    zs: &[Vec<f64>],
+    weights: &[f64],
+    k: usize,
+    rotations: &[RotationShape],
+) -> Vec<usize> {
+    let dist2 = |a: &[f64], b: &[f64]| -> f64 {
+        let mut d = 0.0;
+        for (j, (x, y)) in a.iter().zip(b).enumerate() {
+            if !in_block(rotations, j) {
+                d += (x - y) * (x - y);
+            }
+        }
+        for r in rotations {
+            let (x, y) = (
+                &a[r.start..r.start + ROTATION_BLOCK_DIM],
+                &b[r.start..r.start + ROTATION_BLOCK_DIM],
+            );
+            let nx: f64 = x.iter().map(|v| v * v).sum();
+            let ny: f64 = y.iter().map(|v| v * v).sum();
+            let dot: f64 = x.iter().zip(y).map(|(p, q)| p * q).sum();
+            if nx > 0.0 && ny > 0.0 {
+                d += 4.0 * (1.0 - dot * dot / (nx * ny));
+            }
+        }
+        d
+    };
     let first = (0..zs.len())
         .max_by(|&a, &b| weights[a].total_cmp(&weights[b]))
         .unwrap_or(0);
@@ -465,6 +764,7 @@ mod tests {
                 weight: 1.0,
                 mean: vec![2.0],
                 std: vec![0.5],
+                rotations: vec![],
             }],
         )
         .unwrap();
