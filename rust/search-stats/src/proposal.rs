@@ -820,4 +820,280 @@ mod tests {
         let s = serde_json::to_string(&p).unwrap();
         assert_eq!(serde_json::from_str::<Proposal>(&s).unwrap(), p);
     }
+
+    /// A trace-4 shape with eigenvalues (2.5, 0.9, 0.4, 0.2) on a non-axis-aligned basis.
+    fn known_shape() -> Sym4 {
+        let axes = [
+            [0.5, -0.3, 0.7, 0.4],
+            [0.3, 0.5, 0.4, -0.7],
+            [-0.7, 0.4, 0.5, 0.3],
+            [0.4, 0.7, -0.3, 0.5],
+        ];
+        let e = [2.5, 0.9, 0.4, 0.2];
+        let mut a = [[0.0; 4]; 4];
+        for (v, ev) in axes.iter().zip(e) {
+            let n2: f64 = v.iter().map(|x| x * x).sum();
+            for i in 0..4 {
+                for j in 0..4 {
+                    a[i][j] += ev * v[i] * v[j] / n2;
+                }
+            }
+        }
+        a
+    }
+
+    /// dim 6, block at 1 (z[1..5]), λ, one component with a non-nominal z[0], z[5] and the
+    /// given Λ.
+    fn block_proposal(lambda: f64, shape: Sym4) -> Proposal {
+        let mut c = Component {
+            weight: 1.0,
+            mean: vec![0.7, 0.0, 0.0, 0.0, 0.0, -0.4],
+            std: vec![0.8, 1.0, 1.0, 1.0, 1.0, 1.3],
+            rotations: vec![],
+        };
+        c.rotations.push(RotationShape { start: 1, shape });
+        Proposal::new(6, lambda, vec![c]).unwrap()
+    }
+
+    #[test]
+    fn identity_shape_is_the_nominal_block() {
+        let z = [0.3, -1.0, 2.0, 0.1, 0.5, -0.2];
+        // Λ = I: the block adds exactly nothing to the plain component's density
+        let with = block_proposal(0.0, acg::IDENTITY);
+        let mut without = with.clone();
+        without.components[0].rotations.clear();
+        assert_eq!(with.log_density(&z), without.log_density(&z));
+        // and the whole proposal from tuning_start with blocks is the nominal
+        let p = Proposal::tuning_start(6, 2)
+            .with_rotation_blocks(&[1])
+            .unwrap();
+        assert_eq!(p.rotation_blocks(), vec![1]);
+        assert!(p.log_weight(&z).abs() < 1e-12);
+        let p = Proposal::tuning_start(8, 1)
+            .with_rotation_blocks(&[4, 0])
+            .unwrap();
+        assert_eq!(p.rotation_blocks(), vec![0, 4]);
+        let z8 = [0.3, -1.0, 2.0, 0.1, 0.5, -0.2, 1.1, 0.0];
+        assert!(p.log_weight(&z8).abs() < 1e-12);
+    }
+
+    #[test]
+    fn block_density_by_hand_and_antipodal() {
+        let shape = known_shape();
+        let p = block_proposal(0.0, shape);
+        let z = [0.3, -1.0, 2.0, 0.1, 0.5, -0.2];
+        // the block's LR is 1/ACG(u; Λ) = |Λ|^{1/2} (uᵀΛ⁻¹u)², the rest the diagonal Gaussian's
+        let l = acg::cholesky(&shape).unwrap();
+        let b = &z[1..5];
+        let r2: f64 = b.iter().map(|x| x * x).sum();
+        let lr_block = 0.5 * acg::log_det(&l) + 2.0 * (acg::quad_inv(&l, b) / r2).ln();
+        let c = &p.components[0];
+        let n = |x: f64, m: f64, s: f64| -0.5 * ((x - m) / s).powi(2) - s.ln() - 0.5 * LN_2PI;
+        let lr_rest = n(z[0], 0.0, 1.0) - n(z[0], c.mean[0], c.std[0]) + n(z[5], 0.0, 1.0)
+            - n(z[5], c.mean[5], c.std[5]);
+        assert!((p.log_weight(&z) - lr_block - lr_rest).abs() < 1e-12);
+        // q(z) = q(z with z_B → −z_B), and with zero means q(z) = q(−z)
+        let mut flipped = z;
+        for x in &mut flipped[1..5] {
+            *x = -*x;
+        }
+        assert!((p.log_density(&z) - p.log_density(&flipped)).abs() < 1e-12);
+        let mut centred = p.clone();
+        centred.components[0].mean = vec![0.0; 6];
+        let minus = z.map(|x| -x);
+        assert!((centred.log_density(&z) - centred.log_density(&minus)).abs() < 1e-12);
+        // the radius of the block does not change the block's LR
+        let mut scaled = z;
+        for x in &mut scaled[1..5] {
+            *x *= 3.0;
+        }
+        let nominal_shift = log_nominal(&scaled) - log_nominal(&z);
+        assert!(
+            (p.log_density(&scaled) - p.log_density(&z) - nominal_shift).abs() < 1e-12,
+            "radius law must be the nominal's"
+        );
+    }
+
+    #[test]
+    fn block_weights_integrate_to_one_and_are_bounded() {
+        // λ = 0: E_q[w] = 1 and E_q[w 1{A}] = P_nominal(A) only if q is normalised and its
+        // sampler matches its density; the block's LR is ≤ |Λ|^{1/2}/λ_min².
+        let shape = known_shape();
+        let p = block_proposal(0.0, shape);
+        let axis = [0.5f64, -0.3, 0.7, 0.4].map(|x| x / 0.99498743710662f64);
+        let bound = {
+            let (e, _) = acg::eigen(&shape);
+            let det: f64 = e.iter().product();
+            let min = e.iter().copied().fold(f64::INFINITY, f64::min);
+            det.sqrt() / (min * min)
+        };
+        let n = 200_000u64;
+        let (mut sum, mut sum2, mut cap, mut cap2) = (0.0, 0.0, 0.0, 0.0);
+        let mut rest = p.clone();
+        rest.components[0].rotations.clear();
+        for i in 0..n {
+            let z = p.sample(&mut sample_rng(11, 0, i));
+            let w = p.log_weight(&z).exp();
+            sum += w;
+            sum2 += w * w;
+            let b = &z[1..5];
+            let r = b.iter().map(|x| x * x).sum::<f64>().sqrt();
+            let dot: f64 = b.iter().zip(&axis).map(|(x, a)| x * a).sum::<f64>() / r;
+            // |u·axis| ≥ cos 0.4: an antipodal cap
+            if dot.abs() >= 0.4f64.cos() {
+                cap += w;
+                cap2 += w * w;
+            }
+            // block LR = total LR / the LR of the other dimensions
+            let block_w = w / rest.log_weight(&z).exp();
+            assert!(block_w <= bound * (1.0 + 1e-9), "{block_w} > {bound}");
+        }
+        let nf = n as f64;
+        let mean = sum / nf;
+        let se = ((sum2 / nf - mean * mean) / nf).sqrt();
+        assert!((mean - 1.0).abs() < 4.0 * se, "E_q[w] = {mean} ± {se}");
+        // uniform S³: P(|u·a| ≥ cos θ) = (2θ − sin 2θ)/π for the angle θ ≤ π/2
+        let truth = (0.8 - 0.8f64.sin()) / std::f64::consts::PI;
+        let m = cap / nf;
+        let se = ((cap2 / nf - m * m) / nf).sqrt();
+        assert!((m - truth).abs() < 4.0 * se, "cap {m} ± {se} vs {truth}");
+    }
+
+    #[test]
+    fn fit_recovers_the_shape_from_its_own_samples() {
+        let shape = known_shape();
+        let p = block_proposal(0.0, shape);
+        let zs: Vec<Vec<f64>> = (0..20_000u64)
+            .map(|i| p.sample(&mut sample_rng(12, 0, i)))
+            .collect();
+        let w = vec![1.0; zs.len()];
+        let mut fit = Proposal::tuning_start(6, 1)
+            .with_rotation_blocks(&[1])
+            .unwrap();
+        // each fit runs TYLER_STEPS from the current Λ, as successive cross-entropy steps do
+        for _ in 0..4 {
+            fit = fit.fit(&zs, &w, 1.0).unwrap();
+        }
+        let got = &fit.components[0].rotations[0].shape;
+        for i in 0..4 {
+            for j in 0..4 {
+                assert!(
+                    (got[i][j] - shape[i][j]).abs() < 0.05,
+                    "Λ[{i}][{j}] = {} vs {}",
+                    got[i][j],
+                    shape[i][j]
+                );
+            }
+        }
+        let c = &fit.components[0];
+        assert!((c.mean[0] - 0.7).abs() < 0.03 && (c.std[5] - 1.3).abs() < 0.03);
+        assert_eq!((c.mean[2], c.std[2]), (0.0, 1.0));
+    }
+
+    #[test]
+    fn shape_floor_and_smoothing() {
+        // all points on one axis: Tyler would collapse Λ to rank 1; the floor keeps λ_min
+        let zs: Vec<Vec<f64>> = (1..50)
+            .map(|i| {
+                let s = if i % 2 == 0 { 1.0 } else { -1.0 };
+                vec![0.0, s * i as f64, 0.0, 0.0, 0.0, 0.0]
+            })
+            .collect();
+        let w = vec![1.0; zs.len()];
+        let start = Proposal::tuning_start(6, 1)
+            .with_rotation_blocks(&[1])
+            .unwrap();
+        let f = start.fit(&zs, &w, 1.0).unwrap();
+        let (e, _) = acg::eigen(&f.components[0].rotations[0].shape);
+        let tr: f64 = e.iter().sum();
+        assert!((tr - 4.0).abs() < 1e-9);
+        let min = e.iter().copied().fold(f64::INFINITY, f64::min);
+        assert!((min - MIN_SHAPE_EIGENVALUE).abs() < 1e-9, "{e:?}");
+        // α = 0.5 against I
+        let g = start.fit(&zs, &w, 0.5).unwrap();
+        let sg = &g.components[0].rotations[0].shape;
+        let sf = &f.components[0].rotations[0].shape;
+        for i in 0..4 {
+            for j in 0..4 {
+                let want = 0.5 * sf[i][j] + 0.5 * acg::IDENTITY[i][j];
+                assert!((sg[i][j] - want).abs() < 1e-12);
+            }
+        }
+    }
+
+    #[test]
+    fn em_separates_two_orientations() {
+        // two antipodally symmetric clusters of directions around axes a and b
+        let a = [1.0, 0.0, 0.0, 0.0];
+        let b = [0.0, 0.0, 0.6, 0.8];
+        let mut zs = Vec::new();
+        for i in 0..600u64 {
+            let mut r = sample_rng(3, 0, i);
+            let axis = if i % 3 == 0 { b } else { a };
+            let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+            let mut z = vec![0.0; 5];
+            for j in 0..4 {
+                let e: f64 = StandardNormal.sample(&mut r);
+                z[j] = sign * axis[j] * 2.0 + 0.15 * e;
+            }
+            z[4] = StandardNormal.sample(&mut r);
+            zs.push(z);
+        }
+        let w = vec![1.0; zs.len()];
+        let f = Proposal::tuning_start(5, 2)
+            .with_rotation_blocks(&[0])
+            .unwrap()
+            .fit(&zs, &w, 1.0)
+            .unwrap();
+        let mut found = Vec::new();
+        for c in &f.components {
+            let (e, v) = acg::eigen(&c.rotations[0].shape);
+            let top = (0..4).max_by(|&i, &j| e[i].total_cmp(&e[j])).unwrap();
+            let axis: [f64; 4] = std::array::from_fn(|k| v[k][top]);
+            let on_a = axis.iter().zip(&a).map(|(x, y)| x * y).sum::<f64>().abs();
+            let on_b = axis.iter().zip(&b).map(|(x, y)| x * y).sum::<f64>().abs();
+            found.push((on_a > 0.99, on_b > 0.99, c.weight));
+        }
+        found.sort_by(|x, y| x.2.total_cmp(&y.2));
+        assert!(
+            found[0].1 && (found[0].2 - 1.0 / 3.0).abs() < 0.05,
+            "{found:?}"
+        );
+        assert!(
+            found[1].0 && (found[1].2 - 2.0 / 3.0).abs() < 0.05,
+            "{found:?}"
+        );
+    }
+
+    #[test]
+    fn rotation_blocks_are_checked_and_serialise() {
+        let p = Proposal::tuning_start(6, 2);
+        assert!(p.with_rotation_blocks(&[3]).is_err()); // 3..7 leaves dim 6
+        assert!(
+            Proposal::tuning_start(9, 1)
+                .with_rotation_blocks(&[0, 2])
+                .is_err()
+        );
+        let mut bad = p.with_rotation_blocks(&[0]).unwrap();
+        bad.components[1].rotations[0].shape[0][0] = -1.0;
+        assert!(Proposal::new(6, 0.0, bad.components.clone()).is_err());
+        bad.components[1].rotations.clear();
+        assert!(Proposal::new(6, 0.0, bad.components).is_err());
+        // a JSON proposal without rotations (as before blocks existed) still parses, and one
+        // with blocks round-trips
+        let old = r#"{"dim":1,"defensive":0.1,"components":[{"weight":1,"mean":[0],"std":[1]}]}"#;
+        assert!(serde_json::from_str::<Proposal>(old).is_ok());
+        let q = block_proposal(0.1, known_shape());
+        let s = serde_json::to_string(&q).unwrap();
+        let back = serde_json::from_str::<Proposal>(&s).unwrap();
+        // serde_json's default float parsing may differ from the printed value in the last bit
+        let z = [0.3, -1.0, 2.0, 0.1, 0.5, -0.2];
+        assert_eq!(back.rotation_blocks(), vec![1]);
+        assert!((back.log_density(&z) - q.log_density(&z)).abs() < 1e-12);
+        assert!(
+            !serde_json::to_string(&Proposal::nominal(2))
+                .unwrap()
+                .contains("rotations")
+        );
+    }
 }
