@@ -24,6 +24,8 @@ class CameraSpec:
     elevation_deg: tuple[float, float]
     azimuth_deg: tuple[float, float]
     look_at_jitter_m: float
+    # Optional: aim at this box's centre instead of the boxes' centroid (the search's target box).
+    look_at_object: int | None = None
 
 
 @dataclass(frozen=True)
@@ -33,6 +35,9 @@ class LightingSpec:
     area_power_w: tuple[float, float]
     world_strength: tuple[float, float]
     world_color_jitter: float
+    # Optional: the range of the direction towards the sun (the search pins them).
+    sun_elevation_deg: tuple[float, float] = (30.0, 80.0)
+    sun_azimuth_deg: tuple[float, float] = (0.0, 360.0)
 
 
 @dataclass(frozen=True)
@@ -101,6 +106,7 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         elevation_deg=p("camera.elevation_deg"),
         azimuth_deg=p("camera.azimuth_deg"),
         look_at_jitter_m=g("camera.look_at_jitter_m", float),
+        **({"look_at_object": g("camera.look_at_object", int)} if "look_at_object" in data.get("camera", {}) else {}),
     )
     lighting = LightingSpec(
         sun_strength=p("lighting.sun_strength"),
@@ -108,6 +114,7 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         area_power_w=p("lighting.area_power_w"),
         world_strength=p("lighting.world_strength"),
         world_color_jitter=g("lighting.world_color_jitter", float),
+        **{k: p(f"lighting.{k}") for k in ("sun_elevation_deg", "sun_azimuth_deg") if k in data.get("lighting", {})},
     )
     materials = MaterialsSpec(
         roughness=p("materials.roughness"),
@@ -130,6 +137,10 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         problems.append("camera.distance_m must be positive")
     if not (-90 < camera.elevation_deg[0] and camera.elevation_deg[1] < 90):
         problems.append("camera.elevation_deg must lie in (-90, 90)")
+    if camera.look_at_object is not None and camera.look_at_object < 0:
+        problems.append("camera.look_at_object must be an object_id >= 0")
+    if not (-90 <= lighting.sun_elevation_deg[0] and lighting.sun_elevation_deg[1] <= 90):
+        problems.append("lighting.sun_elevation_deg must lie in [-90, 90]")
     if lighting.area_lights[0] < 0:
         problems.append("lighting.area_lights must be >= 0")
     if render.samples < 1 or render.max_bounces < 0:

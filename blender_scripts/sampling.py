@@ -77,7 +77,7 @@ def draw_lighting(spec: LightingSpec, target: np.ndarray, rng: np.random.Generat
     sun = {
         "strength": _uniform(rng, spec.sun_strength),
         # direction *towards* the sun, and its angular diameter (soft shadows)
-        "direction": _direction(_uniform(rng, (30.0, 80.0)), _uniform(rng, (0.0, 360.0))),
+        "direction": _direction(_uniform(rng, spec.sun_elevation_deg), _uniform(rng, spec.sun_azimuth_deg)),
         "angle_deg": _uniform(rng, (2.0, 15.0)),
     }
     lo, hi = spec.area_lights

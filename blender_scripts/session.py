@@ -133,10 +133,14 @@ class Session:
 
     def frame_draw(self, frame_id: int) -> tuple[int, geo.Camera, dict, dict]:
         """(render_seed, camera, camera draw, lighting) of a frame of the loaded scene. The look-at
-        point derives from the settled poses of the objects rows, never from pose overrides."""
+        point derives from the settled poses of the objects rows (all boxes' centroid, or the recipe's
+        `camera.look_at_object`), never from pose overrides."""
         seed = sampling.render_seed(int(self.scene_row["seed"]), frame_id)
         rng = np.random.default_rng(seed)
-        centres = np.array([m[:3, 3] for m in self.world_boxes.values()])
+        aim = self.recipe.camera.look_at_object
+        if aim is not None and aim not in self.world_boxes:
+            raise RenderInputError(f"scene {self.scene_row['scene_id']}: camera.look_at_object = {aim} is not one of its object_ids")
+        centres = np.array([m[:3, 3] for oid, m in self.world_boxes.items() if aim is None or oid == aim])
         camera, draw = sampling.draw_camera(self.recipe.camera, centres, rng)
         lighting = sampling.draw_lighting(self.recipe.lighting, np.asarray(draw["look_at_m"]), rng)
         return seed, camera, draw, lighting

@@ -8,6 +8,8 @@ mod plots;
 mod predict;
 mod inspect;
 mod render;
+mod search;
+mod search_report;
 mod settle;
 mod train;
 
@@ -68,6 +70,7 @@ enum Command {
     /// Evaluate a trained model over a dataset: per-instance metrics (Parquet), a summary table
     /// and the error histogram (the paper's Fig. 6).
     Eval(eval::Args),
+    Search(search::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -85,6 +88,7 @@ fn main() -> anyhow::Result<()> {
         Command::TrainSegmenter(args) => train::run_segmenter(&args)?,
         Command::Predict(args) => predict::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
+        Command::Search(args) => search::run(&args)?,
     }
     Ok(())
 }

@@ -131,3 +131,92 @@ fn save_png(path: &Path, rgb: &[u8], width: u32, height: u32) -> anyhow::Result<
     writer.finish()?;
     Ok(())
 }
+
+/// Histogram of `(value, weight)` pairs (values already on a log10 axis), with a dashed line at
+/// `threshold`: the search's error histogram, weighted by p/q for importance sampling.
+pub fn weighted_histogram(path: &Path, title: &str, x_desc: &str, values: &[(f64, f64)], threshold: f64) -> anyhow::Result<()> {
+    register_font();
+    anyhow::ensure!(!values.is_empty(), "no value to plot in {}", path.display());
+    let lo = values.iter().map(|v| v.0).fold(threshold, f64::min).floor();
+    let hi = values.iter().map(|v| v.0).fold(threshold, f64::max).ceil().max(lo + 1.0);
+    let bins_per_decade = 8.0;
+    let bins = ((hi - lo) * bins_per_decade) as usize;
+    let mut mass = vec![0.0f64; bins];
+    for (v, w) in values {
+        mass[(((v - lo) * bins_per_decade) as usize).min(bins - 1)] += w;
+    }
+    let positive: Vec<f64> = mass.iter().copied().filter(|m| *m > 0.0).collect();
+    let floor = positive.iter().copied().fold(f64::INFINITY, f64::min) * 0.5;
+    let top = positive.iter().copied().fold(0.0, f64::max) * 2.0;
+    let (width, height) = (900u32, 540u32);
+    let mut buffer = vec![0u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (width, height)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(44)
+            .y_label_area_size(64)
+            .build_cartesian_2d(lo..hi, (floor..top).log_scale())?;
+        chart.configure_mesh().x_desc(x_desc).y_desc("samples (weighted)").y_label_formatter(&|y| format!("{y:.2}")).draw()?;
+        let color = SERIES_COLORS[1];
+        chart.draw_series(mass.iter().enumerate().filter(|(_, m)| **m > 0.0).map(|(b, m)| {
+            let x0 = lo + b as f64 / bins_per_decade;
+            Rectangle::new([(x0, floor), (x0 + 1.0 / bins_per_decade, *m)], color.filled())
+        }))?;
+        chart.draw_series(DashedLineSeries::new(vec![(threshold, floor), (threshold, top)], 6, 4, SERIES_COLORS[0].stroke_width(2)))?;
+        root.present()?;
+    }
+    save_png(path, &buffer, width, height)
+}
+
+/// The estimate against samples spent: `(spent, p̂, low, high)` points, the interval shaded.
+pub fn estimate_curve(path: &Path, title: &str, points: &[(f64, f64, f64, f64)]) -> anyhow::Result<()> {
+    register_font();
+    let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max);
+    let y_max = points.iter().map(|p| p.3).fold(0.0, f64::max).max(1e-6) * 1.1;
+    let (width, height) = (900u32, 480u32);
+    let mut buffer = vec![0u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (width, height)).into_drawing_area();
+        root.fill(&WHITE)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 22))
+            .margin(12)
+            .x_label_area_size(44)
+            .y_label_area_size(80)
+            .build_cartesian_2d(0.0..x_max, 0.0..y_max)?;
+        chart.configure_mesh().x_desc("samples spent").y_desc("P(fail | valid)").y_label_formatter(&|y| format!("{y:.1e}")).draw()?;
+        let band: Vec<(f64, f64)> = points.iter().map(|p| (p.0, p.3)).chain(points.iter().rev().map(|p| (p.0, p.2))).collect();
+        chart.draw_series(std::iter::once(Polygon::new(band, SERIES_COLORS[1].mix(0.25).filled())))?;
+        chart.draw_series(LineSeries::new(points.iter().map(|p| (p.0, p.1)), SERIES_COLORS[1].stroke_width(2)))?;
+        root.present()?;
+    }
+    save_png(path, &buffer, width, height)
+}
+
+/// Small multiples: each sample's failure score (clamped to [−3, 3]; +∞ drawn at the top)
+/// against each parameter's nominal quantile, failures red.
+pub fn parameter_map(path: &Path, names: &[&str], points: &[(Vec<f64>, f64, bool)]) -> anyhow::Result<()> {
+    register_font();
+    let columns = 4usize;
+    let rows = names.len().div_ceil(columns).max(1);
+    let (width, height) = (1200u32, 240 * rows as u32);
+    let mut buffer = vec![0u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (width, height)).into_drawing_area();
+        root.fill(&WHITE)?;
+        for (panel, (area, name)) in root.split_evenly((rows, columns)).iter().zip(names).enumerate() {
+            let mut chart = ChartBuilder::on(area).caption(*name, ("sans-serif", 15)).margin(6).x_label_area_size(22).y_label_area_size(32).build_cartesian_2d(0.0..1.0, -3.0..3.2)?;
+            chart.configure_mesh().x_labels(3).y_labels(4).draw()?;
+            chart.draw_series(DashedLineSeries::new(vec![(0.0, 0.0), (1.0, 0.0)], 4, 3, BLACK.stroke_width(1)))?;
+            for failed in [false, true] {
+                let color = if failed { SERIES_COLORS[0].mix(1.0) } else { SERIES_COLORS[1].mix(0.5) };
+                chart.draw_series(points.iter().filter(|p| p.2 == failed).map(|(x, score, _)| Circle::new((x[panel], score.clamp(-3.0, 3.1)), 2, color.filled())))?;
+            }
+        }
+        root.present()?;
+    }
+    save_png(path, &buffer, width, height)
+}

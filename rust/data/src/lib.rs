@@ -10,7 +10,7 @@ pub mod schema;
 mod writer;
 
 pub use error::{DataError, Result};
-pub use reader::{Dataset, FrameIter, ShardBatch, read_shard};
+pub use reader::{Dataset, FrameIter, ShardBatch, decode_frames, read_shard};
 pub use rows::{Frame, Instance, Intrinsics, Object, Pose, Scene, Visibility};
 pub use writer::{shard_file_name, write_parquet, write_shard};
 

@@ -67,7 +67,8 @@ impl Scalar {
 pub struct Column {
     pub name: &'static str,
     pub scalar: Scalar,
-    /// `Some(n)`: a list of exactly n elements (a vector, quaternion or flattened matrix).
+    /// `Some(n)`: a list of exactly n elements (a vector, quaternion or flattened matrix);
+    /// `Some(`[`ANY_LENGTH`]`)`: a list of any length (a search's parameter vector).
     pub list_size: Option<i32>,
     pub nullable: bool,
     /// Unit and frame, e.g. "m, camera frame"; empty where none applies.
@@ -144,6 +145,9 @@ const fn list(
         doc,
     }
 }
+
+/// The `list_size` of a list column whose rows may hold any number of elements.
+pub const ANY_LENGTH: i32 = 0;
 
 const fn nullable(c: Column) -> Column {
     Column {
@@ -521,6 +525,61 @@ pub const INSTANCES: Table = Table {
     ],
 };
 
+const SAMPLE_ID: Column = col("sample_id", Int64, "", "Sample index within the search run (0-based, unique; tuning iterations first).");
+
+/// One row per sample of a counterexample search (`boxpose search`): its inputs, weights,
+/// outcome and metrics. The metric columns are null when the sample was not scored.
+pub const SEARCH_SAMPLES: Table = Table {
+    name: "samples",
+    doc: "One row per sample of a `boxpose search` run, in sample_id order (the run folder's `samples.parquet`).",
+    key: &["sample_id"],
+    columns: &[
+        SAMPLE_ID,
+        col("sampler", Utf8, "", "`mc` (Monte Carlo) or `ce` (cross-entropy importance sampling)."),
+        col("stage", Utf8, "", "`mc`; for `ce`: `tune` (an iteration that moves the proposal) or `final` (the frozen proposal the estimate is formed from)."),
+        col("iteration", Int32, "", "Sampler iteration (0 for `mc`; the final stage comes after the last tuning iteration)."),
+        col("stratum", Int32, "", "The discrete parameter's value: the number of neighbouring boxes."),
+        col("seed", Int64, "", "Seed of the sample's nuisance draws (box masses, frictions, appearance, lights' other draws, Cycles sampler)."),
+        list("z", Float64, ANY_LENGTH, "", "The standard normals the scene is a deterministic function of, in the space's dimension order (run.json `dimensions`)."),
+        list("params", Float64, ANY_LENGTH, "m, deg", "The parameter values z maps to, same order (orientation: the raw normals)."),
+        col("log_nominal", Float64, "", "log p(z), the nominal density N(0, I)."),
+        col("log_proposal", Float64, "", "log q(z), the density z was drawn from (equals log_nominal for Monte Carlo)."),
+        col("log_weight", Float64, "", "log p(z) − log q(z), the importance weight's log."),
+        col("valid", Bool, "", "The scene settled stably and the target is visible enough to be scored."),
+        nullable(col("invalid_reason", Utf8, "", "Why the sample was not scored (not stable: …, target N% visible).")),
+        nullable(col("target_visible_fraction", Float32, "", "Visible fraction of the target box in the rendered frame.")),
+        nullable(col("detected", Bool, "", "The target was found (always true with ground-truth crops).")),
+        nullable(col("fit_error", Utf8, "", "Why the pose fit failed, when it did.")),
+        nullable(col("paper_error", Float64, "m²", "The paper's error: mean squared distance of the fitted corners to the true ones.")),
+        nullable(col("paper_error_normalized", Float64, "", "paper_error / (diag² / 3): the paper's unit-box threshold 0.005 applies to any box.")),
+        nullable(col("mssd_over_diameter", Float64, "", "MSSD (BOP) of the fit over the box's diameter.")),
+        nullable(col("add_s_m", Float64, "m", "ADD-S of the fit.")),
+        nullable(col("rotation_error_deg", Float64, "deg", "Rotation error modulo the box's symmetries.")),
+        nullable(col("translation_error_m", Float64, "m", "Distance between fitted and true centres.")),
+        nullable(col("score", Float64, "", "The failure score log10(metric / threshold): > 0 is a failure; null when not scored or when nothing was fitted.")),
+        col("failed", Bool, "", "Valid and the failure predicate holds (metric above threshold, not detected, or fit failed)."),
+        nullable(list("peaks_camera_m", Float64, ANY_LENGTH, "m, camera frame", "The target's NMS peaks back-projected, x y z per peak, best first.")),
+    ],
+};
+
+/// Wall-clock seconds per stage of each search sample, apart from [`SEARCH_SAMPLES`] so that a
+/// resumed run's samples table is byte-identical to an uninterrupted one's.
+pub const SEARCH_TIMINGS: Table = Table {
+    name: "timings",
+    doc: "Seconds per stage of each `boxpose search` sample (the run folder's `timings.parquet`).",
+    key: &["sample_id"],
+    columns: &[
+        SAMPLE_ID,
+        col("settle_s", Float64, "s", "Scene building and MuJoCo drop-and-settle."),
+        col("render_s", Float64, "s", "Embedded Blender: scene load and Cycles render."),
+        col("inference_s", Float64, "s", "Segmenter (predicted crops), crop, keypoint network, NMS."),
+        col("fit_s", Float64, "s", "Every pose fit and its metrics."),
+    ],
+};
+
+/// Result tables: written by boxpose's commands, not part of a dataset.
+pub const RESULT_TABLES: [Table; 2] = [SEARCH_SAMPLES, SEARCH_TIMINGS];
+
 /// Every table of the contract, in pipeline order.
 pub const TABLES: [Table; 4] = [SCENES, OBJECTS, FRAMES, INSTANCES];
 
@@ -553,10 +612,14 @@ pub fn to_json() -> serde_json::Value {
     serde_json::json!({ "schema_version": SCHEMA_VERSION, "version_key": VERSION_KEY, "table_key": TABLE_KEY, "tables": tables })
 }
 
-/// The column reference of `docs/dataset.md`, one Markdown table per dataset table.
+/// The column reference of `docs/dataset.md`, one Markdown table per dataset table, then the
+/// result tables.
 pub fn to_markdown() -> String {
     let mut out = format!("Schema version {SCHEMA_VERSION}.\n");
-    for t in TABLES {
+    for (i, t) in TABLES.iter().chain(&RESULT_TABLES).enumerate() {
+        if i == TABLES.len() {
+            out += "\n### Result tables\n\nWritten by boxpose commands into their output folders, with the same version key and table-name metadata as the dataset's shards.\n";
+        }
         out += &format!(
             "\n### `{}`\n\n{} Key: {}.\n\n",
             t.name,
@@ -567,6 +630,7 @@ pub fn to_markdown() -> String {
         for c in t.columns {
             let ty = match c.list_size {
                 None => c.scalar.name().trim_end_matches('_').to_string(),
+                Some(ANY_LENGTH) => format!("{}[]", c.scalar.name().trim_end_matches('_')),
                 Some(n) => format!("{}[{n}]", c.scalar.name().trim_end_matches('_')),
             };
             let ty = if c.nullable {

@@ -55,3 +55,48 @@ fn nan_written_by_rust_is_caught_on_read() {
     let error = Dataset::open(dir.path()).unwrap().objects().unwrap_err();
     assert!(matches!(error, DataError::BadValue { column: "world_box_translation_m", row: 0, .. }), "{error}");
 }
+
+/// `Scene::to_batch` and `Object::to_batch` write what the reader reads back, field for field.
+#[test]
+fn typed_rows_round_trip_through_a_shard() {
+    use boxpose_data::{Object, Pose, Scene, schema};
+    let scene = Scene {
+        scene_id: 7,
+        seed: -3,
+        recipe: "single_box".into(),
+        recipe_toml: "name = \"x\"".into(),
+        tool_versions: "{}".into(),
+        physics_backend: "mujoco".into(),
+        support: "floor".into(),
+        num_objects: 1,
+        solver: "none".into(),
+        solver_status: "ok".into(),
+        solve_attempts: 0,
+        settle_time_s: 0.5,
+        max_linear_speed_mps: 0.001,
+        max_angular_speed_radps: 0.01,
+        min_signed_distance_m: -0.0005,
+        stable: true,
+    };
+    let half = std::f64::consts::FRAC_1_SQRT_2;
+    let object = Object {
+        scene_id: 7,
+        object_id: 0,
+        size: [0.1, 0.2, 0.3],
+        world_box: Pose { quat_wxyz: [half, 0.0, half, 0.0], translation: [0.01, 0.02, 0.05] },
+        initial_world_box: Pose { quat_wxyz: [1.0, 0.0, 0.0, 0.0], translation: [0.0, 0.0, 0.3] },
+        mass_kg: 1.5,
+        friction: 0.7,
+        base_color_rgb: [0.5, 0.4, 0.3],
+        roughness: 0.6,
+        texture_seed: 99,
+        has_tape: true,
+        has_label: false,
+    };
+    let dir = tempfile::tempdir().unwrap();
+    boxpose_data::write_shard(dir.path(), &schema::SCENES, "part-00000-of-00001.parquet", &[Scene::to_batch(std::slice::from_ref(&scene))]).unwrap();
+    boxpose_data::write_shard(dir.path(), &schema::OBJECTS, "part-00000-of-00001.parquet", &[Object::to_batch(std::slice::from_ref(&object))]).unwrap();
+    let dataset = boxpose_data::Dataset::open(dir.path()).unwrap();
+    assert_eq!(dataset.scenes().unwrap(), vec![scene]);
+    assert_eq!(dataset.objects().unwrap(), vec![object]);
+}

@@ -1,0 +1,303 @@
+//! `boxpose search`: the counterexample search — sample scenes from a search space, settle,
+//! render and score them end to end, and estimate the pipeline's failure probability (Monte
+//! Carlo or cross-entropy importance sampling) with its 95% interval; `search report` draws a
+//! run, `search merge` joins the shards of one.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use boxpose_learn::backend::BackendKind;
+use boxpose_learn::inference::KeypointModel;
+use boxpose_learn::segmentation::SegmenterModel;
+use boxpose_render::Renderer;
+use boxpose_search::run::{IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler};
+use boxpose_search::space::SearchSpace;
+use boxpose_search::sut::{self, Crops, Predicate, SystemUnderTest};
+use boxpose_search_stats::{CeConfig, ImportanceEstimate, clopper_pearson};
+use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::search_report;
+
+#[derive(clap::Args)]
+#[command(
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true,
+    about = "Search for the scenes where the perception pipeline fails, and estimate how rare failure is",
+    long_about = "Search for the scenes where the perception pipeline fails, and estimate how rare failure is.\n\n\
+        Each sample draws the scene's inputs from the search space (SPACE: a name in configs/search/ or a TOML \
+        path; docs/search.md), drops and settles the boxes with MuJoCo (a scene that is not certified stable is \
+        counted, never scored), renders it with the embedded Blender, runs the keypoint network on the target box's \
+        crop (ground-truth or the segmenter's) and the chosen pose fit, and scores the fit against the truth. \
+        A sample fails when its error is above the threshold (--fail-when) or the box is not found.\n\n\
+        --sampler mc draws from the nominal distribution and reports the failure probability with the exact \
+        Clopper–Pearson interval. --sampler ce (cross-entropy importance sampling) first tunes a proposal towards \
+        failures (--ce-* options), then draws --samples fresh samples from the frozen proposal mixed with the \
+        nominal, and reports the unbiased weighted estimate, its 95% interval, the effective sample size and \
+        the largest weight's share. Both estimate P(fail | valid scene) and report P(valid).\n\n\
+        The run folder (--out) resumes: re-run the same command after an interruption. Several processes can \
+        split one run with --shard/--num-shards (same --out). Failing samples are written as dataset rows in \
+        OUT/counterexamples, which `boxpose render` re-renders and `boxpose predict` re-runs.",
+    after_help = "Examples:\n  \
+        boxpose search single_box --samples 500 --out results/search/mc\n  \
+        boxpose search single_box --sampler ce --samples 500 --ce-samples-per-iteration 200 --out results/search/ce\n  \
+        boxpose search clutter --crops predicted --fit robust --fail-when mssd:0.1 --out results/search/clutter\n  \
+        boxpose search report results/search/ce"
+)]
+pub struct Args {
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    run: RunArgs,
+}
+
+#[derive(clap::Subcommand)]
+enum Command {
+    /// Draw a finished run: error histogram, estimate against samples spent, where failures sit
+    /// in parameter space, the worst counterexamples; one offline HTML page (RUN/report/index.html).
+    Report {
+        /// Run folder.
+        run: PathBuf,
+        /// Counterexamples to draw.
+        #[arg(long, default_value_t = 6)]
+        worst: usize,
+    },
+    /// Merge a run's batches (after every shard finished) into samples.parquet, timings.parquet
+    /// and summary.json, and print the estimate.
+    Merge {
+        /// Run folder.
+        run: PathBuf,
+    },
+}
+
+#[derive(clap::Args)]
+struct RunArgs {
+    /// Search space: a name in configs/search/ (single_box, clutter) or a TOML path.
+    #[arg(required = true)]
+    space: Option<String>,
+    /// Run folder (created, or resumed when it holds the same search).
+    #[arg(long, required = true)]
+    out: Option<PathBuf>,
+    #[arg(long, value_enum, default_value = "mc")]
+    sampler: SamplerArg,
+    /// Monte Carlo: samples in all. Cross-entropy: samples from the frozen proposal (the estimate);
+    /// its tuning samples come on top.
+    #[arg(long, default_value_t = 200)]
+    samples: usize,
+    /// Samples per batch: the unit of resumption (a kill loses at most one batch) and of sharding.
+    #[arg(long, default_value_t = 25)]
+    batch_size: usize,
+    /// Run seed: sample i's inputs depend on (seed, iteration, i) only.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Where the keypoint network's crop comes from: the target's ground-truth box, or the segmenter.
+    #[arg(long, value_enum, default_value = "gt")]
+    crops: CropsArg,
+    /// The pose fit under test: paper (the paper's search over the 5 best peaks), fast, robust, size.
+    #[arg(long, default_value = "paper", value_parser = ["paper", "fast", "robust", "size"])]
+    fit: String,
+    /// Failure predicate: paper[:T] (the paper's error over diag²/3 above T, default 0.005) or
+    /// mssd[:F] (MSSD above F × diameter, default 0.1); not detecting the box is a failure either way.
+    #[arg(long, default_value = "paper", value_parser = Predicate::parse)]
+    fail_when: Predicate,
+    /// Keypoint network folder.
+    #[arg(long, default_value = "models/keypoint-slim")]
+    model: PathBuf,
+    /// Segmenter folder (with --crops predicted).
+    #[arg(long, default_value = "models/segmenter-slim")]
+    segmenter: PathBuf,
+    /// Cross-entropy: samples per tuning iteration.
+    #[arg(long, default_value_t = 100)]
+    ce_samples_per_iteration: usize,
+    /// Cross-entropy: most tuning iterations (fewer when the failure level is reached).
+    #[arg(long, default_value_t = 8)]
+    ce_max_iterations: u32,
+    /// Cross-entropy: elite quantile ρ (the top 1 − ρ of scores move the proposal).
+    #[arg(long, default_value_t = 0.9)]
+    ce_rho: f64,
+    /// Cross-entropy: smoothing α of each update (1 = no smoothing).
+    #[arg(long, default_value_t = 0.8)]
+    ce_alpha: f64,
+    /// Cross-entropy: the nominal's weight λ in the frozen proposal (weights stay below 1/λ).
+    #[arg(long, default_value_t = 0.1)]
+    ce_lambda: f64,
+    /// Cross-entropy: Gaussian mixture components of the proposal (more where failures are multimodal).
+    #[arg(long, default_value_t = 1)]
+    ce_components: usize,
+    /// This process's shard (batches b with b mod N = shard).
+    #[arg(long, default_value_t = 0)]
+    shard: usize,
+    /// Processes splitting the run.
+    #[arg(long, default_value_t = 1)]
+    num_shards: usize,
+    /// Cycles threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// Folder of the base recipes the spaces name.
+    #[arg(long, default_value = "datasets/recipes")]
+    recipes: PathBuf,
+    #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
+    backend: BackendKind,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum SamplerArg {
+    /// Naive Monte Carlo from the nominal distribution.
+    Mc,
+    /// Cross-entropy adaptive importance sampling.
+    Ce,
+}
+
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum CropsArg {
+    /// The target's ground-truth visible bounding box.
+    Gt,
+    /// The segmenter's detection of the target (a miss is a failure).
+    Predicted,
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    match &args.command {
+        Some(Command::Report { run, worst }) => search_report::write(run, *worst),
+        Some(Command::Merge { run }) => {
+            let run = Run::open(run)?;
+            let summary = run.merge()?;
+            print_estimate(&run.dir, &summary.estimate, summary.samples_spent);
+            Ok(())
+        }
+        None => search(&args.run),
+    }
+}
+
+fn search(args: &RunArgs) -> anyhow::Result<()> {
+    let space_name = args.space.as_deref().context("give a search space")?;
+    let out = args.out.as_deref().context("give a run folder with --out")?;
+    let space = SearchSpace::load(space_name, &args.recipes)?;
+    let crops = match args.crops {
+        CropsArg::Gt => Crops::Gt,
+        CropsArg::Predicted => Crops::Predicted,
+    };
+    let settings = RunSettings {
+        sampler: match args.sampler {
+            SamplerArg::Mc => Sampler::Mc,
+            SamplerArg::Ce => Sampler::Ce,
+        },
+        samples: args.samples,
+        batch_size: args.batch_size,
+        seed: args.seed,
+        crops,
+        fit: args.fit.clone(),
+        predicate: args.fail_when,
+        ce: CeConfig {
+            samples_per_iteration: args.ce_samples_per_iteration,
+            max_iterations: args.ce_max_iterations,
+            rho: args.ce_rho,
+            alpha: args.ce_alpha,
+            defensive_lambda: args.ce_lambda,
+            final_samples: args.samples,
+            components: args.ce_components,
+            ..CeConfig::default()
+        },
+        model: args.model.display().to_string(),
+        segmenter: (crops == Crops::Predicted).then(|| args.segmenter.display().to_string()),
+    };
+    // everything that can be refused is checked before the networks and Blender load
+    let record = RunRecord::new(&space, settings)?;
+    let method = sut::method_named(&args.fit).map_err(anyhow::Error::msg)?;
+    let run = Run::create(out, record)?;
+    if run.complete()? {
+        println!("{}: every batch is already done", out.display());
+    } else {
+        let device = args.backend.device()?;
+        let model = KeypointModel::load(&args.model, device.clone())?;
+        let segmenter = match crops {
+            Crops::Predicted => Some(SegmenterModel::load(&args.segmenter, device)?),
+            Crops::Gt => None,
+        };
+        let renderer = Renderer::new(args.threads)?;
+        let mut sut = SystemUnderTest::new(&space, renderer, model, segmenter, crops, method)?;
+        let mut progress = Progress::new(run.record.settings.sampler);
+        run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
+        progress.bar.finish_and_clear();
+        if !run.complete()? {
+            println!("shard {} of {} done; the run completes when every shard has finished (then `boxpose search merge {}`)", args.shard, args.num_shards, out.display());
+            return Ok(());
+        }
+    }
+    let summary = run.merge()?;
+    print_estimate(out, &summary.estimate, summary.samples_spent);
+    search_report::write(out, 6)?;
+    Ok(())
+}
+
+fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
+    let ci = e.ci95.map_or("no interval (no failure)".to_string(), |(lo, hi)| format!("95% CI [{lo:.3e}, {hi:.3e}] ({:?})", e.ci_method));
+    println!(
+        "P(fail | valid) = {:.3e}  {ci}\n  {} samples in the estimate ({} valid, {} failing), {spent} spent in all; P(valid) = {:.3}; ESS {:.0}, failure ESS {:.1}, largest weight share {:.2}",
+        e.p_hat, e.samples, e.valid, e.failures, e.p_valid, e.kish_ess, e.failure_ess, e.max_weight_share
+    );
+    println!("run: {}  (samples.parquet, summary.json, counterexamples/, report/index.html)", run.display());
+}
+
+/// The progress bar: samples/s, failures so far, the running estimate.
+struct Progress {
+    bar: ProgressBar,
+    sampler: Sampler,
+    stage: String,
+    valid: u64,
+    failures: u64,
+    total_failures: u64,
+    started: Instant,
+}
+
+impl Progress {
+    fn new(sampler: Sampler) -> Self {
+        let bar = ProgressBar::new(0).with_style(
+            ProgressStyle::with_template("{prefix} {bar:25} {pos}/{len} samples [{elapsed_precise}<{eta_precise}, {per_sec}] {msg}").expect("a valid template"),
+        );
+        Self { bar, sampler, stage: String::new(), valid: 0, failures: 0, total_failures: 0, started: Instant::now() }
+    }
+}
+
+impl Observer for Progress {
+    fn iteration(&mut self, iteration: u32, plan: &IterationPlan, done: usize) {
+        self.bar.set_length(plan.samples as u64);
+        self.bar.set_position(done as u64);
+        self.bar.set_prefix(format!("{} {}", plan.stage, iteration));
+        self.stage = plan.stage.clone();
+        self.valid = 0;
+        self.failures = 0;
+        if let Some(step) = &plan.step {
+            self.bar.suspend(|| {
+                println!(
+                    "cross-entropy iteration {} done: level {:.3} (failure at 0), {} elites{}",
+                    iteration - 1,
+                    step.level,
+                    step.elites,
+                    if step.reached { " — failure level reached" } else { "" }
+                )
+            });
+        }
+        if plan.stage == "final" && self.sampler == Sampler::Ce {
+            self.bar.suspend(|| println!("frozen proposal: {} fresh samples for the estimate", plan.samples));
+        }
+    }
+
+    fn sample(&mut self, row: &SampleRow) {
+        self.bar.inc(1);
+        self.valid += row.valid as u64;
+        self.failures += row.failed as u64;
+        self.total_failures += row.failed as u64;
+        let estimate = if self.stage == "mc" && self.valid > 0 {
+            let (lo, hi) = clopper_pearson(self.failures, self.valid, 0.95);
+            format!("p̂ {:.2e} [{lo:.1e}, {hi:.1e}]", self.failures as f64 / self.valid as f64)
+        } else {
+            format!("{} valid", self.valid)
+        };
+        self.bar.set_message(format!("{} failures, {estimate}, {:.0} s", self.total_failures, self.started.elapsed().as_secs_f64()));
+    }
+
+    fn waiting(&mut self, what: &str) {
+        self.bar.set_message(format!("waiting for {what}"));
+    }
+}

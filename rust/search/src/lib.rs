@@ -1,0 +1,13 @@
+//! The counterexample search (the paper's Section IV and its future work): sample box scenes from
+//! a search space ([`space`]), build them in the dataset contract and settle them with MuJoCo
+//! ([`scene`]), render them through the embedded Blender and run the perception pipeline on them
+//! ([`sut`]), and estimate how often it fails — Monte Carlo or cross-entropy importance sampling,
+//! resumable and shardable ([`run`]); statistics come from `boxpose-search-stats`.
+
+pub mod error;
+pub mod run;
+pub mod scene;
+pub mod space;
+pub mod sut;
+
+pub use error::{Result, SearchError};

@@ -1,0 +1,790 @@
+//! A search run: its folder, its samplers (Monte Carlo, cross-entropy), resumable batches and
+//! the failure-probability estimate.
+//!
+//! Run folder (every file published atomically):
+//! - `run.json`: what is searched and how (space, recipe, sampler settings, seed): a resumed or
+//!   sharded process must find the same, or it refuses to touch the folder.
+//! - `proposals/iter-KKKK.json`: the proposal iteration K draws from (computed at the barrier
+//!   after iteration K − 1 from all of its samples; iteration 0 draws from the nominal).
+//! - `batches/samples/iter-KKKK-batch-BBBBB.parquet` and `batches/timings/…`: one file per batch,
+//!   the samples file last (it is the batch's commit point); a batch whose samples file exists
+//!   is done and skipped on resume. Sample i's z, stratum and seed are a function of
+//!   (run seed, iteration, index) only, so results do not depend on which process ran which batch.
+//! - `counterexamples/{scenes,objects,frames,instances}/iter-KKKK-batch-BBBBB.parquet`: every
+//!   failing sample as dataset rows (scene_id = sample_id), which `boxpose render` re-renders.
+//! - after the last batch: `samples.parquet`, `timings.parquet` (all batches in sample_id order)
+//!   and `summary.json` (the estimate with its CI, counts, diagnostics, versions).
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use arrow::array::{Array, ArrayRef, AsArray, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray, StringArray};
+use arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
+use arrow::record_batch::RecordBatch;
+use boxpose_data::schema::{self, SEARCH_SAMPLES, SEARCH_TIMINGS, Table};
+use boxpose_data::{Object, Scene};
+use boxpose_search_stats::{CeConfig, CeStep, ImportanceEstimate, Proposal, WeightedSample, ce_step, log_nominal, sample_rng};
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::error::{Result, SearchError};
+use crate::space::SearchSpace;
+use crate::sut::{Crops, Invalid, Outcome, Perceived, Predicate, SystemUnderTest};
+
+/// Version of the run folder's layout and `run.json`.
+pub const RUN_FORMAT: u32 = 1;
+
+/// Which sampler draws the scenes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sampler {
+    /// Naive Monte Carlo from the nominal distribution.
+    Mc,
+    /// Cross-entropy adaptive importance sampling, then a frozen defensive proposal.
+    Ce,
+}
+
+impl Sampler {
+    pub fn name(self) -> &'static str {
+        match self {
+            Sampler::Mc => "mc",
+            Sampler::Ce => "ce",
+        }
+    }
+}
+
+/// How a run samples and scores; stored in `run.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSettings {
+    pub sampler: Sampler,
+    /// Monte Carlo: samples in all. Cross-entropy: the final batch (`ce.final_samples`).
+    pub samples: usize,
+    /// Samples per batch file (the unit of resumption and of sharding).
+    pub batch_size: usize,
+    pub seed: u64,
+    pub crops: Crops,
+    /// The pose fit: paper, fast, robust or size.
+    pub fit: String,
+    pub predicate: Predicate,
+    /// Cross-entropy settings (`final_samples` is `samples`); unused by Monte Carlo.
+    pub ce: CeConfig,
+    /// The networks, as given (their files are not hashed).
+    pub model: String,
+    pub segmenter: Option<String>,
+}
+
+/// `run.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    pub format: u32,
+    pub settings: RunSettings,
+    pub space_toml: String,
+    pub recipe_toml: String,
+    /// Names of z's dimensions, in order.
+    pub dimensions: Vec<String>,
+    /// The strata (neighbour counts), each of nominal probability 1 / len.
+    pub strata: Vec<u32>,
+}
+
+impl RunRecord {
+    pub fn new(space: &SearchSpace, settings: RunSettings) -> Result<Self> {
+        if settings.samples == 0 || settings.batch_size == 0 {
+            return Err(SearchError::Sample("--samples and --batch-size must be at least 1".into()));
+        }
+        if settings.sampler == Sampler::Ce {
+            let mut ce = settings.ce.clone();
+            ce.final_samples = settings.samples;
+            ce.validate().map_err(|e| SearchError::Sample(e.to_string()))?;
+        }
+        Ok(Self {
+            format: RUN_FORMAT,
+            settings,
+            space_toml: space.text.clone(),
+            recipe_toml: space.recipe_toml.clone(),
+            dimensions: space.dimensions.iter().map(|d| d.name.clone()).collect(),
+            strata: space.strata(),
+        })
+    }
+}
+
+/// What iteration K does: its stage, its number of samples, the proposal it draws from.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct IterationPlan {
+    /// `mc`, `tune` or `final`.
+    pub stage: String,
+    pub samples: usize,
+    pub proposal: Proposal,
+    /// Cross-entropy: the step that produced this proposal (none for iteration 0).
+    pub step: Option<CeStep>,
+}
+
+/// Progress reports from a run; the CLI draws them (the library never prints).
+pub trait Observer {
+    /// Iteration `iteration` starts: `plan`, and how many of its samples are already done.
+    fn iteration(&mut self, _iteration: u32, _plan: &IterationPlan, _done: usize) {}
+    /// A sample finished.
+    fn sample(&mut self, _row: &SampleRow) {}
+    /// This process waits for other shards' batches.
+    fn waiting(&mut self, _what: &str) {}
+}
+
+/// An observer that reports nothing.
+pub struct Silent;
+impl Observer for Silent {}
+
+/// One row of the `samples` table (see [`schema::SEARCH_SAMPLES`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SampleRow {
+    pub sample_id: i64,
+    pub sampler: String,
+    pub stage: String,
+    pub iteration: i32,
+    pub stratum: i32,
+    pub seed: i64,
+    pub z: Vec<f64>,
+    pub params: Vec<f64>,
+    pub log_nominal: f64,
+    pub log_proposal: f64,
+    pub log_weight: f64,
+    pub valid: bool,
+    pub invalid_reason: Option<String>,
+    pub target_visible_fraction: Option<f32>,
+    pub detected: Option<bool>,
+    pub fit_error: Option<String>,
+    pub paper_error: Option<f64>,
+    pub paper_error_normalized: Option<f64>,
+    pub mssd_over_diameter: Option<f64>,
+    pub add_s_m: Option<f64>,
+    pub rotation_error_deg: Option<f64>,
+    pub translation_error_m: Option<f64>,
+    /// Null when not scored or nothing fitted (then +∞ for the cross-entropy levels).
+    pub score: Option<f64>,
+    pub failed: bool,
+    pub peaks_camera_m: Option<Vec<f64>>,
+}
+
+impl SampleRow {
+    /// The score the cross-entropy levels use: NaN for an invalid sample (never an elite), +∞
+    /// for a valid one with nothing fitted.
+    pub fn level_score(&self) -> f64 {
+        match (self.valid, self.score) {
+            (false, _) => f64::NAN,
+            (true, Some(s)) => s,
+            (true, None) => f64::INFINITY,
+        }
+    }
+}
+
+/// Per-stage seconds of one sample (the `timings` table).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TimingRow {
+    pub sample_id: i64,
+    pub settle_s: f64,
+    pub render_s: f64,
+    pub inference_s: f64,
+    pub fit_s: f64,
+}
+
+/// A run folder, opened for sampling or reading.
+pub struct Run {
+    pub dir: PathBuf,
+    pub record: RunRecord,
+}
+
+fn io_error(path: &Path, e: impl std::fmt::Display) -> SearchError {
+    SearchError::Io { path: path.to_path_buf(), message: e.to_string() }
+}
+
+/// Writes `bytes` to `path` atomically: a temporary file unique to this process, fsync, rename.
+fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let dir = path.parent().unwrap_or(Path::new("."));
+    std::fs::create_dir_all(dir).map_err(|e| io_error(dir, e))?;
+    let tmp = path.with_file_name(format!("{}.{}.tmp", path.file_name().unwrap_or_default().to_string_lossy(), std::process::id()));
+    let mut file = std::fs::File::create(&tmp).map_err(|e| io_error(&tmp, e))?;
+    file.write_all(bytes).and_then(|_| file.sync_all()).map_err(|e| io_error(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| io_error(path, e))
+}
+
+impl Run {
+    /// Creates the run folder, or reopens it when it holds the same search (resume); refuses a
+    /// folder holding another search or anything else.
+    pub fn create(dir: &Path, record: RunRecord) -> Result<Self> {
+        let path = dir.join("run.json");
+        if path.exists() {
+            let run = Self::open(dir)?;
+            if run.record != record {
+                let what = if run.record.space_toml != record.space_toml {
+                    "the search space"
+                } else if run.record.recipe_toml != record.recipe_toml {
+                    "the base recipe"
+                } else {
+                    "the sampler settings (sampler, samples, batch size, seed, crops, fit, failure predicate, CE settings or models)"
+                };
+                return Err(SearchError::Run {
+                    path: dir.to_path_buf(),
+                    problem: format!("it holds another search ({what} differ from this command's); resume it with its own settings or choose a new --out"),
+                });
+            }
+            return Ok(run);
+        }
+        if dir.exists() && std::fs::read_dir(dir).map_err(|e| io_error(dir, e))?.next().is_some() {
+            return Err(SearchError::Run { path: dir.to_path_buf(), problem: "not empty and not a search run (no run.json): choose a new --out".into() });
+        }
+        let json = serde_json::to_vec_pretty(&record).expect("a run record serialises");
+        write_atomically(&path, &json)?;
+        Ok(Self { dir: dir.to_path_buf(), record })
+    }
+
+    /// Opens an existing run folder.
+    pub fn open(dir: &Path) -> Result<Self> {
+        let path = dir.join("run.json");
+        let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, format!("{e} (is this a `boxpose search` run folder?)")))?;
+        let record: RunRecord = serde_json::from_str(&text).map_err(|e| SearchError::Run { path: path.clone(), problem: format!("unreadable run.json: {e}") })?;
+        if record.format != RUN_FORMAT {
+            return Err(SearchError::Run { path, problem: format!("run format {} (this boxpose reads {RUN_FORMAT})", record.format) });
+        }
+        Ok(Self { dir: dir.to_path_buf(), record })
+    }
+
+    fn settings(&self) -> &RunSettings {
+        &self.record.settings
+    }
+
+    fn batch_name(iteration: u32, batch: usize) -> String {
+        format!("iter-{iteration:04}-batch-{batch:05}.parquet")
+    }
+
+    fn batch_path(&self, table: &Table, iteration: u32, batch: usize) -> PathBuf {
+        self.dir.join("batches").join(table.name).join(Self::batch_name(iteration, batch))
+    }
+
+    fn plan_path(&self, iteration: u32) -> PathBuf {
+        self.dir.join("proposals").join(format!("iter-{iteration:04}.json"))
+    }
+
+    fn batches(&self, samples: usize) -> usize {
+        samples.div_ceil(self.settings().batch_size)
+    }
+
+    /// The first sample_id of `iteration`: tuning iterations hold `samples_per_iteration` each.
+    fn first_id(&self, iteration: u32) -> i64 {
+        match self.settings().sampler {
+            Sampler::Mc => 0,
+            Sampler::Ce => iteration as i64 * self.settings().ce.samples_per_iteration as i64,
+        }
+    }
+
+    /// Where z's orientation blocks start (four normals normalised to a quaternion each): the
+    /// cross-entropy proposal gives them an angular central Gaussian, the rest a Gaussian.
+    fn rotation_blocks(&self) -> Vec<usize> {
+        self.record.dimensions.iter().enumerate().filter(|(_, name)| name.ends_with(".orientation.q0")).map(|(i, _)| i).collect()
+    }
+
+    /// The plan of `iteration`, if it is known yet (written at the barrier before it).
+    pub fn plan(&self, iteration: u32) -> Result<Option<IterationPlan>> {
+        let dim = self.record.dimensions.len();
+        let s = self.settings();
+        if iteration == 0 {
+            return Ok(Some(match s.sampler {
+                Sampler::Mc => IterationPlan { stage: "mc".into(), samples: s.samples, proposal: Proposal::nominal(dim), step: None },
+                Sampler::Ce => IterationPlan {
+                    stage: "tune".into(),
+                    samples: s.ce.samples_per_iteration,
+                    proposal: Proposal::tuning_start(dim, s.ce.components).with_rotation_blocks(&self.rotation_blocks()).map_err(|e| SearchError::Run {
+                        path: self.dir.clone(),
+                        problem: format!("the starting proposal: {e}"),
+                    })?,
+                    step: None,
+                },
+            }));
+        }
+        let path = self.plan_path(iteration);
+        if !path.exists() {
+            return Ok(None);
+        }
+        let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, e))?;
+        serde_json::from_str(&text).map(Some).map_err(|e| SearchError::Run { path, problem: format!("unreadable proposal: {e}") })
+    }
+
+    /// Every iteration's plan, in order, as far as known.
+    pub fn plans(&self) -> Result<Vec<IterationPlan>> {
+        let mut plans = Vec::new();
+        while let Some(plan) = self.plan(plans.len() as u32)? {
+            let last = plan.stage != "tune";
+            plans.push(plan);
+            if last {
+                break;
+            }
+        }
+        Ok(plans)
+    }
+
+    /// Runs the batches of this shard (`shard` of `num_shards`; batch b belongs to shard
+    /// b mod num_shards), waiting at each iteration barrier for the other shards' batches.
+    /// Returns when every batch of the run exists (or, for shards other than 0, when this
+    /// shard's last batch is done).
+    pub fn sample(&self, space: &SearchSpace, sut: &mut SystemUnderTest, shard: usize, num_shards: usize, observer: &mut dyn Observer) -> Result<()> {
+        if num_shards == 0 || shard >= num_shards {
+            return Err(SearchError::Sample(format!("--shard {shard} is not below --num-shards {num_shards}")));
+        }
+        let mut iteration = 0u32;
+        loop {
+            let plan = self.wait_for_plan(iteration, observer)?;
+            let batches = self.batches(plan.samples);
+            let done = (0..batches).filter(|&b| self.batch_path(&SEARCH_SAMPLES, iteration, b).exists()).count();
+            observer.iteration(iteration, &plan, (done * self.settings().batch_size).min(plan.samples));
+            for batch in (0..batches).filter(|b| b % num_shards == shard) {
+                if self.batch_path(&SEARCH_SAMPLES, iteration, batch).exists() {
+                    continue;
+                }
+                self.run_batch(space, sut, iteration, batch, &plan, observer)?;
+            }
+            if plan.stage != "tune" {
+                if shard == 0 {
+                    self.wait_for_batches(iteration, batches, observer)?;
+                }
+                return Ok(());
+            }
+            self.wait_for_batches(iteration, batches, observer)?;
+            self.advance(iteration, &plan)?;
+            iteration += 1;
+        }
+    }
+
+    fn wait_for_plan(&self, iteration: u32, observer: &mut dyn Observer) -> Result<IterationPlan> {
+        loop {
+            if let Some(plan) = self.plan(iteration)? {
+                return Ok(plan);
+            }
+            observer.waiting(&format!("the proposal of iteration {iteration}"));
+            std::thread::sleep(std::time::Duration::from_secs(1));
+        }
+    }
+
+    fn wait_for_batches(&self, iteration: u32, batches: usize, observer: &mut dyn Observer) -> Result<()> {
+        loop {
+            let missing = (0..batches).filter(|&b| !self.batch_path(&SEARCH_SAMPLES, iteration, b).exists()).count();
+            if missing == 0 {
+                return Ok(());
+            }
+            observer.waiting(&format!("{missing} batches of iteration {iteration} from other shards"));
+            std::thread::sleep(std::time::Duration::from_secs(1));
+        }
+    }
+
+    /// The barrier after tuning iteration `iteration`: the cross-entropy step on all of its
+    /// samples, and the next iteration's plan (another tuning iteration, or the frozen final
+    /// proposal once the failure level is reached or the iterations run out).
+    fn advance(&self, iteration: u32, plan: &IterationPlan) -> Result<()> {
+        let path = self.plan_path(iteration + 1);
+        if path.exists() {
+            return Ok(());
+        }
+        let rows = self.iteration_rows(iteration, self.batches(plan.samples))?;
+        let zs: Vec<Vec<f64>> = rows.iter().map(|r| r.z.clone()).collect();
+        let scores: Vec<f64> = rows.iter().map(SampleRow::level_score).collect();
+        let ce = &self.settings().ce;
+        let step = ce_step(&plan.proposal, &zs, &scores, 0.0, ce).map_err(|e| SearchError::Run {
+            path: self.dir.clone(),
+            problem: format!("cross-entropy step after iteration {iteration}: {e}"),
+        })?;
+        let last = step.reached || iteration + 1 >= ce.max_iterations;
+        let next = if last {
+            IterationPlan { stage: "final".into(), samples: self.settings().samples, proposal: step.next.with_defensive(ce.defensive_lambda), step: Some(step) }
+        } else {
+            IterationPlan { stage: "tune".into(), samples: ce.samples_per_iteration, proposal: step.next.clone(), step: Some(step) }
+        };
+        write_atomically(&path, &serde_json::to_vec_pretty(&next).expect("a plan serialises"))
+    }
+
+    fn iteration_rows(&self, iteration: u32, batches: usize) -> Result<Vec<SampleRow>> {
+        let mut rows = Vec::new();
+        for batch in 0..batches {
+            rows.extend(read_samples(&self.batch_path(&SEARCH_SAMPLES, iteration, batch))?);
+        }
+        Ok(rows)
+    }
+
+    fn run_batch(&self, space: &SearchSpace, sut: &mut SystemUnderTest, iteration: u32, batch: usize, plan: &IterationPlan, observer: &mut dyn Observer) -> Result<()> {
+        let s = self.settings();
+        let first = batch * s.batch_size;
+        let last = (first + s.batch_size).min(plan.samples);
+        let strata = &self.record.strata;
+        let mut rows = Vec::new();
+        let mut timings = Vec::new();
+        let mut counterexamples: Vec<Outcome> = Vec::new();
+        for index in first..last {
+            let sample_id = self.first_id(iteration) + index as i64;
+            let mut rng = sample_rng(s.seed, iteration, index as u64);
+            let stratum = if strata.len() > 1 { rng.random_range(0..strata.len()) } else { 0 };
+            let z = plan.proposal.sample(&mut rng);
+            let seed = (rng.random::<u64>() >> 1) as i64;
+            let parameters = space.parameters(&z, strata[stratum])?;
+            let outcome = sut.run(space, &parameters, sample_id, seed)?;
+            let log_p = log_nominal(&z);
+            let log_q = plan.proposal.log_density(&z);
+            let row = sample_row(sample_id, s, plan, iteration, strata[stratum], seed, &z, space, &parameters, log_p, log_q, &outcome);
+            timings.push(TimingRow {
+                sample_id,
+                settle_s: outcome.seconds.settle,
+                render_s: outcome.seconds.render,
+                inference_s: outcome.seconds.inference,
+                fit_s: outcome.seconds.fit,
+            });
+            observer.sample(&row);
+            if row.failed {
+                counterexamples.push(outcome);
+            }
+            rows.push(row);
+        }
+        let name = Self::batch_name(iteration, batch);
+        if !counterexamples.is_empty() {
+            write_counterexamples(&self.dir.join("counterexamples"), &name, &counterexamples)?;
+        }
+        boxpose_data::write_parquet(&self.batch_path(&SEARCH_TIMINGS, iteration, batch), Arc::new(SEARCH_TIMINGS.arrow_schema()), &[timings_batch(&timings)])?;
+        boxpose_data::write_parquet(&self.batch_path(&SEARCH_SAMPLES, iteration, batch), Arc::new(SEARCH_SAMPLES.arrow_schema()), &[samples_batch(&rows)])?;
+        Ok(())
+    }
+
+    /// Whether every batch of the run exists.
+    pub fn complete(&self) -> Result<bool> {
+        let plans = self.plans()?;
+        let Some(last) = plans.last().filter(|p| p.stage != "tune") else { return Ok(false) };
+        let iteration = plans.len() as u32 - 1;
+        Ok((0..self.batches(last.samples)).all(|b| self.batch_path(&SEARCH_SAMPLES, iteration, b).exists()))
+    }
+
+    /// Every sample and timing row written so far, in sample_id order.
+    pub fn rows(&self) -> Result<(Vec<SampleRow>, Vec<TimingRow>)> {
+        let mut samples = Vec::new();
+        let mut timings = Vec::new();
+        for (iteration, plan) in self.plans()?.iter().enumerate() {
+            for batch in 0..self.batches(plan.samples) {
+                let path = self.batch_path(&SEARCH_SAMPLES, iteration as u32, batch);
+                if path.exists() {
+                    samples.extend(read_samples(&path)?);
+                    timings.extend(read_timings(&self.batch_path(&SEARCH_TIMINGS, iteration as u32, batch))?);
+                }
+            }
+        }
+        samples.sort_by_key(|r| r.sample_id);
+        timings.sort_by_key(|r| r.sample_id);
+        Ok((samples, timings))
+    }
+
+    /// The estimate from the samples the sampler's estimator uses: all of them for Monte Carlo,
+    /// the final (frozen-proposal) batch for cross-entropy.
+    pub fn estimate(&self, rows: &[SampleRow]) -> Result<ImportanceEstimate> {
+        estimate(rows, self.settings().sampler, &self.record.strata)
+    }
+
+    /// Merges the batches into `samples.parquet` and `timings.parquet` and writes
+    /// `summary.json`. Refuses an incomplete run.
+    pub fn merge(&self) -> Result<Summary> {
+        if !self.complete()? {
+            return Err(SearchError::Run { path: self.dir.clone(), problem: "not every batch is done yet: resume the search (same command) before merging".into() });
+        }
+        let (samples, timings) = self.rows()?;
+        boxpose_data::write_parquet(&self.dir.join("samples.parquet"), Arc::new(SEARCH_SAMPLES.arrow_schema()), &[samples_batch(&samples)])?;
+        boxpose_data::write_parquet(&self.dir.join("timings.parquet"), Arc::new(SEARCH_TIMINGS.arrow_schema()), &[timings_batch(&timings)])?;
+        let summary = self.summary(&samples, &timings)?;
+        write_atomically(&self.dir.join("summary.json"), &serde_json::to_vec_pretty(&summary).expect("a summary serialises"))?;
+        Ok(summary)
+    }
+
+    fn summary(&self, samples: &[SampleRow], timings: &[TimingRow]) -> Result<Summary> {
+        let estimate = self.estimate(samples)?;
+        let plans = self.plans()?;
+        let mean = |f: fn(&TimingRow) -> f64| if timings.is_empty() { 0.0 } else { timings.iter().map(f).sum::<f64>() / timings.len() as f64 };
+        let s = self.settings();
+        Ok(Summary {
+            space: toml::from_str::<toml::Table>(&self.record.space_toml).ok().and_then(|t| t.get("name").and_then(|n| n.as_str()).map(String::from)).unwrap_or_default(),
+            sampler: s.sampler,
+            crops: s.crops,
+            fit: s.fit.clone(),
+            predicate: s.predicate,
+            samples_spent: samples.len(),
+            tuning_samples: samples.iter().filter(|r| r.stage == "tune").count(),
+            ce_levels: plans.iter().filter_map(|p| p.step.as_ref().map(|st| st.level)).collect(),
+            failures_total: samples.iter().filter(|r| r.failed).count(),
+            invalid_reasons: samples.iter().filter_map(|r| r.invalid_reason.clone()).fold(BTreeMap::new(), |mut m, reason| {
+                let key = reason.split(':').next().unwrap_or_default().trim().to_string();
+                *m.entry(if key.starts_with("target") { "target not visible enough".to_string() } else { key }).or_insert(0usize) += 1;
+                m
+            }),
+            mean_seconds: StageMeans { settle: mean(|t| t.settle_s), render: mean(|t| t.render_s), inference: mean(|t| t.inference_s), fit: mean(|t| t.fit_s) },
+            estimate,
+            boxpose_version: env!("CARGO_PKG_VERSION").into(),
+            mujoco_version: boxpose_physics::MUJOCO_VERSION.into(),
+        })
+    }
+}
+
+/// The estimate of P(fail | valid) from the rows a sampler's estimator uses.
+pub fn estimate(rows: &[SampleRow], sampler: Sampler, strata: &[u32]) -> Result<ImportanceEstimate> {
+    let stage = match sampler {
+        Sampler::Mc => "mc",
+        Sampler::Ce => "final",
+    };
+    let weighted: Vec<WeightedSample> = rows
+        .iter()
+        .filter(|r| r.stage == stage)
+        .map(|r| {
+            let stratum = strata.iter().position(|&n| n as i32 == r.stratum).ok_or_else(|| SearchError::Sample(format!("sample {} is in stratum {}, not one of the run's {strata:?}", r.sample_id, r.stratum)))?;
+            Ok(WeightedSample { log_weight: r.log_weight, valid: r.valid, failed: r.failed, stratum })
+        })
+        .collect::<Result<_>>()?;
+    let probabilities = vec![1.0 / strata.len() as f64; strata.len()];
+    ImportanceEstimate::compute(&weighted, &probabilities).map_err(|e| SearchError::Sample(format!("estimate: {e}")))
+}
+
+/// Mean seconds per sample in each stage.
+#[derive(Debug, Clone, Copy, Serialize, Deserialize)]
+pub struct StageMeans {
+    pub settle: f64,
+    pub render: f64,
+    pub inference: f64,
+    pub fit: f64,
+}
+
+/// `summary.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Summary {
+    pub space: String,
+    pub sampler: Sampler,
+    pub crops: Crops,
+    pub fit: String,
+    pub predicate: Predicate,
+    /// Every sample drawn, tuning included: the budget to compare samplers by.
+    pub samples_spent: usize,
+    pub tuning_samples: usize,
+    /// Cross-entropy: the level reached at each tuning iteration (failure at 0).
+    pub ce_levels: Vec<f64>,
+    /// Failing samples in all stages (each one is a counterexample).
+    pub failures_total: usize,
+    /// Invalid samples by reason (all stages).
+    pub invalid_reasons: BTreeMap<String, usize>,
+    pub mean_seconds: StageMeans,
+    /// P(fail | valid) with its 95% interval, from the estimating stage.
+    pub estimate: ImportanceEstimate,
+    pub boxpose_version: String,
+    pub mujoco_version: String,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn sample_row(
+    sample_id: i64,
+    settings: &RunSettings,
+    plan: &IterationPlan,
+    iteration: u32,
+    stratum: u32,
+    seed: i64,
+    z: &[f64],
+    space: &SearchSpace,
+    parameters: &crate::space::Parameters,
+    log_nominal: f64,
+    log_proposal: f64,
+    outcome: &Outcome,
+) -> SampleRow {
+    let params = space
+        .dimensions
+        .iter()
+        .zip(z)
+        .map(|(d, zi)| if d.distribution.is_some() { parameters.values[&d.name] } else { *zi })
+        .collect();
+    let visible = outcome
+        .rendered
+        .as_ref()
+        .and_then(|(_, instances)| {
+            let ids = instances.column_by_name("object_id")?.as_primitive::<Int32Type>().clone();
+            let fractions = instances.column_by_name("visible_fraction")?.as_primitive::<Float32Type>().clone();
+            (0..ids.len()).find(|&i| ids.value(i) == crate::scene::TARGET_OBJECT_ID).map(|i| fractions.value(i))
+        });
+    let mut row = SampleRow {
+        sample_id,
+        sampler: settings.sampler.name().into(),
+        stage: plan.stage.clone(),
+        iteration: iteration as i32,
+        stratum: stratum as i32,
+        seed,
+        z: z.to_vec(),
+        params,
+        log_nominal,
+        log_proposal,
+        log_weight: log_nominal - log_proposal,
+        valid: outcome.result.is_ok(),
+        invalid_reason: outcome.result.as_ref().err().map(Invalid::to_string),
+        target_visible_fraction: visible,
+        detected: None,
+        fit_error: None,
+        paper_error: None,
+        paper_error_normalized: None,
+        mssd_over_diameter: None,
+        add_s_m: None,
+        rotation_error_deg: None,
+        translation_error_m: None,
+        score: None,
+        failed: false,
+        peaks_camera_m: outcome.result.is_ok().then(|| outcome.peaks.iter().flatten().copied().collect()),
+    };
+    match &outcome.result {
+        Err(_) => {}
+        Ok(Perceived::NotDetected) => {
+            row.detected = Some(false);
+            row.failed = true;
+        }
+        Ok(Perceived::FitFailed(e)) => {
+            row.detected = Some(true);
+            row.fit_error = Some(e.clone());
+            row.failed = true;
+        }
+        Ok(Perceived::Fitted(m)) => {
+            let score = settings.predicate.score(m);
+            row.detected = Some(true);
+            row.paper_error = Some(m.paper_error);
+            row.paper_error_normalized = Some(m.paper_error_normalized);
+            row.mssd_over_diameter = Some(m.mssd_over_diameter);
+            row.add_s_m = Some(m.add_s_m);
+            row.rotation_error_deg = Some(m.rotation_error_deg);
+            row.translation_error_m = Some(m.translation_error_m);
+            row.score = Some(score);
+            row.failed = score > 0.0;
+        }
+    }
+    row
+}
+
+fn f64_list<'a>(rows: impl Iterator<Item = Option<&'a Vec<f64>>>) -> ArrayRef {
+    Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(rows.map(|r| r.map(|v| v.iter().map(|x| Some(*x)).collect::<Vec<_>>()))))
+}
+
+/// `rows` as one batch of the `samples` table.
+pub fn samples_batch(rows: &[SampleRow]) -> RecordBatch {
+    let f = |get: fn(&SampleRow) -> Option<f64>| Arc::new(rows.iter().map(get).collect::<Float64Array>()) as ArrayRef;
+    let text = |get: fn(&SampleRow) -> Option<&str>| Arc::new(rows.iter().map(get).collect::<StringArray>()) as ArrayRef;
+    let columns: Vec<ArrayRef> = vec![
+        Arc::new(rows.iter().map(|r| r.sample_id).collect::<Int64Array>()),
+        text(|r| Some(r.sampler.as_str())),
+        text(|r| Some(r.stage.as_str())),
+        Arc::new(rows.iter().map(|r| r.iteration).collect::<Int32Array>()),
+        Arc::new(rows.iter().map(|r| r.stratum).collect::<Int32Array>()),
+        Arc::new(rows.iter().map(|r| r.seed).collect::<Int64Array>()),
+        f64_list(rows.iter().map(|r| Some(&r.z))),
+        f64_list(rows.iter().map(|r| Some(&r.params))),
+        f(|r| Some(r.log_nominal)),
+        f(|r| Some(r.log_proposal)),
+        f(|r| Some(r.log_weight)),
+        Arc::new(rows.iter().map(|r| Some(r.valid)).collect::<BooleanArray>()),
+        text(|r| r.invalid_reason.as_deref()),
+        Arc::new(rows.iter().map(|r| r.target_visible_fraction).collect::<Float32Array>()),
+        Arc::new(rows.iter().map(|r| r.detected).collect::<BooleanArray>()),
+        text(|r| r.fit_error.as_deref()),
+        f(|r| r.paper_error),
+        f(|r| r.paper_error_normalized),
+        f(|r| r.mssd_over_diameter),
+        f(|r| r.add_s_m),
+        f(|r| r.rotation_error_deg),
+        f(|r| r.translation_error_m),
+        f(|r| r.score),
+        Arc::new(rows.iter().map(|r| Some(r.failed)).collect::<BooleanArray>()),
+        f64_list(rows.iter().map(|r| r.peaks_camera_m.as_ref())),
+    ];
+    RecordBatch::try_new(Arc::new(SEARCH_SAMPLES.arrow_schema()), columns).expect("columns in contract order and types")
+}
+
+fn timings_batch(rows: &[TimingRow]) -> RecordBatch {
+    let f = |get: fn(&TimingRow) -> f64| Arc::new(rows.iter().map(get).collect::<Float64Array>()) as ArrayRef;
+    let columns: Vec<ArrayRef> = vec![
+        Arc::new(rows.iter().map(|r| r.sample_id).collect::<Int64Array>()),
+        f(|r| r.settle_s),
+        f(|r| r.render_s),
+        f(|r| r.inference_s),
+        f(|r| r.fit_s),
+    ];
+    RecordBatch::try_new(Arc::new(SEARCH_TIMINGS.arrow_schema()), columns).expect("columns in contract order and types")
+}
+
+/// Reads one `samples` file (validated against the contract).
+pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
+    let mut rows = Vec::new();
+    for batch in boxpose_data::read_shard(path, &SEARCH_SAMPLES)? {
+        let col = |name: &str| batch.column_by_name(name).expect("validated").clone();
+        let f64s = |name: &str| col(name).as_primitive::<Float64Type>().clone();
+        let strings = |name: &str| col(name).as_string::<i32>().clone();
+        let bools = |name: &str| col(name).as_boolean().clone();
+        let lists = |name: &str| col(name).as_list::<i32>().clone();
+        let (ids, sampler, stage) = (col("sample_id").as_primitive::<Int64Type>().clone(), strings("sampler"), strings("stage"));
+        let (iteration, stratum, seed) =
+            (col("iteration").as_primitive::<Int32Type>().clone(), col("stratum").as_primitive::<Int32Type>().clone(), col("seed").as_primitive::<Int64Type>().clone());
+        let (z, params, peaks) = (lists("z"), lists("params"), lists("peaks_camera_m"));
+        let (lp, lq, lw) = (f64s("log_nominal"), f64s("log_proposal"), f64s("log_weight"));
+        let (valid, reason, visible, detected, fit_error) =
+            (bools("valid"), strings("invalid_reason"), col("target_visible_fraction").as_primitive::<Float32Type>().clone(), bools("detected"), strings("fit_error"));
+        let metrics: Vec<_> = ["paper_error", "paper_error_normalized", "mssd_over_diameter", "add_s_m", "rotation_error_deg", "translation_error_m", "score"]
+            .iter()
+            .map(|n| f64s(n))
+            .collect();
+        let failed = bools("failed");
+        let list = |l: &ListArray, i: usize| l.is_valid(i).then(|| l.value(i).as_primitive::<Float64Type>().values().to_vec());
+        let opt = |a: &Float64Array, i: usize| a.is_valid(i).then(|| a.value(i));
+        for i in 0..batch.num_rows() {
+            rows.push(SampleRow {
+                sample_id: ids.value(i),
+                sampler: sampler.value(i).into(),
+                stage: stage.value(i).into(),
+                iteration: iteration.value(i),
+                stratum: stratum.value(i),
+                seed: seed.value(i),
+                z: list(&z, i).unwrap_or_default(),
+                params: list(&params, i).unwrap_or_default(),
+                log_nominal: lp.value(i),
+                log_proposal: lq.value(i),
+                log_weight: lw.value(i),
+                valid: valid.value(i),
+                invalid_reason: reason.is_valid(i).then(|| reason.value(i).to_string()),
+                target_visible_fraction: visible.is_valid(i).then(|| visible.value(i)),
+                detected: detected.is_valid(i).then(|| detected.value(i)),
+                fit_error: fit_error.is_valid(i).then(|| fit_error.value(i).to_string()),
+                paper_error: opt(&metrics[0], i),
+                paper_error_normalized: opt(&metrics[1], i),
+                mssd_over_diameter: opt(&metrics[2], i),
+                add_s_m: opt(&metrics[3], i),
+                rotation_error_deg: opt(&metrics[4], i),
+                translation_error_m: opt(&metrics[5], i),
+                score: opt(&metrics[6], i),
+                failed: failed.value(i),
+                peaks_camera_m: list(&peaks, i),
+            });
+        }
+    }
+    Ok(rows)
+}
+
+fn read_timings(path: &Path) -> Result<Vec<TimingRow>> {
+    let mut rows = Vec::new();
+    for batch in boxpose_data::read_shard(path, &SEARCH_TIMINGS)? {
+        let f = |name: &str| batch.column_by_name(name).expect("validated").as_primitive::<Float64Type>().clone();
+        let ids = batch.column_by_name("sample_id").expect("validated").as_primitive::<Int64Type>().clone();
+        let (settle, render, inference, fit) = (f("settle_s"), f("render_s"), f("inference_s"), f("fit_s"));
+        for i in 0..batch.num_rows() {
+            rows.push(TimingRow { sample_id: ids.value(i), settle_s: settle.value(i), render_s: render.value(i), inference_s: inference.value(i), fit_s: fit.value(i) });
+        }
+    }
+    Ok(rows)
+}
+
+/// Writes failing samples as a dataset shard per table (`boxpose render DIR --scene SAMPLE_ID`
+/// re-renders one; `boxpose predict DIR --scene SAMPLE_ID` reruns the pipeline on it).
+fn write_counterexamples(dir: &Path, name: &str, outcomes: &[Outcome]) -> Result<()> {
+    let scenes: Vec<Scene> = outcomes.iter().map(|o| o.scene.clone()).collect();
+    let objects: Vec<Object> = outcomes.iter().flat_map(|o| o.objects.clone()).collect();
+    let (frames, instances): (Vec<RecordBatch>, Vec<RecordBatch>) = outcomes.iter().filter_map(|o| o.rendered.clone()).unzip();
+    boxpose_data::write_shard(dir, &schema::SCENES, name, &[Scene::to_batch(&scenes)])?;
+    boxpose_data::write_shard(dir, &schema::OBJECTS, name, &[Object::to_batch(&objects)])?;
+    boxpose_data::write_shard(dir, &schema::FRAMES, name, &frames)?;
+    boxpose_data::write_shard(dir, &schema::INSTANCES, name, &instances)?;
+    Ok(())
+}

@@ -1,0 +1,209 @@
+//! Sampled inputs → a scene in the dataset contract: the `scenes` row (with a recipe whose camera
+//! and lighting ranges are pinned to the sampled values, so that the row alone re-renders the
+//! sample exactly) and the `objects` rows, dropped and settled with MuJoCo.
+
+use boxpose_data::{Object, Pose, Scene};
+use boxpose_physics::{RecipePhysics, SceneDescription, Settler, SettleOutcome, rotation_matrix};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha12Rng;
+
+use crate::error::{Result, SearchError};
+use crate::space::{Parameters, SearchSpace};
+
+/// The object_id of the box the pipeline is scored on.
+pub const TARGET_OBJECT_ID: i32 = 0;
+
+/// Vertical gap between boxes stacked for the drop, metres: they start apart and fall in turn.
+const STACK_GAP_M: f64 = 0.02;
+
+/// Linear RGB of plain cardboard, as drake_scenes/sampling.py draws it.
+const CARDBOARD_LINEAR_RGB: [f64; 3] = [0.43, 0.25, 0.11];
+
+/// A sampled scene before and after settling.
+#[derive(Debug, Clone)]
+pub struct SampledScene {
+    pub scene: Scene,
+    /// In object_id order; the target first. `world_box` holds the settled pose once settled.
+    pub objects: Vec<Object>,
+}
+
+/// The nuisance draws of one scene (box masses, frictions, appearance), seeded by the scene seed.
+/// They are not searched over: their nominal distribution is kept, as the recipe's.
+struct Nuisance {
+    rng: ChaCha12Rng,
+    density: [f64; 2],
+    friction: [f64; 2],
+    roughness: [f64; 2],
+    tape_probability: f64,
+    label_probability: f64,
+}
+
+impl Nuisance {
+    fn new(recipe: &toml::Table, seed: i64) -> Result<Self> {
+        let pair = |section: &str, key: &str| -> Result<[f64; 2]> {
+            let v = recipe.get(section).and_then(|s| s.get(key)).and_then(|v| v.as_array());
+            let v: Option<Vec<f64>> = v.map(|a| a.iter().filter_map(|x| x.as_float().or(x.as_integer().map(|i| i as f64))).collect());
+            match v.as_deref() {
+                Some(&[lo, hi]) if lo.is_finite() && hi.is_finite() && lo <= hi => Ok([lo, hi]),
+                _ => Err(SearchError::Space { key: format!("recipe {section}.{key}"), problem: "must be a range [min, max]".into() }),
+            }
+        };
+        let probability = |key: &str| -> Result<f64> {
+            match recipe.get("materials").and_then(|s| s.get(key)).and_then(|v| v.as_float()) {
+                Some(p) if (0.0..=1.0).contains(&p) => Ok(p),
+                _ => Err(SearchError::Space { key: format!("recipe materials.{key}"), problem: "must be a probability in [0, 1]".into() }),
+            }
+        };
+        Ok(Self {
+            rng: ChaCha12Rng::seed_from_u64(seed as u64),
+            density: pair("boxes", "density_kg_m3")?,
+            friction: pair("boxes", "friction")?,
+            roughness: pair("materials", "roughness")?,
+            tape_probability: probability("tape_probability")?,
+            label_probability: probability("label_probability")?,
+        })
+    }
+
+    fn uniform(&mut self, [lo, hi]: [f64; 2]) -> f64 {
+        if hi > lo { self.rng.random_range(lo..hi) } else { lo }
+    }
+
+    fn object(&mut self, scene_id: i64, object_id: i32, size: [f64; 3], initial: Pose) -> Object {
+        let mass_kg = self.uniform(self.density) * size.iter().product::<f64>();
+        let friction = self.uniform(self.friction);
+        let brightness = self.uniform([0.7, 1.25]);
+        let warmth = self.uniform([-0.15, 0.15]);
+        let tint = [1.0 + warmth, 1.0, 1.0 - warmth];
+        let base_color_rgb = std::array::from_fn(|k| (CARDBOARD_LINEAR_RGB[k] * brightness * tint[k]).clamp(0.0, 1.0) as f32);
+        let roughness = self.uniform(self.roughness) as f32;
+        let texture_seed = self.rng.random_range(0..i64::MAX);
+        let has_tape = self.rng.random::<f64>() < self.tape_probability;
+        let has_label = self.rng.random::<f64>() < self.label_probability;
+        Object {
+            scene_id,
+            object_id,
+            size,
+            world_box: initial,
+            initial_world_box: initial,
+            mass_kg,
+            friction,
+            base_color_rgb,
+            roughness,
+            texture_seed,
+            has_tape,
+            has_label,
+        }
+    }
+}
+
+/// Half the vertical extent of a box of `size` turned by `quat_wxyz`: its centre's height above
+/// its lowest point.
+fn half_height(size: [f64; 3], quat_wxyz: [f64; 4]) -> f64 {
+    let r = rotation_matrix(quat_wxyz);
+    (0..3).map(|k| r[2][k].abs() * size[k] / 2.0).sum()
+}
+
+/// Keeps a footprint of radius `radius` inside the support region (a box placed at its edge
+/// would start inside a bin wall or hang over a pallet).
+fn inside(value: f64, half_extent: f64, radius: f64) -> f64 {
+    let limit = (half_extent - radius).max(0.0);
+    value.clamp(-limit, limit)
+}
+
+fn yaw_quaternion(yaw_deg: f64) -> [f64; 4] {
+    let half = yaw_deg.to_radians() / 2.0;
+    [half.cos(), 0.0, 0.0, half.sin()]
+}
+
+/// The scene of one sample, boxes at their drop poses (not yet settled): the target at the
+/// sampled pose, neighbours stacked above it (each starting clear of the others) to fall in turn.
+pub fn build(space: &SearchSpace, parameters: &Parameters, scene_id: i64, seed: i64) -> Result<SampledScene> {
+    let recipe: toml::Table = space.recipe_toml.parse().map_err(|e| SearchError::Space { key: "recipe".into(), problem: format!("{e}") })?;
+    let physics = RecipePhysics::from_toml(&space.recipe_toml)?;
+    let support = physics.support;
+    let [hx, hy] = support.half_extent_m;
+    let top = support.top_z();
+    let mut nuisance = Nuisance::new(&recipe, seed)?;
+    let p = |name: &str| parameters.get(name);
+
+    let size = [p("target.size_m.x"), p("target.size_m.y"), p("target.size_m.z")];
+    let quat = parameters.target_quat_wxyz;
+    let radius = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt() / 2.0;
+    let lift = half_height(size, quat);
+    let centre = [inside(p("target.x_m"), hx, radius), inside(p("target.y_m"), hy, radius), top + p("target.drop_height_m") + lift];
+    let mut objects = vec![nuisance.object(scene_id, TARGET_OBJECT_ID, size, Pose { quat_wxyz: quat, translation: centre })];
+    let mut floor = centre[2] + lift + STACK_GAP_M;
+    for i in 0..parameters.neighbours {
+        let size = [p(&format!("neighbour{i}.size_m.x")), p(&format!("neighbour{i}.size_m.y")), p(&format!("neighbour{i}.size_m.z"))];
+        let radius = (size[0].powi(2) + size[1].powi(2)).sqrt() / 2.0;
+        let translation = [inside(p(&format!("neighbour{i}.x_m")), hx, radius), inside(p(&format!("neighbour{i}.y_m")), hy, radius), floor + size[2] / 2.0];
+        floor += size[2] + STACK_GAP_M;
+        let pose = Pose { quat_wxyz: yaw_quaternion(p(&format!("neighbour{i}.yaw_deg"))), translation };
+        objects.push(nuisance.object(scene_id, i as i32 + 1, size, pose));
+    }
+    let scene = Scene {
+        scene_id,
+        seed,
+        recipe: space.file.name.clone(),
+        recipe_toml: pinned_recipe(recipe, space, parameters)?,
+        tool_versions: serde_json::json!({"boxpose-search": env!("CARGO_PKG_VERSION"), "mujoco": boxpose_physics::MUJOCO_VERSION}).to_string(),
+        physics_backend: "mujoco".into(),
+        support: support.kind.name().into(),
+        num_objects: objects.len() as i32,
+        solver: "none".into(),
+        solver_status: "dropped from sampled poses".into(),
+        solve_attempts: 0,
+        settle_time_s: f64::NAN,
+        max_linear_speed_mps: f64::NAN,
+        max_angular_speed_radps: f64::NAN,
+        min_signed_distance_m: f64::NAN,
+        stable: false,
+    };
+    Ok(SampledScene { scene, objects })
+}
+
+/// The base recipe with this sample's camera and lighting as degenerate ranges, one frame, and
+/// the camera aimed at the target box: the Blender stage then draws exactly these values.
+fn pinned_recipe(mut recipe: toml::Table, space: &SearchSpace, parameters: &Parameters) -> Result<String> {
+    let pin = |v: f64| toml::Value::Array(vec![toml::Value::Float(v), toml::Value::Float(v)]);
+    let section = |recipe: &mut toml::Table, name: &str| -> Result<toml::Table> {
+        match recipe.remove(name) {
+            Some(toml::Value::Table(t)) => Ok(t),
+            _ => Err(SearchError::Space { key: format!("recipe [{name}]"), problem: "missing section".into() }),
+        }
+    };
+    let mut camera = section(&mut recipe, "camera")?;
+    for key in ["distance_m", "elevation_deg", "azimuth_deg", "hfov_deg"] {
+        camera.insert(key.into(), pin(parameters.get(&format!("camera.{key}"))));
+    }
+    camera.insert("frames_per_scene".into(), toml::Value::Integer(1));
+    camera.insert("look_at_jitter_m".into(), toml::Value::Float(0.0));
+    camera.insert("look_at_object".into(), toml::Value::Integer(TARGET_OBJECT_ID.into()));
+    let mut lighting = section(&mut recipe, "lighting")?;
+    for key in ["sun_elevation_deg", "sun_azimuth_deg", "sun_strength", "world_strength"] {
+        lighting.insert(key.into(), pin(parameters.get(&format!("lighting.{key}"))));
+    }
+    recipe.insert("camera".into(), toml::Value::Table(camera));
+    recipe.insert("lighting".into(), toml::Value::Table(lighting));
+    recipe.insert("name".into(), toml::Value::String(space.file.name.clone()));
+    toml::to_string(&recipe).map_err(|e| SearchError::Sample(format!("cannot write the scene's recipe: {e}")))
+}
+
+/// Drops and settles the scene with MuJoCo; the objects' `world_box` become the settled poses
+/// and the scene row gets the certificate.
+pub fn settle(sampled: &mut SampledScene, physics: &RecipePhysics) -> Result<SettleOutcome> {
+    let description = SceneDescription::from_objects(physics.support, &sampled.objects);
+    description.validate()?;
+    let outcome = Settler::new(&description, &physics.settle)?.settle()?;
+    for (object, pose) in sampled.objects.iter_mut().zip(&outcome.poses) {
+        object.world_box = *pose;
+    }
+    let c = &outcome.certificate;
+    let scene = &mut sampled.scene;
+    scene.settle_time_s = c.settle_time_s;
+    scene.max_linear_speed_mps = c.max_linear_speed_mps;
+    scene.max_angular_speed_radps = c.max_angular_speed_radps;
+    scene.min_signed_distance_m = c.min_signed_distance_m;
+    scene.stable = outcome.stable;
+    Ok(outcome)
+}

@@ -1,0 +1,430 @@
+//! The search space: a base scene recipe plus named, bounded parameters with their nominal
+//! distribution p(x), read from a TOML file (`configs/search/*.toml`, documented in
+//! `docs/search.md`).
+//!
+//! Every sampled input is written as a deterministic function of a fixed-length vector
+//! z ∈ ℝᵈ of standard normals: a bounded parameter x = F⁻¹(Φ(z)) through its nominal CDF F, an
+//! orientation as the unit quaternion z/‖z‖ of four of them (uniform on SO(3)). The nominal
+//! density is then exactly N(0, I) in z, whatever the parameters' own distributions, so the
+//! samplers (Monte Carlo, cross-entropy) work on z alone and any sample replays from its z.
+//! The number of neighbouring boxes is discrete: it is a stratum, drawn from its nominal
+//! (uniform over the inclusive range), never tilted.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::Deserialize;
+use statrs::function::erf::{erfc, erfc_inv};
+
+use crate::error::{Result, SearchError};
+
+/// A bounded scalar parameter and its nominal distribution.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(untagged)]
+pub enum Distribution {
+    /// `[min, max]`: uniform.
+    Uniform([f64; 2]),
+    /// `{ normal = [mean, std], within = [min, max] }`: a normal truncated to [min, max].
+    TruncatedNormal { normal: [f64; 2], within: [f64; 2] },
+}
+
+impl Distribution {
+    /// The parameter value of the standard normal `z`: F⁻¹(Φ(z)).
+    pub fn value(&self, z: f64) -> f64 {
+        let u = standard_normal_cdf(z);
+        match *self {
+            Distribution::Uniform([lo, hi]) => lo + (hi - lo) * u,
+            Distribution::TruncatedNormal { normal: [mean, std], within: [lo, hi] } => {
+                let (a, b) = (standard_normal_cdf((lo - mean) / std), standard_normal_cdf((hi - mean) / std));
+                (mean + std * standard_normal_quantile(a + u * (b - a))).clamp(lo, hi)
+            }
+        }
+    }
+
+    /// Checks that the distribution is proper: finite bounds, a non-empty range, a positive
+    /// standard deviation and a truncation interval with positive mass.
+    fn validate(&self, key: &str) -> Result<()> {
+        let bad = |problem: String| Err(SearchError::Space { key: key.to_string(), problem });
+        let [lo, hi] = match *self {
+            Distribution::Uniform(range) => range,
+            Distribution::TruncatedNormal { within, .. } => within,
+        };
+        if !(lo.is_finite() && hi.is_finite()) {
+            return bad(format!("range [{lo}, {hi}] must be finite"));
+        }
+        if lo > hi {
+            return bad(format!("range [{lo}, {hi}] is empty (min > max)"));
+        }
+        if let Distribution::TruncatedNormal { normal: [mean, std], within: [lo, hi] } = *self {
+            if !(mean.is_finite() && std.is_finite() && std > 0.0) {
+                return bad(format!("normal = [{mean}, {std}] needs a finite mean and a finite positive std"));
+            }
+            let mass = standard_normal_cdf((hi - mean) / std) - standard_normal_cdf((lo - mean) / std);
+            if !(mass > 1e-12) {
+                return bad(format!("normal = [{mean}, {std}] has no mass within [{lo}, {hi}]: it cannot be normalised"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Φ(z), the standard normal CDF.
+pub fn standard_normal_cdf(z: f64) -> f64 {
+    0.5 * erfc(-z / std::f64::consts::SQRT_2)
+}
+
+/// Φ⁻¹(u), the standard normal quantile.
+pub fn standard_normal_quantile(u: f64) -> f64 {
+    -std::f64::consts::SQRT_2 * erfc_inv(2.0 * u.clamp(1e-300, 1.0 - 1e-16))
+}
+
+/// A per-axis box size: each edge drawn independently.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SizeSpec {
+    pub x: Distribution,
+    pub y: Distribution,
+    pub z: Distribution,
+}
+
+/// How the target box starts before it is dropped.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Orientation {
+    /// Uniform on SO(3) (four standard normals, normalised): it lands on any face.
+    So3,
+    /// Resting on its −z face, turned about the vertical by `[target] yaw_deg`.
+    Yaw,
+}
+
+/// `[target]`: the box whose pose the pipeline must recover.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TargetSpec {
+    pub size_m: SizeSpec,
+    pub orientation: Orientation,
+    /// With `orientation = "yaw"`: the turn about the vertical, degrees.
+    pub yaw_deg: Option<Distribution>,
+    /// Centre over the support, metres (x, y).
+    pub x_m: Distribution,
+    pub y_m: Distribution,
+    /// Gap between the box's lowest point and the support before the drop, metres.
+    pub drop_height_m: Distribution,
+}
+
+/// `[neighbours]`: other boxes dropped around the target (clutter).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NeighbourSpec {
+    /// Inclusive range of the number of neighbours: each count is a stratum of equal nominal
+    /// probability.
+    pub count: [u32; 2],
+    pub size_m: SizeSpec,
+    pub yaw_deg: Distribution,
+    pub x_m: Distribution,
+    pub y_m: Distribution,
+}
+
+/// `[camera]`: the view, relative to the target box (the camera looks at its settled centre).
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraSpec {
+    pub distance_m: Distribution,
+    pub elevation_deg: Distribution,
+    pub azimuth_deg: Distribution,
+    pub hfov_deg: Distribution,
+}
+
+/// `[lighting]`: the sun's direction and strength, the ambient world's strength.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightingSpec {
+    pub sun_elevation_deg: Distribution,
+    pub sun_azimuth_deg: Distribution,
+    pub sun_strength: Distribution,
+    pub world_strength: Distribution,
+}
+
+/// A search space file.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SpaceFile {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    /// The base scene recipe (a name in `datasets/recipes/` or a path): support, settling,
+    /// image size, materials, render settings.
+    pub recipe: String,
+    pub target: TargetSpec,
+    pub neighbours: Option<NeighbourSpec>,
+    pub camera: CameraSpec,
+    pub lighting: LightingSpec,
+}
+
+/// One dimension of z: which parameter it drives.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Dimension {
+    pub name: String,
+    /// `None` for the four components of an orientation (normalised together).
+    pub distribution: Option<Distribution>,
+}
+
+/// A validated search space: the file, its base recipe's text, and the layout of z.
+#[derive(Debug, Clone)]
+pub struct SearchSpace {
+    pub file: SpaceFile,
+    /// The file's own text (stored in the run folder, so a run knows what it searched).
+    pub text: String,
+    /// The base recipe's TOML text.
+    pub recipe_toml: String,
+    pub dimensions: Vec<Dimension>,
+}
+
+/// Sampled scene inputs: every parameter's value, by name, and the stratum.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Parameters {
+    /// Number of neighbouring boxes.
+    pub neighbours: u32,
+    pub values: BTreeMap<String, f64>,
+    /// The target's drop orientation (unit quaternion w, x, y, z).
+    pub target_quat_wxyz: [f64; 4],
+}
+
+impl Parameters {
+    pub fn get(&self, name: &str) -> f64 {
+        self.values[name]
+    }
+}
+
+impl SearchSpace {
+    /// Reads and validates a search space: a TOML path, or a name in `configs/search/`.
+    pub fn load(name_or_path: &str, recipes_dir: &Path) -> Result<Self> {
+        let path = Path::new(name_or_path);
+        let path = if path.is_file() { path.to_path_buf() } else { Path::new("configs/search").join(format!("{name_or_path}.toml")) };
+        let text = std::fs::read_to_string(&path).map_err(|e| SearchError::Io { path: path.clone(), message: e.to_string() })?;
+        Self::parse(&text, &path.display().to_string(), recipes_dir)
+    }
+
+    /// Parses a search space's TOML text; `source` names it in errors.
+    pub fn parse(text: &str, source: &str, recipes_dir: &Path) -> Result<Self> {
+        let file: SpaceFile = toml::from_str(text).map_err(|e| SearchError::Space { key: source.to_string(), problem: e.to_string() })?;
+        let recipe_path = {
+            let p = Path::new(&file.recipe);
+            if p.is_file() { p.to_path_buf() } else { recipes_dir.join(format!("{}.toml", file.recipe)) }
+        };
+        let recipe_toml = std::fs::read_to_string(&recipe_path)
+            .map_err(|e| SearchError::Space { key: "recipe".into(), problem: format!("{}: {e}", recipe_path.display()) })?;
+        Self::from_parts(file, text.to_string(), recipe_toml).map_err(|e| match e {
+            SearchError::Space { key, problem } => SearchError::Space { key: format!("{source}: {key}"), problem },
+            other => other,
+        })
+    }
+
+    /// Validates a parsed file against its base recipe and lays out z.
+    pub fn from_parts(file: SpaceFile, text: String, recipe_toml: String) -> Result<Self> {
+        boxpose_physics::RecipePhysics::from_toml(&recipe_toml)
+            .map_err(|e| SearchError::Space { key: "recipe".into(), problem: format!("{}: {e}", file.recipe) })?;
+        let mut dimensions = Vec::new();
+        let mut scalar = |name: &str, d: &Distribution| -> Result<()> {
+            d.validate(name)?;
+            dimensions.push(Dimension { name: name.to_string(), distribution: Some(*d) });
+            Ok(())
+        };
+        let t = &file.target;
+        for (axis, d) in ["x", "y", "z"].iter().zip([&t.size_m.x, &t.size_m.y, &t.size_m.z]) {
+            scalar(&format!("target.size_m.{axis}"), d)?;
+            let [lo, _] = bounds(d);
+            if lo <= 0.0 {
+                return Err(SearchError::Space { key: format!("target.size_m.{axis}"), problem: "box sizes must be positive".into() });
+            }
+        }
+        match (t.orientation, &t.yaw_deg) {
+            (Orientation::Yaw, Some(d)) => scalar("target.yaw_deg", d)?,
+            (Orientation::Yaw, None) => {
+                return Err(SearchError::Space { key: "target.yaw_deg".into(), problem: "orientation = \"yaw\" needs yaw_deg".into() });
+            }
+            (Orientation::So3, Some(_)) => {
+                return Err(SearchError::Space { key: "target.yaw_deg".into(), problem: "only used with orientation = \"yaw\"".into() });
+            }
+            (Orientation::So3, None) => {}
+        }
+        scalar("target.x_m", &t.x_m)?;
+        scalar("target.y_m", &t.y_m)?;
+        scalar("target.drop_height_m", &t.drop_height_m)?;
+        if bounds(&t.drop_height_m)[0] < 0.0 {
+            return Err(SearchError::Space { key: "target.drop_height_m".into(), problem: "must be non-negative".into() });
+        }
+        let c = &file.camera;
+        scalar("camera.distance_m", &c.distance_m)?;
+        scalar("camera.elevation_deg", &c.elevation_deg)?;
+        scalar("camera.azimuth_deg", &c.azimuth_deg)?;
+        scalar("camera.hfov_deg", &c.hfov_deg)?;
+        let (d, e, h) = (bounds(&c.distance_m), bounds(&c.elevation_deg), bounds(&c.hfov_deg));
+        if d[0] <= 0.0 {
+            return Err(SearchError::Space { key: "camera.distance_m".into(), problem: "must be positive".into() });
+        }
+        if !(e[0] > -90.0 && e[1] < 90.0) {
+            return Err(SearchError::Space { key: "camera.elevation_deg".into(), problem: "must lie in (-90, 90)".into() });
+        }
+        if !(h[0] > 0.0 && h[1] < 180.0) {
+            return Err(SearchError::Space { key: "camera.hfov_deg".into(), problem: "must lie in (0, 180)".into() });
+        }
+        let l = &file.lighting;
+        scalar("lighting.sun_elevation_deg", &l.sun_elevation_deg)?;
+        scalar("lighting.sun_azimuth_deg", &l.sun_azimuth_deg)?;
+        scalar("lighting.sun_strength", &l.sun_strength)?;
+        scalar("lighting.world_strength", &l.world_strength)?;
+        for (key, d) in [("lighting.sun_strength", &l.sun_strength), ("lighting.world_strength", &l.world_strength)] {
+            if bounds(d)[0] < 0.0 {
+                return Err(SearchError::Space { key: key.into(), problem: "must be non-negative".into() });
+            }
+        }
+        if let Some(n) = &file.neighbours {
+            let [lo, hi] = n.count;
+            if lo > hi {
+                return Err(SearchError::Space { key: "neighbours.count".into(), problem: format!("range [{lo}, {hi}] is empty (min > max)") });
+            }
+            if hi > MAX_NEIGHBOURS {
+                return Err(SearchError::Space { key: "neighbours.count".into(), problem: format!("at most {MAX_NEIGHBOURS} neighbours") });
+            }
+            for i in 0..hi {
+                for (axis, d) in ["x", "y", "z"].iter().zip([&n.size_m.x, &n.size_m.y, &n.size_m.z]) {
+                    scalar(&format!("neighbour{i}.size_m.{axis}"), d)?;
+                    if bounds(d)[0] <= 0.0 {
+                        return Err(SearchError::Space { key: format!("neighbours.size_m.{axis}"), problem: "box sizes must be positive".into() });
+                    }
+                }
+                scalar(&format!("neighbour{i}.yaw_deg"), &n.yaw_deg)?;
+                scalar(&format!("neighbour{i}.x_m"), &n.x_m)?;
+                scalar(&format!("neighbour{i}.y_m"), &n.y_m)?;
+            }
+        }
+        if t.orientation == Orientation::So3 {
+            for k in 0..4 {
+                dimensions.push(Dimension { name: format!("target.orientation.q{k}"), distribution: None });
+            }
+        }
+        Ok(Self { file, text, recipe_toml, dimensions })
+    }
+
+    /// Length of z.
+    pub fn dim(&self) -> usize {
+        self.dimensions.len()
+    }
+
+    /// The strata: every neighbour count, each with nominal probability 1 / (number of counts).
+    pub fn strata(&self) -> Vec<u32> {
+        match &self.file.neighbours {
+            Some(n) => (n.count[0]..=n.count[1]).collect(),
+            None => vec![0],
+        }
+    }
+
+    /// The scene inputs of z in stratum `neighbours`.
+    pub fn parameters(&self, z: &[f64], neighbours: u32) -> Result<Parameters> {
+        if z.len() != self.dim() || !z.iter().all(|v| v.is_finite()) {
+            return Err(SearchError::Sample(format!("z must hold {} finite values, got {:?}", self.dim(), z)));
+        }
+        let mut values = BTreeMap::new();
+        let mut quat = [0.0; 4];
+        for (dimension, &zi) in self.dimensions.iter().zip(z) {
+            match &dimension.distribution {
+                Some(d) => {
+                    values.insert(dimension.name.clone(), d.value(zi));
+                }
+                None => {
+                    let k = dimension.name.as_bytes()[dimension.name.len() - 1] - b'0';
+                    quat[k as usize] = zi;
+                }
+            }
+        }
+        let target_quat_wxyz = match self.file.target.orientation {
+            Orientation::So3 => {
+                let norm = quat.iter().map(|v| v * v).sum::<f64>().sqrt();
+                if norm < 1e-12 {
+                    return Err(SearchError::Sample("the orientation's four normals are all zero".into()));
+                }
+                let sign = if quat[0] < 0.0 { -1.0 } else { 1.0 };
+                quat.map(|v| sign * v / norm)
+            }
+            Orientation::Yaw => {
+                let half = values["target.yaw_deg"].to_radians() / 2.0;
+                [half.cos(), 0.0, 0.0, half.sin()]
+            }
+        };
+        Ok(Parameters { neighbours, values, target_quat_wxyz })
+    }
+}
+
+/// Neighbour counts above this are refused (each adds six dimensions and a box to settle).
+pub const MAX_NEIGHBOURS: u32 = 24;
+
+fn bounds(d: &Distribution) -> [f64; 2] {
+    match *d {
+        Distribution::Uniform(r) => r,
+        Distribution::TruncatedNormal { within, .. } => within,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RECIPE: &str = include_str!("../../../datasets/recipes/single_box.toml");
+    const SINGLE: &str = include_str!("../../../configs/search/single_box.toml");
+    const CLUTTER: &str = include_str!("../../../configs/search/clutter.toml");
+
+    fn parse(text: &str) -> Result<SearchSpace> {
+        let file: SpaceFile = toml::from_str(text).map_err(|e| SearchError::Space { key: "<test>".into(), problem: e.to_string() })?;
+        SearchSpace::from_parts(file, text.into(), RECIPE.into())
+    }
+
+    fn error_of(text: &str) -> String {
+        parse(text).expect_err("must be refused").to_string()
+    }
+
+    #[test]
+    fn shipped_spaces_parse() {
+        let single = parse(SINGLE).unwrap();
+        assert_eq!(single.strata(), vec![0]);
+        assert_eq!(single.dim(), 3 + 2 + 1 + 4 + 4 + 4);
+        let clutter = parse(CLUTTER).unwrap();
+        assert!(clutter.strata().len() > 1);
+    }
+
+    #[test]
+    fn bad_spaces_name_the_key() {
+        assert!(error_of(&SINGLE.replace("[camera]", "[camera]\nzoom = 2")).contains("zoom"));
+        let empty = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = [0.9, 0.6]");
+        assert_ne!(empty, SINGLE);
+        let message = error_of(&empty);
+        assert!(message.contains("camera.distance_m") && message.contains("empty"), "{message}");
+        let improper = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = { normal = [5.0, 0.01], within = [0.6, 0.9] }");
+        assert!(error_of(&improper).contains("cannot be normalised"));
+        let nan = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = [nan, 0.9]");
+        assert!(error_of(&nan).contains("camera.distance_m"));
+    }
+
+    #[test]
+    fn values_follow_the_nominal_distribution() {
+        let d = Distribution::Uniform([2.0, 4.0]);
+        assert!((d.value(0.0) - 3.0).abs() < 1e-12);
+        assert!(d.value(-40.0) >= 2.0 && d.value(40.0) <= 4.0);
+        let t = Distribution::TruncatedNormal { normal: [0.0, 1.0], within: [-1.0, 1.0] };
+        assert!(t.value(0.0).abs() < 1e-9);
+        // the median of the truncated normal maps to the median of z
+        let u = standard_normal_cdf(0.5);
+        assert!((standard_normal_quantile(u) - 0.5).abs() < 1e-9);
+    }
+
+    #[test]
+    fn orientation_is_a_unit_quaternion_with_non_negative_w() {
+        let space = parse(SINGLE).unwrap();
+        let mut z = vec![0.3; space.dim()];
+        let n = z.len();
+        z[n - 4..].copy_from_slice(&[-1.0, 2.0, 0.5, -0.2]);
+        let p = space.parameters(&z, 0).unwrap();
+        let norm: f64 = p.target_quat_wxyz.iter().map(|v| v * v).sum();
+        assert!((norm - 1.0).abs() < 1e-12 && p.target_quat_wxyz[0] >= 0.0);
+    }
+}

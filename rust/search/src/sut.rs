@@ -1,0 +1,291 @@
+//! The system under test, one sample end to end in one process: sampled inputs → scene rows →
+//! MuJoCo settle → render (embedded Blender) → perception (keypoint network on a ground-truth or
+//! segmenter crop) → pose fit → metrics → the failure predicate.
+
+use std::time::Instant;
+
+use arrow::record_batch::RecordBatch;
+use boxpose_data::{Frame, Instance, Object, Scene};
+use boxpose_geometry::BoxModel;
+use boxpose_geometry::pipeline::{self, Method, Scores};
+use boxpose_learn::data;
+use boxpose_learn::evaluation;
+use boxpose_learn::inference::{self, CropRequest, KeypointModel};
+use boxpose_learn::segmentation::{self, SegmenterModel};
+use boxpose_physics::RecipePhysics;
+use boxpose_render::{RenderRequest, Renderer};
+use nalgebra::{Point3, Vector3};
+
+use crate::error::{Result, SearchError};
+use crate::scene::{self, TARGET_OBJECT_ID};
+use crate::space::SearchSpace;
+
+/// Where the keypoint network's crop comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Crops {
+    /// The target's ground-truth visible bounding box: the keypoint network and the fit alone.
+    Gt,
+    /// The segmenter's detection matched to the target (mask IoU ≥ 0.5); a miss is a failure.
+    Predicted,
+}
+
+/// When a sample counts as a failure of the pipeline.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(tag = "metric", rename_all = "snake_case")]
+pub enum Predicate {
+    /// The paper's: its error normalised by the box's squared edge length (diag² / 3) above
+    /// `threshold` (the paper's 0.005 on a unit box), or the box not detected.
+    PaperError { threshold: f64 },
+    /// MSSD above `fraction` of the box's diameter, or the box not detected.
+    Mssd { fraction: f64 },
+}
+
+impl Default for Predicate {
+    fn default() -> Self {
+        Predicate::PaperError { threshold: 0.005 }
+    }
+}
+
+impl Predicate {
+    /// Parses `paper` / `paper:T` / `mssd:F` (F a fraction of the diameter).
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let (metric, value) = text.split_once(':').map_or((text, None), |(m, v)| (m, Some(v)));
+        let number = |v: Option<&str>, default: f64| -> Result<f64, String> {
+            let x = v.map_or(Ok(default), |v| v.trim().parse::<f64>().map_err(|e| format!("'{v}': {e}")))?;
+            if x.is_finite() && x > 0.0 { Ok(x) } else { Err(format!("the threshold {x} must be finite and positive")) }
+        };
+        match metric {
+            "paper" => Ok(Predicate::PaperError { threshold: number(value, 0.005)? }),
+            "mssd" => Ok(Predicate::Mssd { fraction: number(value, 0.1)? }),
+            other => Err(format!("unknown failure metric '{other}': use paper[:T] or mssd[:F]")),
+        }
+    }
+
+    /// The continuous score the cross-entropy levels are set on: log10(metric / threshold), so
+    /// that a sample fails exactly when its score is > 0; +∞ when nothing was fitted.
+    pub fn score(&self, metrics: &Metrics) -> f64 {
+        let (value, threshold) = match *self {
+            Predicate::PaperError { threshold } => (metrics.paper_error_normalized, threshold),
+            Predicate::Mssd { fraction } => (metrics.mssd_over_diameter, fraction),
+        };
+        (value.max(1e-300) / threshold).log10()
+    }
+}
+
+/// The fit the pipeline uses, as the CLI names it.
+pub fn method_named(name: &str) -> Result<Method, String> {
+    match name {
+        "paper" => Ok(Method::PaperExact),
+        "fast" => Ok(Method::FastExact),
+        "robust" => Ok(Method::Robust),
+        "size" => Ok(Method::SizeAndPose),
+        other => Err(format!("unknown fit '{other}': use paper, fast, robust or size")),
+    }
+}
+
+/// How far the fitted pose is from the truth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Metrics {
+    /// The paper's error (mean squared distance of the fitted corners to the true ones), m².
+    pub paper_error: f64,
+    /// `paper_error` / (diag² / 3): 1 on a unit box's scale, so the paper's 0.005 applies to any box.
+    pub paper_error_normalized: f64,
+    pub mssd_over_diameter: f64,
+    pub add_s_m: f64,
+    pub rotation_error_deg: f64,
+    pub translation_error_m: f64,
+}
+
+impl Metrics {
+    fn of(scores: &Scores, size: [f64; 3]) -> Self {
+        let diag2: f64 = size.iter().map(|s| s * s).sum();
+        Metrics {
+            paper_error: scores.paper_error,
+            paper_error_normalized: scores.paper_error / (diag2 / 3.0),
+            mssd_over_diameter: scores.mssd_m / diag2.sqrt(),
+            add_s_m: scores.add_s_m,
+            rotation_error_deg: scores.rotation_error_deg,
+            translation_error_m: scores.translation_error_m,
+        }
+    }
+}
+
+/// Why a sample was not scored; such samples are counted (P(valid)) and never scored.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Invalid {
+    /// MuJoCo did not certify the drop stable (not settled in time, penetration, left support).
+    NotStable(String),
+    /// The target box is less visible than the evaluation's minimum (occluded or out of view).
+    NotVisible { visible_fraction: f32 },
+}
+
+impl std::fmt::Display for Invalid {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Invalid::NotStable(reason) => write!(f, "not stable: {reason}"),
+            Invalid::NotVisible { visible_fraction } => write!(f, "target {:.0}% visible", 100.0 * visible_fraction),
+        }
+    }
+}
+
+/// What the pipeline made of the target box.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Perceived {
+    /// Scored: the fit's metrics.
+    Fitted(Metrics),
+    /// Detected, but the fit failed (too few peaks, degenerate geometry): a failure.
+    FitFailed(String),
+    /// The segmenter did not find the box: a failure.
+    NotDetected,
+}
+
+/// Seconds spent in each stage of one sample.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct StageSeconds {
+    pub settle: f64,
+    pub render: f64,
+    pub inference: f64,
+    pub fit: f64,
+}
+
+/// One sample's result.
+#[derive(Debug, Clone)]
+pub struct Outcome {
+    pub result: std::result::Result<Perceived, Invalid>,
+    pub seconds: StageSeconds,
+    /// The settled scene (contract rows) and, when rendered, the frame and its instances.
+    pub scene: Scene,
+    pub objects: Vec<Object>,
+    pub rendered: Option<(RecordBatch, RecordBatch)>,
+    /// NMS peaks of the target, back-projected (camera frame, metres), best first.
+    pub peaks: Vec<[f64; 3]>,
+}
+
+impl Outcome {
+    /// The failure score (see [`Predicate::score`]); `None` for an invalid sample.
+    pub fn score(&self, predicate: &Predicate) -> Option<f64> {
+        match &self.result {
+            Ok(Perceived::Fitted(m)) => Some(predicate.score(m)),
+            Ok(_) => Some(f64::INFINITY),
+            Err(_) => None,
+        }
+    }
+}
+
+/// Everything loaded once for a search: the renderer (one per process), the networks, the fit.
+pub struct SystemUnderTest {
+    pub physics: RecipePhysics,
+    renderer: Renderer,
+    model: KeypointModel,
+    segmenter: Option<SegmenterModel>,
+    pub crops: Crops,
+    pub method: Method,
+    /// Targets less visible than this are not scored (as `boxpose eval`'s default).
+    pub min_visible_fraction: f32,
+}
+
+impl SystemUnderTest {
+    pub fn new(
+        space: &SearchSpace,
+        renderer: Renderer,
+        model: KeypointModel,
+        segmenter: Option<SegmenterModel>,
+        crops: Crops,
+        method: Method,
+    ) -> Result<Self> {
+        if crops == Crops::Predicted && segmenter.is_none() {
+            return Err(SearchError::Sample("--crops predicted needs a segmenter".into()));
+        }
+        Ok(Self { physics: RecipePhysics::from_toml(&space.recipe_toml)?, renderer, model, segmenter, crops, method, min_visible_fraction: 0.25 })
+    }
+
+    /// Runs one sample: `parameters` (from z), scene `scene_id` with nuisance seed `seed`.
+    pub fn run(&mut self, space: &SearchSpace, parameters: &crate::space::Parameters, scene_id: i64, seed: i64) -> Result<Outcome> {
+        let mut seconds = StageSeconds::default();
+        let start = Instant::now();
+        let mut sampled = scene::build(space, parameters, scene_id, seed)?;
+        let settled = scene::settle(&mut sampled, &self.physics);
+        seconds.settle = start.elapsed().as_secs_f64();
+        let not_stable = match settled {
+            Ok(outcome) => outcome.rejection.map(|r| r.to_string()),
+            // a drop MuJoCo cannot integrate is a scene that does not settle, not a tool failure
+            Err(SearchError::Physics(boxpose_physics::PhysicsError::Diverged { time_s, warning })) => Some(format!("simulation diverged at {time_s:.3} s ({warning})")),
+            Err(e) => return Err(e),
+        };
+        let mut outcome = Outcome {
+            result: Err(Invalid::NotStable(String::new())),
+            seconds,
+            scene: sampled.scene.clone(),
+            objects: sampled.objects.clone(),
+            rendered: None,
+            peaks: Vec::new(),
+        };
+        if let Some(reason) = not_stable {
+            outcome.result = Err(Invalid::NotStable(reason));
+            return Ok(outcome);
+        }
+
+        let start = Instant::now();
+        let scenes = Scene::to_batch(std::slice::from_ref(&sampled.scene));
+        let objects = Object::to_batch(&sampled.objects);
+        self.renderer.load_scene(&scenes, &objects, scene_id)?;
+        let rendered = self.renderer.render(&RenderRequest::default())?;
+        outcome.seconds.render = start.elapsed().as_secs_f64();
+        let source = std::path::PathBuf::from(format!("<render of sample scene {scene_id}>"));
+        let frame = boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
+            .pop()
+            .ok_or_else(|| SearchError::Sample(format!("scene {scene_id}: the renderer returned no frame")))?;
+        outcome.rendered = Some((rendered.frames, rendered.instances));
+        let instance = frame
+            .instances
+            .iter()
+            .find(|i| i.object_id == TARGET_OBJECT_ID)
+            .ok_or_else(|| SearchError::Sample(format!("scene {scene_id}: the render has no instance row of the target")))?;
+        if instance.visible_fraction < self.min_visible_fraction || instance.visible_bbox.is_none() {
+            outcome.result = Err(Invalid::NotVisible { visible_fraction: instance.visible_fraction });
+            return Ok(outcome);
+        }
+        let (perceived, peaks) = self.perceive(&frame, instance, &mut outcome.seconds)?;
+        outcome.result = Ok(perceived);
+        outcome.peaks = peaks;
+        Ok(outcome)
+    }
+
+    fn perceive(&self, frame: &Frame, instance: &Instance, seconds: &mut StageSeconds) -> Result<(Perceived, Vec<[f64; 3]>)> {
+        let start = Instant::now();
+        let config = &self.model.config;
+        let sample = match &self.segmenter {
+            Some(segmenter) if self.crops == Crops::Predicted => {
+                let detections = segmenter.segment(&[frame])?.remove(0);
+                let index = frame.instances.iter().position(|i| i.object_id == instance.object_id).expect("the target is one of the frame's instances");
+                let found = segmentation::match_detections(frame, &detections, 0.5)[index];
+                let Some(detection) = found.map(|d| &detections[d]) else {
+                    seconds.inference = start.elapsed().as_secs_f64();
+                    return Ok((Perceived::NotDetected, Vec::new()));
+                };
+                let Some(crop) = CropRequest::around(frame, config, detection.bbox, |i| detection.mask[i]) else {
+                    seconds.inference = start.elapsed().as_secs_f64();
+                    return Ok((Perceived::NotDetected, Vec::new()));
+                };
+                data::sample_at(config, frame, &crop.window, crop.z_ref, &instance.corners_camera, None)?
+            }
+            _ => data::instance_sample(config, frame, instance, None)?,
+        };
+        let heatmap = self.model.heatmaps(std::slice::from_ref(&sample.input), 1)?.remove(0);
+        let (peaks, points) = inference::decode(config, &heatmap, &sample.grid)?;
+        seconds.inference = start.elapsed().as_secs_f64();
+
+        let start = Instant::now();
+        let model = BoxModel::new(Vector3::from(instance.size))?;
+        let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
+        let fits = pipeline::fit_and_score(&model, &evaluation::true_pose(instance), &points, &scores);
+        seconds.fit = start.elapsed().as_secs_f64();
+        let outcome = fits.into_iter().find(|(m, _)| *m == self.method).map(|(_, o)| o).expect("fit_and_score runs every method");
+        let perceived = match outcome {
+            Ok(s) => Perceived::Fitted(Metrics::of(&s, instance.size)),
+            Err(e) => Perceived::FitFailed(e),
+        };
+        Ok((perceived, points.iter().map(|p: &Point3<f64>| [p.x, p.y, p.z]).collect()))
+    }
+}
