@@ -230,12 +230,19 @@ impl Run {
             }
             return Ok(run);
         }
-        if dir.exists() && std::fs::read_dir(dir).map_err(|e| io_error(dir, e))?.next().is_some() {
+        // another shard may be publishing run.json right now: its temporary file is no stranger
+        let foreign = |entry: std::io::Result<std::fs::DirEntry>| entry.map(|e| !e.file_name().to_string_lossy().ends_with(".tmp")).unwrap_or(true);
+        if dir.exists() && std::fs::read_dir(dir).map_err(|e| io_error(dir, e))?.any(foreign) {
             return Err(SearchError::Run { path: dir.to_path_buf(), problem: "not empty and not a search run (no run.json): choose a new --out".into() });
         }
         let json = serde_json::to_vec_pretty(&record).expect("a run record serialises");
         write_atomically(&path, &json)?;
-        Ok(Self { dir: dir.to_path_buf(), record })
+        // two shards started together both write run.json; the one that lost the race re-reads it
+        let run = Self::open(dir)?;
+        if run.record != record {
+            return Err(SearchError::Run { path: dir.to_path_buf(), problem: "another process created it for another search at the same time".into() });
+        }
+        Ok(run)
     }
 
     /// Opens an existing run folder.
