@@ -16,7 +16,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train demo test bench bench-geometry bench-settle bench-render bench-learn clean
+.PHONY: help setup rust schema scenes train demo test bench bench-geometry bench-settle bench-render bench-learn bench-search clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -77,10 +77,13 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	$(BOXPOSE) predict $(DEMO_DATASET) --scene 0 --frame 0 --crops predicted --model $(MODEL) --segmenter $(SEGMENTER) --out $(DEMO_RESULTS)/predict
 	$(BOXPOSE) eval $(DEMO_DATASET) --crops gt --model $(MODEL) --out $(DEMO_RESULTS)/eval_gt_crops
 	$(BOXPOSE) eval $(DEMO_DATASET) --crops predicted --model $(MODEL) --segmenter $(SEGMENTER) --out $(DEMO_RESULTS)/eval_predicted_crops
+	@echo; echo "== counterexample search on single_box (the paper's setting, docs/search.md): Monte Carlo, then cross-entropy importance sampling"
+	$(BOXPOSE) search single_box --samples 200 --out $(DEMO_RESULTS)/search-mc
+	$(BOXPOSE) search single_box --sampler ce --samples 120 --ce-samples-per-iteration 60 --ce-max-iterations 3 --out $(DEMO_RESULTS)/search-ce
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
 
-bench: bench-geometry bench-settle bench-render bench-learn ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
+bench: bench-geometry bench-settle bench-render bench-learn bench-search ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
 
 bench-geometry: setup ## Geometry core (criterion), then fast exact search vs a batched NumPy brute force on the same inputs
 	cargo bench -p boxpose-geometry --bench geometry
@@ -91,6 +94,9 @@ bench-settle: setup ## Drake vs MuJoCo settle time on the same 5- and 20-box dro
 
 bench-render: setup ## Cycles seconds per 640×480 frame by samples and denoising; 128×128 crop re-render from Rust, scene reused vs rebuilt
 	$(PY) scripts/bench_render.py
+
+bench-search: setup ## Search: CPU-seconds per sample by stage (ground-truth and segmenter crops), Monte Carlo vs cross-entropy samples for 20% relative error on a real event
+	$(PY) scripts/bench_search.py
 
 # PyTorch only for the comparison benchmark: PyPI's torch wheel brings CUDA libraries (≈ 6 GB).
 TORCH_VENV := build/torch-venv

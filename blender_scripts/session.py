@@ -153,13 +153,18 @@ class Session:
         crop: tuple[int, int, int, int] | None = None,
         poses: dict | None = None,
         sensor_depth: bool | None = None,
+        crop_object: tuple[int, float] | None = None,
     ) -> tuple[dict, list[dict]]:
         """Renders one frame of the loaded scene: its `frames` row and its `instances` rows.
 
         samples / denoise / sensor_depth default to the recipe's [render] values. `crop` =
         (x0, y0, x1, y1), max exclusive, renders only that region: the frame is then that
         region, with the principal point shifted by (x0, y0). `poses` = {object_id: 4×4
-        T_world_box or (quat_wxyz, translation)} moves boxes for this render only."""
+        T_world_box or (quat_wxyz, translation)} moves boxes for this render only.
+        `crop_object` = (object_id, margin) renders only the region around that box: its
+        projected corners' bounding box grown on every side by margin × its longer side / 2 (the
+        search's ground-truth crops; the frame's `render_settings` record the region, so
+        `crop` re-renders it exactly)."""
         if self.scene_row is None:
             raise RenderInputError("no scene loaded")
         spec = self.recipe.render
@@ -172,8 +177,12 @@ class Session:
             raise RenderInputError(f"scene {self.scene_row['scene_id']} has no object_id {unknown}")
 
         seed, full_camera, camera_draw, lighting = self.frame_draw(frame_id)
-        camera = full_camera if crop is None else full_camera.crop(*crop)
         world_boxes = {oid: poses.get(oid, m) for oid, m in self.world_boxes.items()}
+        if crop_object is not None:
+            if crop is not None:
+                raise RenderInputError("give crop or crop_object, not both")
+            crop = self._region_around(full_camera, world_boxes, *crop_object)
+        camera = full_camera if crop is None else full_camera.crop(*crop)
         b = self.blender
         for oid, m in world_boxes.items():
             b.set_box_pose(oid, m)
@@ -244,9 +253,31 @@ class Session:
         self.last_timing = {"render_s": out.seconds, "total_s": time.perf_counter() - start}
         return frame, instances
 
-    def render_batches(self, frame_id: int = 0, samples=None, denoise=None, crop=None, poses=None, sensor_depth=None) -> tuple[pa.RecordBatch, pa.RecordBatch]:
+    def _region_around(self, camera: geo.Camera, world_boxes: dict, object_id: int, margin: float) -> tuple[int, int, int, int] | None:
+        """The pixel region of `render(crop_object=…)`; None (the whole frame) when the box is
+        partly behind the camera, or its region leaves nothing of the image."""
+        object_id, margin = int(object_id), float(margin)
+        if object_id not in world_boxes:
+            raise RenderInputError(f"scene {self.scene_row['scene_id']} has no object_id {object_id}")
+        if not (np.isfinite(margin) and margin >= 0):
+            raise RenderInputError(f"crop_object margin {margin} must be finite and non-negative")
+        size = next(o["size_m"] for o in self.objects if int(o["object_id"]) == object_id)
+        corners = geo.transform(camera.camera_world @ world_boxes[object_id], geo.box_corners(size))
+        if (corners[:, 2] <= 0).any():
+            return None
+        uv = camera.project(corners)
+        (u0, v0), (u1, v1) = uv.min(axis=0), uv.max(axis=0)
+        grow = margin * max(u1 - u0, v1 - v0) / 2
+        # pixel i covers [i − 0.5, i + 0.5)
+        x0, y0 = max(0, int(np.floor(u0 - grow + 0.5))), max(0, int(np.floor(v0 - grow + 0.5)))
+        x1, y1 = min(camera.width, int(np.ceil(u1 + grow + 0.5))), min(camera.height, int(np.ceil(v1 + grow + 0.5)))
+        return (x0, y0, x1, y1) if x0 < x1 and y0 < y1 else None
+
+    def render_batches(
+        self, frame_id: int = 0, samples=None, denoise=None, crop=None, poses=None, sensor_depth=None, crop_object=None
+    ) -> tuple[pa.RecordBatch, pa.RecordBatch]:
         """`render` as Arrow record batches with the contract schemas (for the Rust side)."""
-        frame, instances = self.render(frame_id, samples, denoise, crop, poses, sensor_depth)
+        frame, instances = self.render(frame_id, samples, denoise, crop, poses, sensor_depth, crop_object)
         return _batch("frames", [frame]), _batch("instances", instances)
 
 

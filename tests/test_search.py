@@ -4,6 +4,7 @@ pandas, resume after a kill, two shards merged, bad search spaces refused before
 counterexamples that `boxpose render` re-renders exactly. The networks see tiny renders, so the
 failure rates mean nothing here; the plumbing, the determinism and the files are tested."""
 
+import io
 import json
 import math
 import os
@@ -12,8 +13,10 @@ import subprocess
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
+from PIL import Image
 
 from conftest import REPO
 
@@ -49,6 +52,10 @@ yaw_deg = [0.0, 360.0]
 x_m = [-0.2, 0.2]
 y_m = [-0.2, 0.2]
 """
+
+
+def rgb(png: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(png))).astype(int)
 
 
 def recipe(base: str) -> str:
@@ -149,8 +156,18 @@ def test_counterexamples_re_render_exactly(mc_run, boxpose_bin, tmp_path):
         pytest.skip("this seed found no failure to re-render")  # the MC test asserts the run itself
     sample = int(failed.sample_id.iloc[0])
     out = tmp_path / "rerender"
-    r = subprocess.run([str(boxpose_bin), "render", mc_run / "counterexamples", "--scene", str(sample), "--out", out, "--threads", "1"], capture_output=True, text=True, cwd=REPO, timeout=300)
+    # ground-truth-crop searches render the region around the target: render_settings say which
+    frame = pd.read_parquet(mc_run / "counterexamples" / "frames").query(f"scene_id == {sample}").iloc[0]
+    crop = json.loads(frame.render_settings)["crop"]
+    region = ["--crop", ",".join(map(str, crop))] if crop else []
+    r = subprocess.run([str(boxpose_bin), "render", mc_run / "counterexamples", "--scene", str(sample), *region, "--out", out, "--threads", "1"], capture_output=True, text=True, cwd=REPO, timeout=300)
     assert r.returncode == 0, r.stderr
+    again = pd.read_parquet(out / "frames").iloc[0]
+    for column in ("width", "height", "cx", "cy", "render_seed", "depth_m_f32le", "instance_mask_png"):
+        assert again[column] == frame[column], column
+    # Cycles at 1 sample is the same image within its noise, not bit for bit
+    difference = np.abs(rgb(again.rgb_png) - rgb(frame.rgb_png))
+    assert difference.mean() < 2.0, difference.mean()
     want = pd.read_parquet(mc_run / "counterexamples" / "instances").query(f"scene_id == {sample}").sort_values("object_id")
     got = pd.read_parquet(out / "instances").sort_values("object_id")
     for column in ("corners_px", "visible_pixels", "visible_fraction"):

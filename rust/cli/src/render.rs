@@ -116,6 +116,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             crop: args.crop,
             sensor_depth: args.sensor_depth,
             poses: args.poses.clone(),
+            crop_object: None,
         };
         let t = Instant::now();
         let out = renderer.render(&request)?;

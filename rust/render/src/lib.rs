@@ -299,6 +299,10 @@ pub struct RenderRequest {
     pub sensor_depth: Option<bool>,
     /// Boxes moved for this render only: (object_id, T_world_box).
     pub poses: Vec<(i32, Pose)>,
+    /// Render only the region around one box: (object_id, margin), its projected corners'
+    /// bounding box grown on every side by margin × its longer side / 2 (the whole frame when
+    /// the box is partly behind the camera). Excludes `crop`.
+    pub crop_object: Option<(i32, f64)>,
 }
 
 /// The rows of one render: one `frames` row and the frame's `instances` rows, with the
@@ -452,6 +456,14 @@ impl Renderer {
                 set(
                     "crop",
                     PyTuple::new(py, c).map_err(|e| py_err(py, e))?.into_any(),
+                )?;
+            }
+            if let Some(c) = request.crop_object {
+                set(
+                    "crop_object",
+                    c.into_pyobject(py)
+                        .map_err(|e| py_err(py, e.into()))?
+                        .into_any(),
                 )?;
             }
             if !request.poses.is_empty() {
