@@ -11,7 +11,9 @@ use boxpose_learn::backend::BackendKind;
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_render::Renderer;
-use boxpose_search::run::{IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler};
+use boxpose_search::run::{
+    IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler,
+};
 use boxpose_search::space::SearchSpace;
 use boxpose_search::sut::{self, Crops, Predicate, SystemUnderTest};
 use boxpose_search_stats::{CeConfig, ImportanceEstimate, clopper_pearson};
@@ -171,7 +173,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 
 fn search(args: &RunArgs) -> anyhow::Result<()> {
     let space_name = args.space.as_deref().context("give a search space")?;
-    let out = args.out.as_deref().context("give a run folder with --out")?;
+    let out = args
+        .out
+        .as_deref()
+        .context("give a run folder with --out")?;
     let space = SearchSpace::load(space_name, &args.recipes)?;
     let crops = match args.crops {
         CropsArg::Gt => Crops::Gt,
@@ -220,7 +225,12 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
         progress.bar.finish_and_clear();
         if !run.complete()? {
-            println!("shard {} of {} done; the run completes when every shard has finished (then `boxpose search merge {}`)", args.shard, args.num_shards, out.display());
+            println!(
+                "shard {} of {} done; the run completes when every shard has finished (then `boxpose search merge {}`)",
+                args.shard,
+                args.num_shards,
+                out.display()
+            );
             return Ok(());
         }
     }
@@ -231,12 +241,26 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
 }
 
 fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
-    let ci = e.ci95.map_or("no interval (no failure)".to_string(), |(lo, hi)| format!("95% CI [{lo:.3e}, {hi:.3e}] ({:?})", e.ci_method));
+    let ci = e
+        .ci95
+        .map_or("no interval (no failure)".to_string(), |(lo, hi)| {
+            format!("95% CI [{lo:.3e}, {hi:.3e}] ({:?})", e.ci_method)
+        });
     println!(
         "P(fail | valid) = {:.3e}  {ci}\n  {} samples in the estimate ({} valid, {} failing), {spent} spent in all; P(valid) = {:.3}; ESS {:.0}, failure ESS {:.1}, largest weight share {:.2}",
-        e.p_hat, e.samples, e.valid, e.failures, e.p_valid, e.kish_ess, e.failure_ess, e.max_weight_share
+        e.p_hat,
+        e.samples,
+        e.valid,
+        e.failures,
+        e.p_valid,
+        e.kish_ess,
+        e.failure_ess,
+        e.max_weight_share
     );
-    println!("run: {}  (samples.parquet, summary.json, counterexamples/, report/index.html)", run.display());
+    println!(
+        "run: {}  (samples.parquet, summary.json, counterexamples/, report/index.html)",
+        run.display()
+    );
 }
 
 /// The progress bar: samples/s, failures so far, the running estimate.
@@ -255,7 +279,15 @@ impl Progress {
         let bar = ProgressBar::new(0).with_style(
             ProgressStyle::with_template("{prefix} {bar:25} {pos}/{len} samples [{elapsed_precise}<{eta_precise}, {per_sec}] {msg}").expect("a valid template"),
         );
-        Self { bar, sampler, stage: String::new(), valid: 0, failures: 0, total_failures: 0, started: Instant::now() }
+        Self {
+            bar,
+            sampler,
+            stage: String::new(),
+            valid: 0,
+            failures: 0,
+            total_failures: 0,
+            started: Instant::now(),
+        }
     }
 }
 
@@ -274,12 +306,21 @@ impl Observer for Progress {
                     iteration - 1,
                     step.level,
                     step.elites,
-                    if step.reached { " — failure level reached" } else { "" }
+                    if step.reached {
+                        " — failure level reached"
+                    } else {
+                        ""
+                    }
                 )
             });
         }
         if plan.stage == "final" && self.sampler == Sampler::Ce {
-            self.bar.suspend(|| println!("frozen proposal: {} fresh samples for the estimate", plan.samples));
+            self.bar.suspend(|| {
+                println!(
+                    "frozen proposal: {} fresh samples for the estimate",
+                    plan.samples
+                )
+            });
         }
     }
 
@@ -290,11 +331,18 @@ impl Observer for Progress {
         self.total_failures += row.failed as u64;
         let estimate = if self.stage == "mc" && self.valid > 0 {
             let (lo, hi) = clopper_pearson(self.failures, self.valid, 0.95);
-            format!("p̂ {:.2e} [{lo:.1e}, {hi:.1e}]", self.failures as f64 / self.valid as f64)
+            format!(
+                "p̂ {:.2e} [{lo:.1e}, {hi:.1e}]",
+                self.failures as f64 / self.valid as f64
+            )
         } else {
             format!("{} valid", self.valid)
         };
-        self.bar.set_message(format!("{} failures, {estimate}, {:.0} s", self.total_failures, self.started.elapsed().as_secs_f64()));
+        self.bar.set_message(format!(
+            "{} failures, {estimate}, {:.0} s",
+            self.total_failures,
+            self.started.elapsed().as_secs_f64()
+        ));
     }
 
     fn waiting(&mut self, what: &str) {

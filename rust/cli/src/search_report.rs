@@ -34,33 +34,64 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
         Sampler::Ce => "final",
     };
     let estimating: Vec<&SampleRow> = rows.iter().filter(|r| r.stage == stage).collect();
-    let (metric_name, threshold, metric): (&str, f64, fn(&SampleRow) -> Option<f64>) = match settings.predicate {
-        Predicate::PaperError { threshold } => ("paper's error / (diag²/3)", threshold, |r| r.paper_error_normalized),
-        Predicate::Mssd { fraction } => ("MSSD / diameter", fraction, |r| r.mssd_over_diameter),
-    };
-    let weighted: Vec<(f64, f64)> = estimating.iter().filter_map(|r| metric(r).filter(|v| *v > 0.0).map(|v| (v.log10(), r.log_weight.exp()))).collect();
+    let (metric_name, threshold, metric): (&str, f64, fn(&SampleRow) -> Option<f64>) =
+        match settings.predicate {
+            Predicate::PaperError { threshold } => ("paper's error / (diag²/3)", threshold, |r| {
+                r.paper_error_normalized
+            }),
+            Predicate::Mssd { fraction } => ("MSSD / diameter", fraction, |r| r.mssd_over_diameter),
+        };
+    let weighted: Vec<(f64, f64)> = estimating
+        .iter()
+        .filter_map(|r| {
+            metric(r)
+                .filter(|v| *v > 0.0)
+                .map(|v| (v.log10(), r.log_weight.exp()))
+        })
+        .collect();
     let mut figures = Vec::new();
     if !weighted.is_empty() {
         let title = match settings.sampler {
             Sampler::Mc => format!("{metric_name}, {} scored samples", weighted.len()),
             Sampler::Ce => format!("{metric_name}, {} samples weighted by p/q", weighted.len()),
         };
-        plots::weighted_histogram(&tmp.join("error_hist.png"), &title, &format!("log10({metric_name})"), &weighted, threshold.log10())?;
+        plots::weighted_histogram(
+            &tmp.join("error_hist.png"),
+            &title,
+            &format!("log10({metric_name})"),
+            &weighted,
+            threshold.log10(),
+        )?;
         figures.push(("error_hist.png", "Error histogram (the paper's Fig. 6), threshold dashed; importance-sampling runs weight each sample by p/q, so the bars estimate the nominal distribution."));
     }
 
     let curve = estimate_curve(&rows, &run)?;
     if curve.len() >= 2 {
-        plots::estimate_curve(&tmp.join("estimate.png"), "P(fail | valid) against samples spent (95% CI)", &curve)?;
+        plots::estimate_curve(
+            &tmp.join("estimate.png"),
+            "P(fail | valid) against samples spent (95% CI)",
+            &curve,
+        )?;
         figures.push(("estimate.png", "The estimate and its 95% interval as samples are spent (cross-entropy: tuning samples first, counted in the budget)."));
     }
 
     let names = &run.record.dimensions;
-    let scalar: Vec<usize> = (0..names.len()).filter(|&d| !names[d].contains(".orientation.")).collect();
+    let scalar: Vec<usize> = (0..names.len())
+        .filter(|&d| !names[d].contains(".orientation."))
+        .collect();
     let points: Vec<(Vec<f64>, f64, bool)> = rows
         .iter()
         .filter(|r| r.valid)
-        .map(|r| (scalar.iter().map(|&d| standard_normal_cdf(r.z[d])).collect(), r.level_score(), r.failed))
+        .map(|r| {
+            (
+                scalar
+                    .iter()
+                    .map(|&d| standard_normal_cdf(r.z[d]))
+                    .collect(),
+                r.level_score(),
+                r.failed,
+            )
+        })
         .collect();
     if !points.is_empty() {
         let panel_names: Vec<&str> = scalar.iter().map(|&d| names[d].as_str()).collect();
@@ -69,7 +100,11 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
     }
 
     let mut failing: Vec<&SampleRow> = rows.iter().filter(|r| r.failed).collect();
-    failing.sort_by(|a, b| b.level_score().total_cmp(&a.level_score()).then(a.sample_id.cmp(&b.sample_id)));
+    failing.sort_by(|a, b| {
+        b.level_score()
+            .total_cmp(&a.level_score())
+            .then(a.sample_id.cmp(&b.sample_id))
+    });
     failing.truncate(worst);
     let counterexamples = run_dir.join("counterexamples");
     let mut drawn = Vec::new();
@@ -77,11 +112,34 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
         let dataset = Dataset::open(&counterexamples)?;
         for frame in dataset.frames()? {
             let frame = frame?;
-            let Some(row) = failing.iter().find(|r| r.sample_id == frame.scene_id) else { continue };
-            let truth = frame.instances.iter().find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID).map(|i| i.corners_camera.map(Point3::from));
-            let peaks = row.peaks_camera_m.as_deref().unwrap_or_default().chunks(3).map(|p| Point3::new(p[0], p[1], p[2])).collect();
+            let Some(row) = failing.iter().find(|r| r.sample_id == frame.scene_id) else {
+                continue;
+            };
+            let truth = frame
+                .instances
+                .iter()
+                .find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID)
+                .map(|i| i.corners_camera.map(Point3::from));
+            let peaks = row
+                .peaks_camera_m
+                .as_deref()
+                .unwrap_or_default()
+                .chunks(3)
+                .map(|p| Point3::new(p[0], p[1], p[2]))
+                .collect();
             let name = format!("sample-{}.png", row.sample_id);
-            plots::overlay(&tmp.join(&name), &frame.rgb, frame.width, frame.height, &frame.intrinsics, &[OverlayBox { truth, peaks, fitted: None }])?;
+            plots::overlay(
+                &tmp.join(&name),
+                &frame.rgb,
+                frame.width,
+                frame.height,
+                &frame.intrinsics,
+                &[OverlayBox {
+                    truth,
+                    peaks,
+                    fitted: None,
+                }],
+            )?;
             drawn.push((row.sample_id, name));
         }
     }
@@ -100,7 +158,11 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
 /// (samples spent, p̂, CI low, CI high) at up to [`CURVE_POINTS`] prefixes of the estimating stage.
 fn estimate_curve(rows: &[SampleRow], run: &Run) -> anyhow::Result<Vec<(f64, f64, f64, f64)>> {
     let sampler = run.record.settings.sampler;
-    let stage = if sampler == Sampler::Mc { "mc" } else { "final" };
+    let stage = if sampler == Sampler::Mc {
+        "mc"
+    } else {
+        "final"
+    };
     let before = rows.iter().filter(|r| r.stage != stage).count();
     let estimating: Vec<SampleRow> = rows.iter().filter(|r| r.stage == stage).cloned().collect();
     let mut curve = Vec::new();
@@ -108,7 +170,9 @@ fn estimate_curve(rows: &[SampleRow], run: &Run) -> anyhow::Result<Vec<(f64, f64
     for n in (step..=estimating.len()).step_by(step) {
         let prefix = &estimating[..n];
         // an early prefix may miss a stratum: no estimate there yet
-        let Ok(e) = estimate(prefix, sampler, &run.record.strata) else { continue };
+        let Ok(e) = estimate(prefix, sampler, &run.record.strata) else {
+            continue;
+        };
         let (lo, hi) = e.ci95.unwrap_or((0.0, e.p_hat));
         curve.push(((before + n) as f64, e.p_hat, lo, hi));
     }
@@ -116,23 +180,59 @@ fn estimate_curve(rows: &[SampleRow], run: &Run) -> anyhow::Result<Vec<(f64, f64
 }
 
 fn escape(text: &str) -> String {
-    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+    text.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
 }
 
-fn page(run: &Run, rows: &[SampleRow], figures: &[(&str, &str)], failing: &[&SampleRow], drawn: &[(i64, String)]) -> anyhow::Result<String> {
+fn page(
+    run: &Run,
+    rows: &[SampleRow],
+    figures: &[(&str, &str)],
+    failing: &[&SampleRow],
+    drawn: &[(i64, String)],
+) -> anyhow::Result<String> {
     let s = &run.record.settings;
     let mut h = String::new();
     let summary_path = run.dir.join("summary.json");
-    let summary: Option<serde_json::Value> = std::fs::read_to_string(&summary_path).ok().and_then(|t| serde_json::from_str(&t).ok());
-    writeln!(h, "<!doctype html><html><head><meta charset=\"utf-8\"><title>boxpose search: {}</title>", escape(&run.dir.display().to_string()))?;
-    writeln!(h, "<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}img{{max-width:100%}}</style></head><body>")?;
-    writeln!(h, "<h1>Counterexample search</h1><p>Run <code>{}</code>: sampler <b>{}</b>, {} crops, fit <b>{}</b>, failure when {:?}.</p>", escape(&run.dir.display().to_string()), s.sampler.name(), if s.crops == boxpose_search::sut::Crops::Gt { "ground-truth" } else { "segmenter" }, escape(&s.fit), s.predicate)?;
+    let summary: Option<serde_json::Value> = std::fs::read_to_string(&summary_path)
+        .ok()
+        .and_then(|t| serde_json::from_str(&t).ok());
+    writeln!(
+        h,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>boxpose search: {}</title>",
+        escape(&run.dir.display().to_string())
+    )?;
+    writeln!(
+        h,
+        "<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}img{{max-width:100%}}</style></head><body>"
+    )?;
+    writeln!(
+        h,
+        "<h1>Counterexample search</h1><p>Run <code>{}</code>: sampler <b>{}</b>, {} crops, fit <b>{}</b>, failure when {:?}.</p>",
+        escape(&run.dir.display().to_string()),
+        s.sampler.name(),
+        if s.crops == boxpose_search::sut::Crops::Gt {
+            "ground-truth"
+        } else {
+            "segmenter"
+        },
+        escape(&s.fit),
+        s.predicate
+    )?;
     match summary.as_ref().and_then(|v| v.get("estimate")) {
         Some(e) => {
             let f = |k: &str| e.get(k).and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
-            let ci = e.get("ci95").and_then(|v| v.as_array()).map_or("none (no failure)".to_string(), |a| {
-                format!("[{:.3e}, {:.3e}]", a[0].as_f64().unwrap_or(f64::NAN), a[1].as_f64().unwrap_or(f64::NAN))
-            });
+            let ci = e.get("ci95").and_then(|v| v.as_array()).map_or(
+                "none (no failure)".to_string(),
+                |a| {
+                    format!(
+                        "[{:.3e}, {:.3e}]",
+                        a[0].as_f64().unwrap_or(f64::NAN),
+                        a[1].as_f64().unwrap_or(f64::NAN)
+                    )
+                },
+            );
             writeln!(
                 h,
                 "<h2>Estimate</h2><table><tr><th>P(fail | valid)</th><th>95% CI</th><th>method</th><th>samples in estimate</th><th>valid</th><th>failing</th><th>spent in all</th><th>P(valid)</th><th>ESS</th><th>failure ESS</th><th>largest weight share</th></tr>\
@@ -149,26 +249,63 @@ fn page(run: &Run, rows: &[SampleRow], figures: &[(&str, &str)], failing: &[&Sam
                 f("max_weight_share"),
             )?;
         }
-        None => writeln!(h, "<p>The run is not complete ({} samples so far): no estimate yet.</p>", rows.len())?,
+        None => writeln!(
+            h,
+            "<p>The run is not complete ({} samples so far): no estimate yet.</p>",
+            rows.len()
+        )?,
     }
     for (file, caption) in figures {
-        writeln!(h, "<figure><img src=\"{file}\"><figcaption>{}</figcaption></figure>", escape(caption))?;
+        writeln!(
+            h,
+            "<figure><img src=\"{file}\"><figcaption>{}</figcaption></figure>",
+            escape(caption)
+        )?;
     }
     writeln!(h, "<h2>Worst counterexamples</h2>")?;
     if failing.is_empty() {
         writeln!(h, "<p>No failing sample.</p>")?;
     } else {
-        writeln!(h, "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID --samples 64</code> re-renders it, <code>boxpose predict {0}/counterexamples --scene ID</code> re-runs the pipeline. True box white, the network's NMS peaks black.</p>", escape(&run.dir.display().to_string()))?;
-        writeln!(h, "<table><tr><th>sample</th><th>stage</th><th>score</th><th>paper err. (norm.)</th><th>MSSD/d</th><th>detected</th><th>fit error</th></tr>")?;
+        writeln!(
+            h,
+            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID --samples 64</code> re-renders it, <code>boxpose predict {0}/counterexamples --scene ID</code> re-runs the pipeline. True box white, the network's NMS peaks black.</p>",
+            escape(&run.dir.display().to_string())
+        )?;
+        writeln!(
+            h,
+            "<table><tr><th>sample</th><th>stage</th><th>score</th><th>paper err. (norm.)</th><th>MSSD/d</th><th>detected</th><th>fit error</th></tr>"
+        )?;
         let opt = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.3e}"));
         for r in failing {
-            writeln!(h, "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>", r.sample_id, r.stage, r.score.map_or("∞".into(), |v| format!("{v:.2}")), opt(r.paper_error_normalized), opt(r.mssd_over_diameter), r.detected.map_or("–", |d| if d { "yes" } else { "no" }), escape(r.fit_error.as_deref().unwrap_or("")))?;
+            writeln!(
+                h,
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                r.sample_id,
+                r.stage,
+                r.score.map_or("∞".into(), |v| format!("{v:.2}")),
+                opt(r.paper_error_normalized),
+                opt(r.mssd_over_diameter),
+                r.detected.map_or("–", |d| if d { "yes" } else { "no" }),
+                escape(r.fit_error.as_deref().unwrap_or(""))
+            )?;
         }
         writeln!(h, "</table>")?;
         for (id, file) in drawn {
-            writeln!(h, "<figure style=\"display:inline-block;width:32%\"><img src=\"{file}\"><figcaption>sample {id}</figcaption></figure>")?;
+            writeln!(
+                h,
+                "<figure style=\"display:inline-block;width:32%\"><img src=\"{file}\"><figcaption>sample {id}</figcaption></figure>"
+            )?;
         }
     }
-    writeln!(h, "<h2>Parameters</h2><p>z's dimensions, in order: {}.</p></body></html>", run.record.dimensions.iter().map(|d| format!("<code>{}</code>", escape(d))).collect::<Vec<_>>().join(", "))?;
+    writeln!(
+        h,
+        "<h2>Parameters</h2><p>z's dimensions, in order: {}.</p></body></html>",
+        run.record
+            .dimensions
+            .iter()
+            .map(|d| format!("<code>{}</code>", escape(d)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )?;
     Ok(h)
 }

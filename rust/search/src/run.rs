@@ -19,12 +19,18 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use arrow::array::{Array, ArrayRef, AsArray, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray, StringArray};
+use arrow::array::{
+    Array, ArrayRef, AsArray, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array,
+    ListArray, StringArray,
+};
 use arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::schema::{self, SEARCH_SAMPLES, SEARCH_TIMINGS, Table};
 use boxpose_data::{Object, Scene};
-use boxpose_search_stats::{CeConfig, CeStep, ImportanceEstimate, Proposal, WeightedSample, ce_step, log_nominal, sample_rng};
+use boxpose_search_stats::{
+    CeConfig, CeStep, ImportanceEstimate, Proposal, WeightedSample, ce_step, log_nominal,
+    sample_rng,
+};
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
@@ -91,12 +97,15 @@ pub struct RunRecord {
 impl RunRecord {
     pub fn new(space: &SearchSpace, settings: RunSettings) -> Result<Self> {
         if settings.samples == 0 || settings.batch_size == 0 {
-            return Err(SearchError::Sample("--samples and --batch-size must be at least 1".into()));
+            return Err(SearchError::Sample(
+                "--samples and --batch-size must be at least 1".into(),
+            ));
         }
         if settings.sampler == Sampler::Ce {
             let mut ce = settings.ce.clone();
             ce.final_samples = settings.samples;
-            ce.validate().map_err(|e| SearchError::Sample(e.to_string()))?;
+            ce.validate()
+                .map_err(|e| SearchError::Sample(e.to_string()))?;
         }
         Ok(Self {
             format: RUN_FORMAT,
@@ -194,7 +203,10 @@ pub struct Run {
 }
 
 fn io_error(path: &Path, e: impl std::fmt::Display) -> SearchError {
-    SearchError::Io { path: path.to_path_buf(), message: e.to_string() }
+    SearchError::Io {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    }
 }
 
 /// Writes `bytes` to `path` atomically: a temporary file unique to this process, fsync, rename.
@@ -202,9 +214,15 @@ fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     use std::io::Write;
     let dir = path.parent().unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| io_error(dir, e))?;
-    let tmp = path.with_file_name(format!("{}.{}.tmp", path.file_name().unwrap_or_default().to_string_lossy(), std::process::id()));
+    let tmp = path.with_file_name(format!(
+        "{}.{}.tmp",
+        path.file_name().unwrap_or_default().to_string_lossy(),
+        std::process::id()
+    ));
     let mut file = std::fs::File::create(&tmp).map_err(|e| io_error(&tmp, e))?;
-    file.write_all(bytes).and_then(|_| file.sync_all()).map_err(|e| io_error(&tmp, e))?;
+    file.write_all(bytes)
+        .and_then(|_| file.sync_all())
+        .map_err(|e| io_error(&tmp, e))?;
     std::fs::rename(&tmp, path).map_err(|e| io_error(path, e))
 }
 
@@ -225,22 +243,38 @@ impl Run {
                 };
                 return Err(SearchError::Run {
                     path: dir.to_path_buf(),
-                    problem: format!("it holds another search ({what} differ from this command's); resume it with its own settings or choose a new --out"),
+                    problem: format!(
+                        "it holds another search ({what} differ from this command's); resume it with its own settings or choose a new --out"
+                    ),
                 });
             }
             return Ok(run);
         }
         // another shard may be publishing run.json right now: its temporary file is no stranger
-        let foreign = |entry: std::io::Result<std::fs::DirEntry>| entry.map(|e| !e.file_name().to_string_lossy().ends_with(".tmp")).unwrap_or(true);
-        if dir.exists() && std::fs::read_dir(dir).map_err(|e| io_error(dir, e))?.any(foreign) {
-            return Err(SearchError::Run { path: dir.to_path_buf(), problem: "not empty and not a search run (no run.json): choose a new --out".into() });
+        let foreign = |entry: std::io::Result<std::fs::DirEntry>| {
+            entry
+                .map(|e| !e.file_name().to_string_lossy().ends_with(".tmp"))
+                .unwrap_or(true)
+        };
+        if dir.exists()
+            && std::fs::read_dir(dir)
+                .map_err(|e| io_error(dir, e))?
+                .any(foreign)
+        {
+            return Err(SearchError::Run {
+                path: dir.to_path_buf(),
+                problem: "not empty and not a search run (no run.json): choose a new --out".into(),
+            });
         }
         let json = serde_json::to_vec_pretty(&record).expect("a run record serialises");
         write_atomically(&path, &json)?;
         // two shards started together both write run.json; the one that lost the race re-reads it
         let run = Self::open(dir)?;
         if run.record != record {
-            return Err(SearchError::Run { path: dir.to_path_buf(), problem: "another process created it for another search at the same time".into() });
+            return Err(SearchError::Run {
+                path: dir.to_path_buf(),
+                problem: "another process created it for another search at the same time".into(),
+            });
         }
         Ok(run)
     }
@@ -248,12 +282,29 @@ impl Run {
     /// Opens an existing run folder.
     pub fn open(dir: &Path) -> Result<Self> {
         let path = dir.join("run.json");
-        let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, format!("{e} (is this a `boxpose search` run folder?)")))?;
-        let record: RunRecord = serde_json::from_str(&text).map_err(|e| SearchError::Run { path: path.clone(), problem: format!("unreadable run.json: {e}") })?;
+        let text = std::fs::read_to_string(&path).map_err(|e| {
+            io_error(
+                &path,
+                format!("{e} (is this a `boxpose search` run folder?)"),
+            )
+        })?;
+        let record: RunRecord = serde_json::from_str(&text).map_err(|e| SearchError::Run {
+            path: path.clone(),
+            problem: format!("unreadable run.json: {e}"),
+        })?;
         if record.format != RUN_FORMAT {
-            return Err(SearchError::Run { path, problem: format!("run format {} (this boxpose reads {RUN_FORMAT})", record.format) });
+            return Err(SearchError::Run {
+                path,
+                problem: format!(
+                    "run format {} (this boxpose reads {RUN_FORMAT})",
+                    record.format
+                ),
+            });
         }
-        Ok(Self { dir: dir.to_path_buf(), record })
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            record,
+        })
     }
 
     fn settings(&self) -> &RunSettings {
@@ -265,11 +316,16 @@ impl Run {
     }
 
     fn batch_path(&self, table: &Table, iteration: u32, batch: usize) -> PathBuf {
-        self.dir.join("batches").join(table.name).join(Self::batch_name(iteration, batch))
+        self.dir
+            .join("batches")
+            .join(table.name)
+            .join(Self::batch_name(iteration, batch))
     }
 
     fn plan_path(&self, iteration: u32) -> PathBuf {
-        self.dir.join("proposals").join(format!("iter-{iteration:04}.json"))
+        self.dir
+            .join("proposals")
+            .join(format!("iter-{iteration:04}.json"))
     }
 
     fn batches(&self, samples: usize) -> usize {
@@ -287,7 +343,13 @@ impl Run {
     /// Where z's orientation blocks start (four normals normalised to a quaternion each): the
     /// cross-entropy proposal gives them an angular central Gaussian, the rest a Gaussian.
     fn rotation_blocks(&self) -> Vec<usize> {
-        self.record.dimensions.iter().enumerate().filter(|(_, name)| name.ends_with(".orientation.q0")).map(|(i, _)| i).collect()
+        self.record
+            .dimensions
+            .iter()
+            .enumerate()
+            .filter(|(_, name)| name.ends_with(".orientation.q0"))
+            .map(|(i, _)| i)
+            .collect()
     }
 
     /// The plan of `iteration`, if it is known yet (written at the barrier before it).
@@ -296,14 +358,21 @@ impl Run {
         let s = self.settings();
         if iteration == 0 {
             return Ok(Some(match s.sampler {
-                Sampler::Mc => IterationPlan { stage: "mc".into(), samples: s.samples, proposal: Proposal::nominal(dim), step: None },
+                Sampler::Mc => IterationPlan {
+                    stage: "mc".into(),
+                    samples: s.samples,
+                    proposal: Proposal::nominal(dim),
+                    step: None,
+                },
                 Sampler::Ce => IterationPlan {
                     stage: "tune".into(),
                     samples: s.ce.samples_per_iteration,
-                    proposal: Proposal::tuning_start(dim, s.ce.components).with_rotation_blocks(&self.rotation_blocks()).map_err(|e| SearchError::Run {
-                        path: self.dir.clone(),
-                        problem: format!("the starting proposal: {e}"),
-                    })?,
+                    proposal: Proposal::tuning_start(dim, s.ce.components)
+                        .with_rotation_blocks(&self.rotation_blocks())
+                        .map_err(|e| SearchError::Run {
+                            path: self.dir.clone(),
+                            problem: format!("the starting proposal: {e}"),
+                        })?,
                     step: None,
                 },
             }));
@@ -313,7 +382,12 @@ impl Run {
             return Ok(None);
         }
         let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, e))?;
-        serde_json::from_str(&text).map(Some).map_err(|e| SearchError::Run { path, problem: format!("unreadable proposal: {e}") })
+        serde_json::from_str(&text)
+            .map(Some)
+            .map_err(|e| SearchError::Run {
+                path,
+                problem: format!("unreadable proposal: {e}"),
+            })
     }
 
     /// Every iteration's plan, in order, as far as known.
@@ -333,16 +407,31 @@ impl Run {
     /// b mod num_shards), waiting at each iteration barrier for the other shards' batches.
     /// Returns when every batch of the run exists (or, for shards other than 0, when this
     /// shard's last batch is done).
-    pub fn sample(&self, space: &SearchSpace, sut: &mut SystemUnderTest, shard: usize, num_shards: usize, observer: &mut dyn Observer) -> Result<()> {
+    pub fn sample(
+        &self,
+        space: &SearchSpace,
+        sut: &mut SystemUnderTest,
+        shard: usize,
+        num_shards: usize,
+        observer: &mut dyn Observer,
+    ) -> Result<()> {
         if num_shards == 0 || shard >= num_shards {
-            return Err(SearchError::Sample(format!("--shard {shard} is not below --num-shards {num_shards}")));
+            return Err(SearchError::Sample(format!(
+                "--shard {shard} is not below --num-shards {num_shards}"
+            )));
         }
         let mut iteration = 0u32;
         loop {
             let plan = self.wait_for_plan(iteration, observer)?;
             let batches = self.batches(plan.samples);
-            let done = (0..batches).filter(|&b| self.batch_path(&SEARCH_SAMPLES, iteration, b).exists()).count();
-            observer.iteration(iteration, &plan, (done * self.settings().batch_size).min(plan.samples));
+            let done = (0..batches)
+                .filter(|&b| self.batch_path(&SEARCH_SAMPLES, iteration, b).exists())
+                .count();
+            observer.iteration(
+                iteration,
+                &plan,
+                (done * self.settings().batch_size).min(plan.samples),
+            );
             for batch in (0..batches).filter(|b| b % num_shards == shard) {
                 if self.batch_path(&SEARCH_SAMPLES, iteration, batch).exists() {
                     continue;
@@ -371,13 +460,22 @@ impl Run {
         }
     }
 
-    fn wait_for_batches(&self, iteration: u32, batches: usize, observer: &mut dyn Observer) -> Result<()> {
+    fn wait_for_batches(
+        &self,
+        iteration: u32,
+        batches: usize,
+        observer: &mut dyn Observer,
+    ) -> Result<()> {
         loop {
-            let missing = (0..batches).filter(|&b| !self.batch_path(&SEARCH_SAMPLES, iteration, b).exists()).count();
+            let missing = (0..batches)
+                .filter(|&b| !self.batch_path(&SEARCH_SAMPLES, iteration, b).exists())
+                .count();
             if missing == 0 {
                 return Ok(());
             }
-            observer.waiting(&format!("{missing} batches of iteration {iteration} from other shards"));
+            observer.waiting(&format!(
+                "{missing} batches of iteration {iteration} from other shards"
+            ));
             std::thread::sleep(std::time::Duration::from_secs(1));
         }
     }
@@ -394,28 +492,54 @@ impl Run {
         let zs: Vec<Vec<f64>> = rows.iter().map(|r| r.z.clone()).collect();
         let scores: Vec<f64> = rows.iter().map(SampleRow::level_score).collect();
         let ce = &self.settings().ce;
-        let step = ce_step(&plan.proposal, &zs, &scores, 0.0, ce).map_err(|e| SearchError::Run {
-            path: self.dir.clone(),
-            problem: format!("cross-entropy step after iteration {iteration}: {e}"),
-        })?;
+        let step =
+            ce_step(&plan.proposal, &zs, &scores, 0.0, ce).map_err(|e| SearchError::Run {
+                path: self.dir.clone(),
+                problem: format!("cross-entropy step after iteration {iteration}: {e}"),
+            })?;
         let last = step.reached || iteration + 1 >= ce.max_iterations;
         let next = if last {
-            IterationPlan { stage: "final".into(), samples: self.settings().samples, proposal: step.next.with_defensive(ce.defensive_lambda), step: Some(step) }
+            IterationPlan {
+                stage: "final".into(),
+                samples: self.settings().samples,
+                proposal: step.next.with_defensive(ce.defensive_lambda),
+                step: Some(step),
+            }
         } else {
-            IterationPlan { stage: "tune".into(), samples: ce.samples_per_iteration, proposal: step.next.clone(), step: Some(step) }
+            IterationPlan {
+                stage: "tune".into(),
+                samples: ce.samples_per_iteration,
+                proposal: step.next.clone(),
+                step: Some(step),
+            }
         };
-        write_atomically(&path, &serde_json::to_vec_pretty(&next).expect("a plan serialises"))
+        write_atomically(
+            &path,
+            &serde_json::to_vec_pretty(&next).expect("a plan serialises"),
+        )
     }
 
     fn iteration_rows(&self, iteration: u32, batches: usize) -> Result<Vec<SampleRow>> {
         let mut rows = Vec::new();
         for batch in 0..batches {
-            rows.extend(read_samples(&self.batch_path(&SEARCH_SAMPLES, iteration, batch))?);
+            rows.extend(read_samples(&self.batch_path(
+                &SEARCH_SAMPLES,
+                iteration,
+                batch,
+            ))?);
         }
         Ok(rows)
     }
 
-    fn run_batch(&self, space: &SearchSpace, sut: &mut SystemUnderTest, iteration: u32, batch: usize, plan: &IterationPlan, observer: &mut dyn Observer) -> Result<()> {
+    fn run_batch(
+        &self,
+        space: &SearchSpace,
+        sut: &mut SystemUnderTest,
+        iteration: u32,
+        batch: usize,
+        plan: &IterationPlan,
+        observer: &mut dyn Observer,
+    ) -> Result<()> {
         let s = self.settings();
         let first = batch * s.batch_size;
         let last = (first + s.batch_size).min(plan.samples);
@@ -426,14 +550,31 @@ impl Run {
         for index in first..last {
             let sample_id = self.first_id(iteration) + index as i64;
             let mut rng = sample_rng(s.seed, iteration, index as u64);
-            let stratum = if strata.len() > 1 { rng.random_range(0..strata.len()) } else { 0 };
+            let stratum = if strata.len() > 1 {
+                rng.random_range(0..strata.len())
+            } else {
+                0
+            };
             let z = plan.proposal.sample(&mut rng);
             let seed = (rng.random::<u64>() >> 1) as i64;
             let parameters = space.parameters(&z, strata[stratum])?;
             let outcome = sut.run(space, &parameters, sample_id, seed)?;
             let log_p = log_nominal(&z);
             let log_q = plan.proposal.log_density(&z);
-            let row = sample_row(sample_id, s, plan, iteration, strata[stratum], seed, &z, space, &parameters, log_p, log_q, &outcome);
+            let row = sample_row(
+                sample_id,
+                s,
+                plan,
+                iteration,
+                strata[stratum],
+                seed,
+                &z,
+                space,
+                &parameters,
+                log_p,
+                log_q,
+                &outcome,
+            );
             timings.push(TimingRow {
                 sample_id,
                 settle_s: outcome.seconds.settle,
@@ -451,17 +592,28 @@ impl Run {
         if !counterexamples.is_empty() {
             write_counterexamples(&self.dir.join("counterexamples"), &name, &counterexamples)?;
         }
-        boxpose_data::write_parquet(&self.batch_path(&SEARCH_TIMINGS, iteration, batch), Arc::new(SEARCH_TIMINGS.arrow_schema()), &[timings_batch(&timings)])?;
-        boxpose_data::write_parquet(&self.batch_path(&SEARCH_SAMPLES, iteration, batch), Arc::new(SEARCH_SAMPLES.arrow_schema()), &[samples_batch(&rows)])?;
+        boxpose_data::write_parquet(
+            &self.batch_path(&SEARCH_TIMINGS, iteration, batch),
+            Arc::new(SEARCH_TIMINGS.arrow_schema()),
+            &[timings_batch(&timings)],
+        )?;
+        boxpose_data::write_parquet(
+            &self.batch_path(&SEARCH_SAMPLES, iteration, batch),
+            Arc::new(SEARCH_SAMPLES.arrow_schema()),
+            &[samples_batch(&rows)],
+        )?;
         Ok(())
     }
 
     /// Whether every batch of the run exists.
     pub fn complete(&self) -> Result<bool> {
         let plans = self.plans()?;
-        let Some(last) = plans.last().filter(|p| p.stage != "tune") else { return Ok(false) };
+        let Some(last) = plans.last().filter(|p| p.stage != "tune") else {
+            return Ok(false);
+        };
         let iteration = plans.len() as u32 - 1;
-        Ok((0..self.batches(last.samples)).all(|b| self.batch_path(&SEARCH_SAMPLES, iteration, b).exists()))
+        Ok((0..self.batches(last.samples))
+            .all(|b| self.batch_path(&SEARCH_SAMPLES, iteration, b).exists()))
     }
 
     /// Every sample and timing row written so far, in sample_id order.
@@ -473,7 +625,11 @@ impl Run {
                 let path = self.batch_path(&SEARCH_SAMPLES, iteration as u32, batch);
                 if path.exists() {
                     samples.extend(read_samples(&path)?);
-                    timings.extend(read_timings(&self.batch_path(&SEARCH_TIMINGS, iteration as u32, batch))?);
+                    timings.extend(read_timings(&self.batch_path(
+                        &SEARCH_TIMINGS,
+                        iteration as u32,
+                        batch,
+                    ))?);
                 }
             }
         }
@@ -492,37 +648,83 @@ impl Run {
     /// `summary.json`. Refuses an incomplete run.
     pub fn merge(&self) -> Result<Summary> {
         if !self.complete()? {
-            return Err(SearchError::Run { path: self.dir.clone(), problem: "not every batch is done yet: resume the search (same command) before merging".into() });
+            return Err(SearchError::Run {
+                path: self.dir.clone(),
+                problem:
+                    "not every batch is done yet: resume the search (same command) before merging"
+                        .into(),
+            });
         }
         let (samples, timings) = self.rows()?;
-        boxpose_data::write_parquet(&self.dir.join("samples.parquet"), Arc::new(SEARCH_SAMPLES.arrow_schema()), &[samples_batch(&samples)])?;
-        boxpose_data::write_parquet(&self.dir.join("timings.parquet"), Arc::new(SEARCH_TIMINGS.arrow_schema()), &[timings_batch(&timings)])?;
+        boxpose_data::write_parquet(
+            &self.dir.join("samples.parquet"),
+            Arc::new(SEARCH_SAMPLES.arrow_schema()),
+            &[samples_batch(&samples)],
+        )?;
+        boxpose_data::write_parquet(
+            &self.dir.join("timings.parquet"),
+            Arc::new(SEARCH_TIMINGS.arrow_schema()),
+            &[timings_batch(&timings)],
+        )?;
         let summary = self.summary(&samples, &timings)?;
-        write_atomically(&self.dir.join("summary.json"), &serde_json::to_vec_pretty(&summary).expect("a summary serialises"))?;
+        write_atomically(
+            &self.dir.join("summary.json"),
+            &serde_json::to_vec_pretty(&summary).expect("a summary serialises"),
+        )?;
         Ok(summary)
     }
 
     fn summary(&self, samples: &[SampleRow], timings: &[TimingRow]) -> Result<Summary> {
         let estimate = self.estimate(samples)?;
         let plans = self.plans()?;
-        let mean = |f: fn(&TimingRow) -> f64| if timings.is_empty() { 0.0 } else { timings.iter().map(f).sum::<f64>() / timings.len() as f64 };
+        let mean = |f: fn(&TimingRow) -> f64| {
+            if timings.is_empty() {
+                0.0
+            } else {
+                timings.iter().map(f).sum::<f64>() / timings.len() as f64
+            }
+        };
         let s = self.settings();
         Ok(Summary {
-            space: toml::from_str::<toml::Table>(&self.record.space_toml).ok().and_then(|t| t.get("name").and_then(|n| n.as_str()).map(String::from)).unwrap_or_default(),
+            space: toml::from_str::<toml::Table>(&self.record.space_toml)
+                .ok()
+                .and_then(|t| t.get("name").and_then(|n| n.as_str()).map(String::from))
+                .unwrap_or_default(),
             sampler: s.sampler,
             crops: s.crops,
             fit: s.fit.clone(),
             predicate: s.predicate,
             samples_spent: samples.len(),
             tuning_samples: samples.iter().filter(|r| r.stage == "tune").count(),
-            ce_levels: plans.iter().filter_map(|p| p.step.as_ref().map(|st| st.level)).collect(),
+            ce_levels: plans
+                .iter()
+                .filter_map(|p| p.step.as_ref().map(|st| st.level))
+                .collect(),
             failures_total: samples.iter().filter(|r| r.failed).count(),
-            invalid_reasons: samples.iter().filter_map(|r| r.invalid_reason.clone()).fold(BTreeMap::new(), |mut m, reason| {
-                let key = reason.split(':').next().unwrap_or_default().trim().to_string();
-                *m.entry(if key.starts_with("target") { "target not visible enough".to_string() } else { key }).or_insert(0usize) += 1;
-                m
-            }),
-            mean_seconds: StageMeans { settle: mean(|t| t.settle_s), render: mean(|t| t.render_s), inference: mean(|t| t.inference_s), fit: mean(|t| t.fit_s) },
+            invalid_reasons: samples
+                .iter()
+                .filter_map(|r| r.invalid_reason.clone())
+                .fold(BTreeMap::new(), |mut m, reason| {
+                    let key = reason
+                        .split(':')
+                        .next()
+                        .unwrap_or_default()
+                        .trim()
+                        .to_string();
+                    *m.entry(if key.starts_with("target") {
+                        "target not visible enough".to_string()
+                    } else {
+                        key
+                    })
+                    .or_insert(0usize) += 1;
+                    m
+                }),
+            mean_seconds: StageMeans {
+                settle: mean(|t| t.settle_s),
+                render: mean(|t| t.render_s),
+                inference: mean(|t| t.inference_s),
+                fit: mean(|t| t.fit_s),
+            },
             estimate,
             boxpose_version: env!("CARGO_PKG_VERSION").into(),
             mujoco_version: boxpose_physics::MUJOCO_VERSION.into(),
@@ -531,7 +733,11 @@ impl Run {
 }
 
 /// The estimate of P(fail | valid) from the rows a sampler's estimator uses.
-pub fn estimate(rows: &[SampleRow], sampler: Sampler, strata: &[u32]) -> Result<ImportanceEstimate> {
+pub fn estimate(
+    rows: &[SampleRow],
+    sampler: Sampler,
+    strata: &[u32],
+) -> Result<ImportanceEstimate> {
     let stage = match sampler {
         Sampler::Mc => "mc",
         Sampler::Ce => "final",
@@ -540,12 +746,26 @@ pub fn estimate(rows: &[SampleRow], sampler: Sampler, strata: &[u32]) -> Result<
         .iter()
         .filter(|r| r.stage == stage)
         .map(|r| {
-            let stratum = strata.iter().position(|&n| n as i32 == r.stratum).ok_or_else(|| SearchError::Sample(format!("sample {} is in stratum {}, not one of the run's {strata:?}", r.sample_id, r.stratum)))?;
-            Ok(WeightedSample { log_weight: r.log_weight, valid: r.valid, failed: r.failed, stratum })
+            let stratum = strata
+                .iter()
+                .position(|&n| n as i32 == r.stratum)
+                .ok_or_else(|| {
+                    SearchError::Sample(format!(
+                        "sample {} is in stratum {}, not one of the run's {strata:?}",
+                        r.sample_id, r.stratum
+                    ))
+                })?;
+            Ok(WeightedSample {
+                log_weight: r.log_weight,
+                valid: r.valid,
+                failed: r.failed,
+                stratum,
+            })
         })
         .collect::<Result<_>>()?;
     let probabilities = vec![1.0 / strata.len() as f64; strata.len()];
-    ImportanceEstimate::compute(&weighted, &probabilities).map_err(|e| SearchError::Sample(format!("estimate: {e}")))
+    ImportanceEstimate::compute(&weighted, &probabilities)
+        .map_err(|e| SearchError::Sample(format!("estimate: {e}")))
 }
 
 /// Mean seconds per sample in each stage.
@@ -600,16 +820,27 @@ fn sample_row(
         .dimensions
         .iter()
         .zip(z)
-        .map(|(d, zi)| if d.distribution.is_some() { parameters.values[&d.name] } else { *zi })
+        .map(|(d, zi)| {
+            if d.distribution.is_some() {
+                parameters.values[&d.name]
+            } else {
+                *zi
+            }
+        })
         .collect();
-    let visible = outcome
-        .rendered
-        .as_ref()
-        .and_then(|(_, instances)| {
-            let ids = instances.column_by_name("object_id")?.as_primitive::<Int32Type>().clone();
-            let fractions = instances.column_by_name("visible_fraction")?.as_primitive::<Float32Type>().clone();
-            (0..ids.len()).find(|&i| ids.value(i) == crate::scene::TARGET_OBJECT_ID).map(|i| fractions.value(i))
-        });
+    let visible = outcome.rendered.as_ref().and_then(|(_, instances)| {
+        let ids = instances
+            .column_by_name("object_id")?
+            .as_primitive::<Int32Type>()
+            .clone();
+        let fractions = instances
+            .column_by_name("visible_fraction")?
+            .as_primitive::<Float32Type>()
+            .clone();
+        (0..ids.len())
+            .find(|&i| ids.value(i) == crate::scene::TARGET_OBJECT_ID)
+            .map(|i| fractions.value(i))
+    });
     let mut row = SampleRow {
         sample_id,
         sampler: settings.sampler.name().into(),
@@ -635,7 +866,10 @@ fn sample_row(
         translation_error_m: None,
         score: None,
         failed: false,
-        peaks_camera_m: outcome.result.is_ok().then(|| outcome.peaks.iter().flatten().copied().collect()),
+        peaks_camera_m: outcome
+            .result
+            .is_ok()
+            .then(|| outcome.peaks.iter().flatten().copied().collect()),
     };
     match &outcome.result {
         Err(_) => {}
@@ -665,13 +899,19 @@ fn sample_row(
 }
 
 fn f64_list<'a>(rows: impl Iterator<Item = Option<&'a Vec<f64>>>) -> ArrayRef {
-    Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(rows.map(|r| r.map(|v| v.iter().map(|x| Some(*x)).collect::<Vec<_>>()))))
+    Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(
+        rows.map(|r| r.map(|v| v.iter().map(|x| Some(*x)).collect::<Vec<_>>())),
+    ))
 }
 
 /// `rows` as one batch of the `samples` table.
 pub fn samples_batch(rows: &[SampleRow]) -> RecordBatch {
-    let f = |get: fn(&SampleRow) -> Option<f64>| Arc::new(rows.iter().map(get).collect::<Float64Array>()) as ArrayRef;
-    let text = |get: fn(&SampleRow) -> Option<&str>| Arc::new(rows.iter().map(get).collect::<StringArray>()) as ArrayRef;
+    let f = |get: fn(&SampleRow) -> Option<f64>| {
+        Arc::new(rows.iter().map(get).collect::<Float64Array>()) as ArrayRef
+    };
+    let text = |get: fn(&SampleRow) -> Option<&str>| {
+        Arc::new(rows.iter().map(get).collect::<StringArray>()) as ArrayRef
+    };
     let columns: Vec<ArrayRef> = vec![
         Arc::new(rows.iter().map(|r| r.sample_id).collect::<Int64Array>()),
         text(|r| Some(r.sampler.as_str())),
@@ -686,7 +926,11 @@ pub fn samples_batch(rows: &[SampleRow]) -> RecordBatch {
         f(|r| Some(r.log_weight)),
         Arc::new(rows.iter().map(|r| Some(r.valid)).collect::<BooleanArray>()),
         text(|r| r.invalid_reason.as_deref()),
-        Arc::new(rows.iter().map(|r| r.target_visible_fraction).collect::<Float32Array>()),
+        Arc::new(
+            rows.iter()
+                .map(|r| r.target_visible_fraction)
+                .collect::<Float32Array>(),
+        ),
         Arc::new(rows.iter().map(|r| r.detected).collect::<BooleanArray>()),
         text(|r| r.fit_error.as_deref()),
         f(|r| r.paper_error),
@@ -696,14 +940,21 @@ pub fn samples_batch(rows: &[SampleRow]) -> RecordBatch {
         f(|r| r.rotation_error_deg),
         f(|r| r.translation_error_m),
         f(|r| r.score),
-        Arc::new(rows.iter().map(|r| Some(r.failed)).collect::<BooleanArray>()),
+        Arc::new(
+            rows.iter()
+                .map(|r| Some(r.failed))
+                .collect::<BooleanArray>(),
+        ),
         f64_list(rows.iter().map(|r| r.peaks_camera_m.as_ref())),
     ];
-    RecordBatch::try_new(Arc::new(SEARCH_SAMPLES.arrow_schema()), columns).expect("columns in contract order and types")
+    RecordBatch::try_new(Arc::new(SEARCH_SAMPLES.arrow_schema()), columns)
+        .expect("columns in contract order and types")
 }
 
 fn timings_batch(rows: &[TimingRow]) -> RecordBatch {
-    let f = |get: fn(&TimingRow) -> f64| Arc::new(rows.iter().map(get).collect::<Float64Array>()) as ArrayRef;
+    let f = |get: fn(&TimingRow) -> f64| {
+        Arc::new(rows.iter().map(get).collect::<Float64Array>()) as ArrayRef
+    };
     let columns: Vec<ArrayRef> = vec![
         Arc::new(rows.iter().map(|r| r.sample_id).collect::<Int64Array>()),
         f(|r| r.settle_s),
@@ -711,7 +962,8 @@ fn timings_batch(rows: &[TimingRow]) -> RecordBatch {
         f(|r| r.inference_s),
         f(|r| r.fit_s),
     ];
-    RecordBatch::try_new(Arc::new(SEARCH_TIMINGS.arrow_schema()), columns).expect("columns in contract order and types")
+    RecordBatch::try_new(Arc::new(SEARCH_TIMINGS.arrow_schema()), columns)
+        .expect("columns in contract order and types")
 }
 
 /// Reads one `samples` file (validated against the contract).
@@ -723,19 +975,48 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
         let strings = |name: &str| col(name).as_string::<i32>().clone();
         let bools = |name: &str| col(name).as_boolean().clone();
         let lists = |name: &str| col(name).as_list::<i32>().clone();
-        let (ids, sampler, stage) = (col("sample_id").as_primitive::<Int64Type>().clone(), strings("sampler"), strings("stage"));
-        let (iteration, stratum, seed) =
-            (col("iteration").as_primitive::<Int32Type>().clone(), col("stratum").as_primitive::<Int32Type>().clone(), col("seed").as_primitive::<Int64Type>().clone());
+        let (ids, sampler, stage) = (
+            col("sample_id").as_primitive::<Int64Type>().clone(),
+            strings("sampler"),
+            strings("stage"),
+        );
+        let (iteration, stratum, seed) = (
+            col("iteration").as_primitive::<Int32Type>().clone(),
+            col("stratum").as_primitive::<Int32Type>().clone(),
+            col("seed").as_primitive::<Int64Type>().clone(),
+        );
         let (z, params, peaks) = (lists("z"), lists("params"), lists("peaks_camera_m"));
-        let (lp, lq, lw) = (f64s("log_nominal"), f64s("log_proposal"), f64s("log_weight"));
-        let (valid, reason, visible, detected, fit_error) =
-            (bools("valid"), strings("invalid_reason"), col("target_visible_fraction").as_primitive::<Float32Type>().clone(), bools("detected"), strings("fit_error"));
-        let metrics: Vec<_> = ["paper_error", "paper_error_normalized", "mssd_over_diameter", "add_s_m", "rotation_error_deg", "translation_error_m", "score"]
-            .iter()
-            .map(|n| f64s(n))
-            .collect();
+        let (lp, lq, lw) = (
+            f64s("log_nominal"),
+            f64s("log_proposal"),
+            f64s("log_weight"),
+        );
+        let (valid, reason, visible, detected, fit_error) = (
+            bools("valid"),
+            strings("invalid_reason"),
+            col("target_visible_fraction")
+                .as_primitive::<Float32Type>()
+                .clone(),
+            bools("detected"),
+            strings("fit_error"),
+        );
+        let metrics: Vec<_> = [
+            "paper_error",
+            "paper_error_normalized",
+            "mssd_over_diameter",
+            "add_s_m",
+            "rotation_error_deg",
+            "translation_error_m",
+            "score",
+        ]
+        .iter()
+        .map(|n| f64s(n))
+        .collect();
         let failed = bools("failed");
-        let list = |l: &ListArray, i: usize| l.is_valid(i).then(|| l.value(i).as_primitive::<Float64Type>().values().to_vec());
+        let list = |l: &ListArray, i: usize| {
+            l.is_valid(i)
+                .then(|| l.value(i).as_primitive::<Float64Type>().values().to_vec())
+        };
         let opt = |a: &Float64Array, i: usize| a.is_valid(i).then(|| a.value(i));
         for i in 0..batch.num_rows() {
             rows.push(SampleRow {
@@ -754,7 +1035,9 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
                 invalid_reason: reason.is_valid(i).then(|| reason.value(i).to_string()),
                 target_visible_fraction: visible.is_valid(i).then(|| visible.value(i)),
                 detected: detected.is_valid(i).then(|| detected.value(i)),
-                fit_error: fit_error.is_valid(i).then(|| fit_error.value(i).to_string()),
+                fit_error: fit_error
+                    .is_valid(i)
+                    .then(|| fit_error.value(i).to_string()),
                 paper_error: opt(&metrics[0], i),
                 paper_error_normalized: opt(&metrics[1], i),
                 mssd_over_diameter: opt(&metrics[2], i),
@@ -773,11 +1056,28 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
 fn read_timings(path: &Path) -> Result<Vec<TimingRow>> {
     let mut rows = Vec::new();
     for batch in boxpose_data::read_shard(path, &SEARCH_TIMINGS)? {
-        let f = |name: &str| batch.column_by_name(name).expect("validated").as_primitive::<Float64Type>().clone();
-        let ids = batch.column_by_name("sample_id").expect("validated").as_primitive::<Int64Type>().clone();
-        let (settle, render, inference, fit) = (f("settle_s"), f("render_s"), f("inference_s"), f("fit_s"));
+        let f = |name: &str| {
+            batch
+                .column_by_name(name)
+                .expect("validated")
+                .as_primitive::<Float64Type>()
+                .clone()
+        };
+        let ids = batch
+            .column_by_name("sample_id")
+            .expect("validated")
+            .as_primitive::<Int64Type>()
+            .clone();
+        let (settle, render, inference, fit) =
+            (f("settle_s"), f("render_s"), f("inference_s"), f("fit_s"));
         for i in 0..batch.num_rows() {
-            rows.push(TimingRow { sample_id: ids.value(i), settle_s: settle.value(i), render_s: render.value(i), inference_s: inference.value(i), fit_s: fit.value(i) });
+            rows.push(TimingRow {
+                sample_id: ids.value(i),
+                settle_s: settle.value(i),
+                render_s: render.value(i),
+                inference_s: inference.value(i),
+                fit_s: fit.value(i),
+            });
         }
     }
     Ok(rows)
@@ -788,7 +1088,8 @@ fn read_timings(path: &Path) -> Result<Vec<TimingRow>> {
 fn write_counterexamples(dir: &Path, name: &str, outcomes: &[Outcome]) -> Result<()> {
     let scenes: Vec<Scene> = outcomes.iter().map(|o| o.scene.clone()).collect();
     let objects: Vec<Object> = outcomes.iter().flat_map(|o| o.objects.clone()).collect();
-    let (frames, instances): (Vec<RecordBatch>, Vec<RecordBatch>) = outcomes.iter().filter_map(|o| o.rendered.clone()).unzip();
+    let (frames, instances): (Vec<RecordBatch>, Vec<RecordBatch>) =
+        outcomes.iter().filter_map(|o| o.rendered.clone()).unzip();
     boxpose_data::write_shard(dir, &schema::SCENES, name, &[Scene::to_batch(&scenes)])?;
     boxpose_data::write_shard(dir, &schema::OBJECTS, name, &[Object::to_batch(&objects)])?;
     boxpose_data::write_shard(dir, &schema::FRAMES, name, &frames)?;

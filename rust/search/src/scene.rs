@@ -3,7 +3,7 @@
 //! sample exactly) and the `objects` rows, dropped and settled with MuJoCo.
 
 use boxpose_data::{Object, Pose, Scene};
-use boxpose_physics::{RecipePhysics, SceneDescription, Settler, SettleOutcome, rotation_matrix};
+use boxpose_physics::{RecipePhysics, SceneDescription, SettleOutcome, Settler, rotation_matrix};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
 
@@ -41,17 +41,34 @@ struct Nuisance {
 impl Nuisance {
     fn new(recipe: &toml::Table, seed: i64) -> Result<Self> {
         let pair = |section: &str, key: &str| -> Result<[f64; 2]> {
-            let v = recipe.get(section).and_then(|s| s.get(key)).and_then(|v| v.as_array());
-            let v: Option<Vec<f64>> = v.map(|a| a.iter().filter_map(|x| x.as_float().or(x.as_integer().map(|i| i as f64))).collect());
+            let v = recipe
+                .get(section)
+                .and_then(|s| s.get(key))
+                .and_then(|v| v.as_array());
+            let v: Option<Vec<f64>> = v.map(|a| {
+                a.iter()
+                    .filter_map(|x| x.as_float().or(x.as_integer().map(|i| i as f64)))
+                    .collect()
+            });
             match v.as_deref() {
                 Some(&[lo, hi]) if lo.is_finite() && hi.is_finite() && lo <= hi => Ok([lo, hi]),
-                _ => Err(SearchError::Space { key: format!("recipe {section}.{key}"), problem: "must be a range [min, max]".into() }),
+                _ => Err(SearchError::Space {
+                    key: format!("recipe {section}.{key}"),
+                    problem: "must be a range [min, max]".into(),
+                }),
             }
         };
         let probability = |key: &str| -> Result<f64> {
-            match recipe.get("materials").and_then(|s| s.get(key)).and_then(|v| v.as_float()) {
+            match recipe
+                .get("materials")
+                .and_then(|s| s.get(key))
+                .and_then(|v| v.as_float())
+            {
                 Some(p) if (0.0..=1.0).contains(&p) => Ok(p),
-                _ => Err(SearchError::Space { key: format!("recipe materials.{key}"), problem: "must be a probability in [0, 1]".into() }),
+                _ => Err(SearchError::Space {
+                    key: format!("recipe materials.{key}"),
+                    problem: "must be a probability in [0, 1]".into(),
+                }),
             }
         };
         Ok(Self {
@@ -65,7 +82,11 @@ impl Nuisance {
     }
 
     fn uniform(&mut self, [lo, hi]: [f64; 2]) -> f64 {
-        if hi > lo { self.rng.random_range(lo..hi) } else { lo }
+        if hi > lo {
+            self.rng.random_range(lo..hi)
+        } else {
+            lo
+        }
     }
 
     fn object(&mut self, scene_id: i64, object_id: i32, size: [f64; 3], initial: Pose) -> Object {
@@ -74,7 +95,9 @@ impl Nuisance {
         let brightness = self.uniform([0.7, 1.25]);
         let warmth = self.uniform([-0.15, 0.15]);
         let tint = [1.0 + warmth, 1.0, 1.0 - warmth];
-        let base_color_rgb = std::array::from_fn(|k| (CARDBOARD_LINEAR_RGB[k] * brightness * tint[k]).clamp(0.0, 1.0) as f32);
+        let base_color_rgb = std::array::from_fn(|k| {
+            (CARDBOARD_LINEAR_RGB[k] * brightness * tint[k]).clamp(0.0, 1.0) as f32
+        });
         let roughness = self.uniform(self.roughness) as f32;
         let texture_seed = self.rng.random_range(0..i64::MAX);
         let has_tape = self.rng.random::<f64>() < self.tape_probability;
@@ -117,8 +140,16 @@ fn yaw_quaternion(yaw_deg: f64) -> [f64; 4] {
 
 /// The scene of one sample, boxes at their drop poses (not yet settled): the target at the
 /// sampled pose, neighbours stacked above it (each starting clear of the others) to fall in turn.
-pub fn build(space: &SearchSpace, parameters: &Parameters, scene_id: i64, seed: i64) -> Result<SampledScene> {
-    let recipe: toml::Table = space.recipe_toml.parse().map_err(|e| SearchError::Space { key: "recipe".into(), problem: format!("{e}") })?;
+pub fn build(
+    space: &SearchSpace,
+    parameters: &Parameters,
+    scene_id: i64,
+    seed: i64,
+) -> Result<SampledScene> {
+    let recipe: toml::Table = space.recipe_toml.parse().map_err(|e| SearchError::Space {
+        key: "recipe".into(),
+        problem: format!("{e}"),
+    })?;
     let physics = RecipePhysics::from_toml(&space.recipe_toml)?;
     let support = physics.support;
     let [hx, hy] = support.half_extent_m;
@@ -126,19 +157,46 @@ pub fn build(space: &SearchSpace, parameters: &Parameters, scene_id: i64, seed: 
     let mut nuisance = Nuisance::new(&recipe, seed)?;
     let p = |name: &str| parameters.get(name);
 
-    let size = [p("target.size_m.x"), p("target.size_m.y"), p("target.size_m.z")];
+    let size = [
+        p("target.size_m.x"),
+        p("target.size_m.y"),
+        p("target.size_m.z"),
+    ];
     let quat = parameters.target_quat_wxyz;
     let radius = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt() / 2.0;
     let lift = half_height(size, quat);
-    let centre = [inside(p("target.x_m"), hx, radius), inside(p("target.y_m"), hy, radius), top + p("target.drop_height_m") + lift];
-    let mut objects = vec![nuisance.object(scene_id, TARGET_OBJECT_ID, size, Pose { quat_wxyz: quat, translation: centre })];
+    let centre = [
+        inside(p("target.x_m"), hx, radius),
+        inside(p("target.y_m"), hy, radius),
+        top + p("target.drop_height_m") + lift,
+    ];
+    let mut objects = vec![nuisance.object(
+        scene_id,
+        TARGET_OBJECT_ID,
+        size,
+        Pose {
+            quat_wxyz: quat,
+            translation: centre,
+        },
+    )];
     let mut floor = centre[2] + lift + STACK_GAP_M;
     for i in 0..parameters.neighbours {
-        let size = [p(&format!("neighbour{i}.size_m.x")), p(&format!("neighbour{i}.size_m.y")), p(&format!("neighbour{i}.size_m.z"))];
+        let size = [
+            p(&format!("neighbour{i}.size_m.x")),
+            p(&format!("neighbour{i}.size_m.y")),
+            p(&format!("neighbour{i}.size_m.z")),
+        ];
         let radius = (size[0].powi(2) + size[1].powi(2)).sqrt() / 2.0;
-        let translation = [inside(p(&format!("neighbour{i}.x_m")), hx, radius), inside(p(&format!("neighbour{i}.y_m")), hy, radius), floor + size[2] / 2.0];
+        let translation = [
+            inside(p(&format!("neighbour{i}.x_m")), hx, radius),
+            inside(p(&format!("neighbour{i}.y_m")), hy, radius),
+            floor + size[2] / 2.0,
+        ];
         floor += size[2] + STACK_GAP_M;
-        let pose = Pose { quat_wxyz: yaw_quaternion(p(&format!("neighbour{i}.yaw_deg"))), translation };
+        let pose = Pose {
+            quat_wxyz: yaw_quaternion(p(&format!("neighbour{i}.yaw_deg"))),
+            translation,
+        };
         objects.push(nuisance.object(scene_id, i as i32 + 1, size, pose));
     }
     let scene = Scene {
@@ -164,12 +222,19 @@ pub fn build(space: &SearchSpace, parameters: &Parameters, scene_id: i64, seed: 
 
 /// The base recipe with this sample's camera and lighting as degenerate ranges, one frame, and
 /// the camera aimed at the target box: the Blender stage then draws exactly these values.
-fn pinned_recipe(mut recipe: toml::Table, space: &SearchSpace, parameters: &Parameters) -> Result<String> {
+fn pinned_recipe(
+    mut recipe: toml::Table,
+    space: &SearchSpace,
+    parameters: &Parameters,
+) -> Result<String> {
     let pin = |v: f64| toml::Value::Array(vec![toml::Value::Float(v), toml::Value::Float(v)]);
     let section = |recipe: &mut toml::Table, name: &str| -> Result<toml::Table> {
         match recipe.remove(name) {
             Some(toml::Value::Table(t)) => Ok(t),
-            _ => Err(SearchError::Space { key: format!("recipe [{name}]"), problem: "missing section".into() }),
+            _ => Err(SearchError::Space {
+                key: format!("recipe [{name}]"),
+                problem: "missing section".into(),
+            }),
         }
     };
     let mut camera = section(&mut recipe, "camera")?;
@@ -178,15 +243,24 @@ fn pinned_recipe(mut recipe: toml::Table, space: &SearchSpace, parameters: &Para
     }
     camera.insert("frames_per_scene".into(), toml::Value::Integer(1));
     camera.insert("look_at_jitter_m".into(), toml::Value::Float(0.0));
-    camera.insert("look_at_object".into(), toml::Value::Integer(TARGET_OBJECT_ID.into()));
+    camera.insert(
+        "look_at_object".into(),
+        toml::Value::Integer(TARGET_OBJECT_ID.into()),
+    );
     let mut lighting = section(&mut recipe, "lighting")?;
-    for key in ["sun_elevation_deg", "sun_azimuth_deg", "sun_strength", "world_strength"] {
+    for key in [
+        "sun_elevation_deg",
+        "sun_azimuth_deg",
+        "sun_strength",
+        "world_strength",
+    ] {
         lighting.insert(key.into(), pin(parameters.get(&format!("lighting.{key}"))));
     }
     recipe.insert("camera".into(), toml::Value::Table(camera));
     recipe.insert("lighting".into(), toml::Value::Table(lighting));
     recipe.insert("name".into(), toml::Value::String(space.file.name.clone()));
-    toml::to_string(&recipe).map_err(|e| SearchError::Sample(format!("cannot write the scene's recipe: {e}")))
+    toml::to_string(&recipe)
+        .map_err(|e| SearchError::Sample(format!("cannot write the scene's recipe: {e}")))
 }
 
 /// Drops and settles the scene with MuJoCo; the objects' `world_box` become the settled poses

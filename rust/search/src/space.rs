@@ -34,8 +34,14 @@ impl Distribution {
         let u = standard_normal_cdf(z);
         match *self {
             Distribution::Uniform([lo, hi]) => lo + (hi - lo) * u,
-            Distribution::TruncatedNormal { normal: [mean, std], within: [lo, hi] } => {
-                let (a, b) = (standard_normal_cdf((lo - mean) / std), standard_normal_cdf((hi - mean) / std));
+            Distribution::TruncatedNormal {
+                normal: [mean, std],
+                within: [lo, hi],
+            } => {
+                let (a, b) = (
+                    standard_normal_cdf((lo - mean) / std),
+                    standard_normal_cdf((hi - mean) / std),
+                );
                 (mean + std * standard_normal_quantile(a + u * (b - a))).clamp(lo, hi)
             }
         }
@@ -44,7 +50,12 @@ impl Distribution {
     /// Checks that the distribution is proper: finite bounds, a non-empty range, a positive
     /// standard deviation and a truncation interval with positive mass.
     fn validate(&self, key: &str) -> Result<()> {
-        let bad = |problem: String| Err(SearchError::Space { key: key.to_string(), problem });
+        let bad = |problem: String| {
+            Err(SearchError::Space {
+                key: key.to_string(),
+                problem,
+            })
+        };
         let [lo, hi] = match *self {
             Distribution::Uniform(range) => range,
             Distribution::TruncatedNormal { within, .. } => within,
@@ -55,13 +66,22 @@ impl Distribution {
         if lo > hi {
             return bad(format!("range [{lo}, {hi}] is empty (min > max)"));
         }
-        if let Distribution::TruncatedNormal { normal: [mean, std], within: [lo, hi] } = *self {
+        if let Distribution::TruncatedNormal {
+            normal: [mean, std],
+            within: [lo, hi],
+        } = *self
+        {
             if !(mean.is_finite() && std.is_finite() && std > 0.0) {
-                return bad(format!("normal = [{mean}, {std}] needs a finite mean and a finite positive std"));
+                return bad(format!(
+                    "normal = [{mean}, {std}] needs a finite mean and a finite positive std"
+                ));
             }
-            let mass = standard_normal_cdf((hi - mean) / std) - standard_normal_cdf((lo - mean) / std);
+            let mass =
+                standard_normal_cdf((hi - mean) / std) - standard_normal_cdf((lo - mean) / std);
             if !(mass > 1e-12) {
-                return bad(format!("normal = [{mean}, {std}] has no mass within [{lo}, {hi}]: it cannot be normalised"));
+                return bad(format!(
+                    "normal = [{mean}, {std}] has no mass within [{lo}, {hi}]: it cannot be normalised"
+                ));
             }
         }
         Ok(())
@@ -200,51 +220,90 @@ impl SearchSpace {
     /// Reads and validates a search space: a TOML path, or a name in `configs/search/`.
     pub fn load(name_or_path: &str, recipes_dir: &Path) -> Result<Self> {
         let path = Path::new(name_or_path);
-        let path = if path.is_file() { path.to_path_buf() } else { Path::new("configs/search").join(format!("{name_or_path}.toml")) };
-        let text = std::fs::read_to_string(&path).map_err(|e| SearchError::Io { path: path.clone(), message: e.to_string() })?;
+        let path = if path.is_file() {
+            path.to_path_buf()
+        } else {
+            Path::new("configs/search").join(format!("{name_or_path}.toml"))
+        };
+        let text = std::fs::read_to_string(&path).map_err(|e| SearchError::Io {
+            path: path.clone(),
+            message: e.to_string(),
+        })?;
         Self::parse(&text, &path.display().to_string(), recipes_dir)
     }
 
     /// Parses a search space's TOML text; `source` names it in errors.
     pub fn parse(text: &str, source: &str, recipes_dir: &Path) -> Result<Self> {
-        let file: SpaceFile = toml::from_str(text).map_err(|e| SearchError::Space { key: source.to_string(), problem: e.to_string() })?;
+        let file: SpaceFile = toml::from_str(text).map_err(|e| SearchError::Space {
+            key: source.to_string(),
+            problem: e.to_string(),
+        })?;
         let recipe_path = {
             let p = Path::new(&file.recipe);
-            if p.is_file() { p.to_path_buf() } else { recipes_dir.join(format!("{}.toml", file.recipe)) }
+            if p.is_file() {
+                p.to_path_buf()
+            } else {
+                recipes_dir.join(format!("{}.toml", file.recipe))
+            }
         };
-        let recipe_toml = std::fs::read_to_string(&recipe_path)
-            .map_err(|e| SearchError::Space { key: "recipe".into(), problem: format!("{}: {e}", recipe_path.display()) })?;
+        let recipe_toml =
+            std::fs::read_to_string(&recipe_path).map_err(|e| SearchError::Space {
+                key: "recipe".into(),
+                problem: format!("{}: {e}", recipe_path.display()),
+            })?;
         Self::from_parts(file, text.to_string(), recipe_toml).map_err(|e| match e {
-            SearchError::Space { key, problem } => SearchError::Space { key: format!("{source}: {key}"), problem },
+            SearchError::Space { key, problem } => SearchError::Space {
+                key: format!("{source}: {key}"),
+                problem,
+            },
             other => other,
         })
     }
 
     /// Validates a parsed file against its base recipe and lays out z.
     pub fn from_parts(file: SpaceFile, text: String, recipe_toml: String) -> Result<Self> {
-        boxpose_physics::RecipePhysics::from_toml(&recipe_toml)
-            .map_err(|e| SearchError::Space { key: "recipe".into(), problem: format!("{}: {e}", file.recipe) })?;
+        boxpose_physics::RecipePhysics::from_toml(&recipe_toml).map_err(|e| {
+            SearchError::Space {
+                key: "recipe".into(),
+                problem: format!("{}: {e}", file.recipe),
+            }
+        })?;
         let mut dimensions = Vec::new();
         let mut scalar = |name: &str, d: &Distribution| -> Result<()> {
             d.validate(name)?;
-            dimensions.push(Dimension { name: name.to_string(), distribution: Some(*d) });
+            dimensions.push(Dimension {
+                name: name.to_string(),
+                distribution: Some(*d),
+            });
             Ok(())
         };
         let t = &file.target;
-        for (axis, d) in ["x", "y", "z"].iter().zip([&t.size_m.x, &t.size_m.y, &t.size_m.z]) {
+        for (axis, d) in ["x", "y", "z"]
+            .iter()
+            .zip([&t.size_m.x, &t.size_m.y, &t.size_m.z])
+        {
             scalar(&format!("target.size_m.{axis}"), d)?;
             let [lo, _] = bounds(d);
             if lo <= 0.0 {
-                return Err(SearchError::Space { key: format!("target.size_m.{axis}"), problem: "box sizes must be positive".into() });
+                return Err(SearchError::Space {
+                    key: format!("target.size_m.{axis}"),
+                    problem: "box sizes must be positive".into(),
+                });
             }
         }
         match (t.orientation, &t.yaw_deg) {
             (Orientation::Yaw, Some(d)) => scalar("target.yaw_deg", d)?,
             (Orientation::Yaw, None) => {
-                return Err(SearchError::Space { key: "target.yaw_deg".into(), problem: "orientation = \"yaw\" needs yaw_deg".into() });
+                return Err(SearchError::Space {
+                    key: "target.yaw_deg".into(),
+                    problem: "orientation = \"yaw\" needs yaw_deg".into(),
+                });
             }
             (Orientation::So3, Some(_)) => {
-                return Err(SearchError::Space { key: "target.yaw_deg".into(), problem: "only used with orientation = \"yaw\"".into() });
+                return Err(SearchError::Space {
+                    key: "target.yaw_deg".into(),
+                    problem: "only used with orientation = \"yaw\"".into(),
+                });
             }
             (Orientation::So3, None) => {}
         }
@@ -252,46 +311,80 @@ impl SearchSpace {
         scalar("target.y_m", &t.y_m)?;
         scalar("target.drop_height_m", &t.drop_height_m)?;
         if bounds(&t.drop_height_m)[0] < 0.0 {
-            return Err(SearchError::Space { key: "target.drop_height_m".into(), problem: "must be non-negative".into() });
+            return Err(SearchError::Space {
+                key: "target.drop_height_m".into(),
+                problem: "must be non-negative".into(),
+            });
         }
         let c = &file.camera;
         scalar("camera.distance_m", &c.distance_m)?;
         scalar("camera.elevation_deg", &c.elevation_deg)?;
         scalar("camera.azimuth_deg", &c.azimuth_deg)?;
         scalar("camera.hfov_deg", &c.hfov_deg)?;
-        let (d, e, h) = (bounds(&c.distance_m), bounds(&c.elevation_deg), bounds(&c.hfov_deg));
+        let (d, e, h) = (
+            bounds(&c.distance_m),
+            bounds(&c.elevation_deg),
+            bounds(&c.hfov_deg),
+        );
         if d[0] <= 0.0 {
-            return Err(SearchError::Space { key: "camera.distance_m".into(), problem: "must be positive".into() });
+            return Err(SearchError::Space {
+                key: "camera.distance_m".into(),
+                problem: "must be positive".into(),
+            });
         }
         if !(e[0] > -90.0 && e[1] < 90.0) {
-            return Err(SearchError::Space { key: "camera.elevation_deg".into(), problem: "must lie in (-90, 90)".into() });
+            return Err(SearchError::Space {
+                key: "camera.elevation_deg".into(),
+                problem: "must lie in (-90, 90)".into(),
+            });
         }
         if !(h[0] > 0.0 && h[1] < 180.0) {
-            return Err(SearchError::Space { key: "camera.hfov_deg".into(), problem: "must lie in (0, 180)".into() });
+            return Err(SearchError::Space {
+                key: "camera.hfov_deg".into(),
+                problem: "must lie in (0, 180)".into(),
+            });
         }
         let l = &file.lighting;
         scalar("lighting.sun_elevation_deg", &l.sun_elevation_deg)?;
         scalar("lighting.sun_azimuth_deg", &l.sun_azimuth_deg)?;
         scalar("lighting.sun_strength", &l.sun_strength)?;
         scalar("lighting.world_strength", &l.world_strength)?;
-        for (key, d) in [("lighting.sun_strength", &l.sun_strength), ("lighting.world_strength", &l.world_strength)] {
+        for (key, d) in [
+            ("lighting.sun_strength", &l.sun_strength),
+            ("lighting.world_strength", &l.world_strength),
+        ] {
             if bounds(d)[0] < 0.0 {
-                return Err(SearchError::Space { key: key.into(), problem: "must be non-negative".into() });
+                return Err(SearchError::Space {
+                    key: key.into(),
+                    problem: "must be non-negative".into(),
+                });
             }
         }
         if let Some(n) = &file.neighbours {
             let [lo, hi] = n.count;
             if lo > hi {
-                return Err(SearchError::Space { key: "neighbours.count".into(), problem: format!("range [{lo}, {hi}] is empty (min > max)") });
+                return Err(SearchError::Space {
+                    key: "neighbours.count".into(),
+                    problem: format!("range [{lo}, {hi}] is empty (min > max)"),
+                });
             }
             if hi > MAX_NEIGHBOURS {
-                return Err(SearchError::Space { key: "neighbours.count".into(), problem: format!("at most {MAX_NEIGHBOURS} neighbours") });
+                return Err(SearchError::Space {
+                    key: "neighbours.count".into(),
+                    problem: format!("at most {MAX_NEIGHBOURS} neighbours"),
+                });
             }
             for i in 0..hi {
-                for (axis, d) in ["x", "y", "z"].iter().zip([&n.size_m.x, &n.size_m.y, &n.size_m.z]) {
+                for (axis, d) in ["x", "y", "z"]
+                    .iter()
+                    .zip([&n.size_m.x, &n.size_m.y, &n.size_m.z])
+                {
                     scalar(&format!("neighbour{i}.size_m.{axis}"), d)?;
                     if bounds(d)[0] <= 0.0 {
-                        return Err(SearchError::Space { key: format!("neighbours.size_m.{axis}"), problem: "box sizes must be positive".into() });
+                        return Err(SearchError::Space {
+                            key: format!("neighbours.size_m.{axis}"),
+                            problem: "box sizes must be positive".into(),
+                        });
                     }
                 }
                 scalar(&format!("neighbour{i}.yaw_deg"), &n.yaw_deg)?;
@@ -301,10 +394,18 @@ impl SearchSpace {
         }
         if t.orientation == Orientation::So3 {
             for k in 0..4 {
-                dimensions.push(Dimension { name: format!("target.orientation.q{k}"), distribution: None });
+                dimensions.push(Dimension {
+                    name: format!("target.orientation.q{k}"),
+                    distribution: None,
+                });
             }
         }
-        Ok(Self { file, text, recipe_toml, dimensions })
+        Ok(Self {
+            file,
+            text,
+            recipe_toml,
+            dimensions,
+        })
     }
 
     /// Length of z.
@@ -323,7 +424,11 @@ impl SearchSpace {
     /// The scene inputs of z in stratum `neighbours`.
     pub fn parameters(&self, z: &[f64], neighbours: u32) -> Result<Parameters> {
         if z.len() != self.dim() || !z.iter().all(|v| v.is_finite()) {
-            return Err(SearchError::Sample(format!("z must hold {} finite values, got {:?}", self.dim(), z)));
+            return Err(SearchError::Sample(format!(
+                "z must hold {} finite values, got {:?}",
+                self.dim(),
+                z
+            )));
         }
         let mut values = BTreeMap::new();
         let mut quat = [0.0; 4];
@@ -342,7 +447,9 @@ impl SearchSpace {
             Orientation::So3 => {
                 let norm = quat.iter().map(|v| v * v).sum::<f64>().sqrt();
                 if norm < 1e-12 {
-                    return Err(SearchError::Sample("the orientation's four normals are all zero".into()));
+                    return Err(SearchError::Sample(
+                        "the orientation's four normals are all zero".into(),
+                    ));
                 }
                 let sign = if quat[0] < 0.0 { -1.0 } else { 1.0 };
                 quat.map(|v| sign * v / norm)
@@ -352,7 +459,11 @@ impl SearchSpace {
                 [half.cos(), 0.0, 0.0, half.sin()]
             }
         };
-        Ok(Parameters { neighbours, values, target_quat_wxyz })
+        Ok(Parameters {
+            neighbours,
+            values,
+            target_quat_wxyz,
+        })
     }
 }
 
@@ -375,7 +486,10 @@ mod tests {
     const CLUTTER: &str = include_str!("../../../configs/search/clutter.toml");
 
     fn parse(text: &str) -> Result<SearchSpace> {
-        let file: SpaceFile = toml::from_str(text).map_err(|e| SearchError::Space { key: "<test>".into(), problem: e.to_string() })?;
+        let file: SpaceFile = toml::from_str(text).map_err(|e| SearchError::Space {
+            key: "<test>".into(),
+            problem: e.to_string(),
+        })?;
         SearchSpace::from_parts(file, text.into(), RECIPE.into())
     }
 
@@ -398,8 +512,14 @@ mod tests {
         let empty = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = [0.9, 0.6]");
         assert_ne!(empty, SINGLE);
         let message = error_of(&empty);
-        assert!(message.contains("camera.distance_m") && message.contains("empty"), "{message}");
-        let improper = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = { normal = [5.0, 0.01], within = [0.6, 0.9] }");
+        assert!(
+            message.contains("camera.distance_m") && message.contains("empty"),
+            "{message}"
+        );
+        let improper = SINGLE.replace(
+            "distance_m = [0.6, 0.9]",
+            "distance_m = { normal = [5.0, 0.01], within = [0.6, 0.9] }",
+        );
         assert!(error_of(&improper).contains("cannot be normalised"));
         let nan = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = [nan, 0.9]");
         assert!(error_of(&nan).contains("camera.distance_m"));
@@ -410,7 +530,10 @@ mod tests {
         let d = Distribution::Uniform([2.0, 4.0]);
         assert!((d.value(0.0) - 3.0).abs() < 1e-12);
         assert!(d.value(-40.0) >= 2.0 && d.value(40.0) <= 4.0);
-        let t = Distribution::TruncatedNormal { normal: [0.0, 1.0], within: [-1.0, 1.0] };
+        let t = Distribution::TruncatedNormal {
+            normal: [0.0, 1.0],
+            within: [-1.0, 1.0],
+        };
         assert!(t.value(0.0).abs() < 1e-9);
         // the median of the truncated normal maps to the median of z
         let u = standard_normal_cdf(0.5);

@@ -50,15 +50,29 @@ impl Default for Predicate {
 impl Predicate {
     /// Parses `paper` / `paper:T` / `mssd:F` (F a fraction of the diameter).
     pub fn parse(text: &str) -> Result<Self, String> {
-        let (metric, value) = text.split_once(':').map_or((text, None), |(m, v)| (m, Some(v)));
+        let (metric, value) = text
+            .split_once(':')
+            .map_or((text, None), |(m, v)| (m, Some(v)));
         let number = |v: Option<&str>, default: f64| -> Result<f64, String> {
-            let x = v.map_or(Ok(default), |v| v.trim().parse::<f64>().map_err(|e| format!("'{v}': {e}")))?;
-            if x.is_finite() && x > 0.0 { Ok(x) } else { Err(format!("the threshold {x} must be finite and positive")) }
+            let x = v.map_or(Ok(default), |v| {
+                v.trim().parse::<f64>().map_err(|e| format!("'{v}': {e}"))
+            })?;
+            if x.is_finite() && x > 0.0 {
+                Ok(x)
+            } else {
+                Err(format!("the threshold {x} must be finite and positive"))
+            }
         };
         match metric {
-            "paper" => Ok(Predicate::PaperError { threshold: number(value, 0.005)? }),
-            "mssd" => Ok(Predicate::Mssd { fraction: number(value, 0.1)? }),
-            other => Err(format!("unknown failure metric '{other}': use paper[:T] or mssd[:F]")),
+            "paper" => Ok(Predicate::PaperError {
+                threshold: number(value, 0.005)?,
+            }),
+            "mssd" => Ok(Predicate::Mssd {
+                fraction: number(value, 0.1)?,
+            }),
+            other => Err(format!(
+                "unknown failure metric '{other}': use paper[:T] or mssd[:F]"
+            )),
         }
     }
 
@@ -80,7 +94,9 @@ pub fn method_named(name: &str) -> Result<Method, String> {
         "fast" => Ok(Method::FastExact),
         "robust" => Ok(Method::Robust),
         "size" => Ok(Method::SizeAndPose),
-        other => Err(format!("unknown fit '{other}': use paper, fast, robust or size")),
+        other => Err(format!(
+            "unknown fit '{other}': use paper, fast, robust or size"
+        )),
     }
 }
 
@@ -124,7 +140,9 @@ impl std::fmt::Display for Invalid {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Invalid::NotStable(reason) => write!(f, "not stable: {reason}"),
-            Invalid::NotVisible { visible_fraction } => write!(f, "target {:.0}% visible", 100.0 * visible_fraction),
+            Invalid::NotVisible { visible_fraction } => {
+                write!(f, "target {:.0}% visible", 100.0 * visible_fraction)
+            }
         }
     }
 }
@@ -195,13 +213,29 @@ impl SystemUnderTest {
         method: Method,
     ) -> Result<Self> {
         if crops == Crops::Predicted && segmenter.is_none() {
-            return Err(SearchError::Sample("--crops predicted needs a segmenter".into()));
+            return Err(SearchError::Sample(
+                "--crops predicted needs a segmenter".into(),
+            ));
         }
-        Ok(Self { physics: RecipePhysics::from_toml(&space.recipe_toml)?, renderer, model, segmenter, crops, method, min_visible_fraction: 0.25 })
+        Ok(Self {
+            physics: RecipePhysics::from_toml(&space.recipe_toml)?,
+            renderer,
+            model,
+            segmenter,
+            crops,
+            method,
+            min_visible_fraction: 0.25,
+        })
     }
 
     /// Runs one sample: `parameters` (from z), scene `scene_id` with nuisance seed `seed`.
-    pub fn run(&mut self, space: &SearchSpace, parameters: &crate::space::Parameters, scene_id: i64, seed: i64) -> Result<Outcome> {
+    pub fn run(
+        &mut self,
+        space: &SearchSpace,
+        parameters: &crate::space::Parameters,
+        scene_id: i64,
+        seed: i64,
+    ) -> Result<Outcome> {
         let mut seconds = StageSeconds::default();
         let start = Instant::now();
         let mut sampled = scene::build(space, parameters, scene_id, seed)?;
@@ -210,7 +244,10 @@ impl SystemUnderTest {
         let not_stable = match settled {
             Ok(outcome) => outcome.rejection.map(|r| r.to_string()),
             // a drop MuJoCo cannot integrate is a scene that does not settle, not a tool failure
-            Err(SearchError::Physics(boxpose_physics::PhysicsError::Diverged { time_s, warning })) => Some(format!("simulation diverged at {time_s:.3} s ({warning})")),
+            Err(SearchError::Physics(boxpose_physics::PhysicsError::Diverged {
+                time_s,
+                warning,
+            })) => Some(format!("simulation diverged at {time_s:.3} s ({warning})")),
             Err(e) => return Err(e),
         };
         let mut outcome = Outcome {
@@ -233,7 +270,8 @@ impl SystemUnderTest {
         // Ground-truth crops need only the region the network's window can reach: the box's
         // projected bounding box grown by the crop margin (several times cheaper than the frame).
         let request = RenderRequest {
-            crop_object: (self.crops == Crops::Gt).then_some((TARGET_OBJECT_ID, self.model.config.crop_margin)),
+            crop_object: (self.crops == Crops::Gt)
+                .then_some((TARGET_OBJECT_ID, self.model.config.crop_margin)),
             ..RenderRequest::default()
         };
         let rendered = self.renderer.render(&request)?;
@@ -241,15 +279,24 @@ impl SystemUnderTest {
         let source = std::path::PathBuf::from(format!("<render of sample scene {scene_id}>"));
         let frame = boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
             .pop()
-            .ok_or_else(|| SearchError::Sample(format!("scene {scene_id}: the renderer returned no frame")))?;
+            .ok_or_else(|| {
+                SearchError::Sample(format!("scene {scene_id}: the renderer returned no frame"))
+            })?;
         outcome.rendered = Some((rendered.frames, rendered.instances));
         let instance = frame
             .instances
             .iter()
             .find(|i| i.object_id == TARGET_OBJECT_ID)
-            .ok_or_else(|| SearchError::Sample(format!("scene {scene_id}: the render has no instance row of the target")))?;
-        if instance.visible_fraction < self.min_visible_fraction || instance.visible_bbox.is_none() {
-            outcome.result = Err(Invalid::NotVisible { visible_fraction: instance.visible_fraction });
+            .ok_or_else(|| {
+                SearchError::Sample(format!(
+                    "scene {scene_id}: the render has no instance row of the target"
+                ))
+            })?;
+        if instance.visible_fraction < self.min_visible_fraction || instance.visible_bbox.is_none()
+        {
+            outcome.result = Err(Invalid::NotVisible {
+                visible_fraction: instance.visible_fraction,
+            });
             return Ok(outcome);
         }
         let (perceived, peaks) = self.perceive(&frame, instance, &mut outcome.seconds)?;
@@ -258,40 +305,72 @@ impl SystemUnderTest {
         Ok(outcome)
     }
 
-    fn perceive(&self, frame: &Frame, instance: &Instance, seconds: &mut StageSeconds) -> Result<(Perceived, Vec<[f64; 3]>)> {
+    fn perceive(
+        &self,
+        frame: &Frame,
+        instance: &Instance,
+        seconds: &mut StageSeconds,
+    ) -> Result<(Perceived, Vec<[f64; 3]>)> {
         let start = Instant::now();
         let config = &self.model.config;
         let sample = match &self.segmenter {
             Some(segmenter) if self.crops == Crops::Predicted => {
                 let detections = segmenter.segment(&[frame])?.remove(0);
-                let index = frame.instances.iter().position(|i| i.object_id == instance.object_id).expect("the target is one of the frame's instances");
+                let index = frame
+                    .instances
+                    .iter()
+                    .position(|i| i.object_id == instance.object_id)
+                    .expect("the target is one of the frame's instances");
                 let found = segmentation::match_detections(frame, &detections, 0.5)[index];
                 let Some(detection) = found.map(|d| &detections[d]) else {
                     seconds.inference = start.elapsed().as_secs_f64();
                     return Ok((Perceived::NotDetected, Vec::new()));
                 };
-                let Some(crop) = CropRequest::around(frame, config, detection.bbox, |i| detection.mask[i]) else {
+                let Some(crop) =
+                    CropRequest::around(frame, config, detection.bbox, |i| detection.mask[i])
+                else {
                     seconds.inference = start.elapsed().as_secs_f64();
                     return Ok((Perceived::NotDetected, Vec::new()));
                 };
-                data::sample_at(config, frame, &crop.window, crop.z_ref, &instance.corners_camera, None)?
+                data::sample_at(
+                    config,
+                    frame,
+                    &crop.window,
+                    crop.z_ref,
+                    &instance.corners_camera,
+                    None,
+                )?
             }
             _ => data::instance_sample(config, frame, instance, None)?,
         };
-        let heatmap = self.model.heatmaps(std::slice::from_ref(&sample.input), 1)?.remove(0);
+        let heatmap = self
+            .model
+            .heatmaps(std::slice::from_ref(&sample.input), 1)?
+            .remove(0);
         let (peaks, points) = inference::decode(config, &heatmap, &sample.grid)?;
         seconds.inference = start.elapsed().as_secs_f64();
 
         let start = Instant::now();
         let model = BoxModel::new(Vector3::from(instance.size))?;
         let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
-        let fits = pipeline::fit_and_score(&model, &evaluation::true_pose(instance), &points, &scores);
+        let fits =
+            pipeline::fit_and_score(&model, &evaluation::true_pose(instance), &points, &scores);
         seconds.fit = start.elapsed().as_secs_f64();
-        let outcome = fits.into_iter().find(|(m, _)| *m == self.method).map(|(_, o)| o).expect("fit_and_score runs every method");
+        let outcome = fits
+            .into_iter()
+            .find(|(m, _)| *m == self.method)
+            .map(|(_, o)| o)
+            .expect("fit_and_score runs every method");
         let perceived = match outcome {
             Ok(s) => Perceived::Fitted(Metrics::of(&s, instance.size)),
             Err(e) => Perceived::FitFailed(e),
         };
-        Ok((perceived, points.iter().map(|p: &Point3<f64>| [p.x, p.y, p.z]).collect()))
+        Ok((
+            perceived,
+            points
+                .iter()
+                .map(|p: &Point3<f64>| [p.x, p.y, p.z])
+                .collect(),
+        ))
     }
 }
