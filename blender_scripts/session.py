@@ -161,10 +161,10 @@ class Session:
         (x0, y0, x1, y1), max exclusive, renders only that region: the frame is then that
         region, with the principal point shifted by (x0, y0). `poses` = {object_id: 4×4
         T_world_box or (quat_wxyz, translation)} moves boxes for this render only.
-        `crop_object` = (object_id, margin) renders only the region around that box: its
-        projected corners' bounding box grown on every side by margin × its longer side / 2 (the
-        search's ground-truth crops; the frame's `render_settings` record the region, so
-        `crop` re-renders it exactly)."""
+        `crop_object` = (object_id, margin) renders only the region around that box: the square
+        of side max(margin, 1) × the longer side of its projected corners' bounding box, centred
+        on that box, plus 2 pixels (the search's ground-truth crops; the frame's
+        `render_settings` record the region, so `crop` re-renders it exactly)."""
         if self.scene_row is None:
             raise RenderInputError("no scene loaded")
         spec = self.recipe.render
@@ -267,10 +267,11 @@ class Session:
             return None
         uv = camera.project(corners)
         (u0, v0), (u1, v1) = uv.min(axis=0), uv.max(axis=0)
-        grow = margin * max(u1 - u0, v1 - v0) / 2
+        half = max(margin, 1.0) * max(u1 - u0, v1 - v0) / 2 + 2.0  # 2 px for the resampling kernel
+        (cu, cv) = ((u0 + u1) / 2, (v0 + v1) / 2)
         # pixel i covers [i − 0.5, i + 0.5)
-        x0, y0 = max(0, int(np.floor(u0 - grow + 0.5))), max(0, int(np.floor(v0 - grow + 0.5)))
-        x1, y1 = min(camera.width, int(np.ceil(u1 + grow + 0.5))), min(camera.height, int(np.ceil(v1 + grow + 0.5)))
+        x0, y0 = max(0, int(np.floor(cu - half + 0.5))), max(0, int(np.floor(cv - half + 0.5)))
+        x1, y1 = min(camera.width, int(np.ceil(cu + half + 0.5))), min(camera.height, int(np.ceil(cv + half + 0.5)))
         return (x0, y0, x1, y1) if x0 < x1 and y0 < y1 else None
 
     def render_batches(

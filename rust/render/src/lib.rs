@@ -299,9 +299,9 @@ pub struct RenderRequest {
     pub sensor_depth: Option<bool>,
     /// Boxes moved for this render only: (object_id, T_world_box).
     pub poses: Vec<(i32, Pose)>,
-    /// Render only the region around one box: (object_id, margin), its projected corners'
-    /// bounding box grown on every side by margin × its longer side / 2 (the whole frame when
-    /// the box is partly behind the camera). Excludes `crop`.
+    /// Render only the region around one box: (object_id, margin), the square of side
+    /// max(margin, 1) × the longer side of its projected corners' bounding box, centred on it,
+    /// plus 2 pixels (the whole frame when the box is partly behind the camera). Excludes `crop`.
     pub crop_object: Option<(i32, f64)>,
 }
 

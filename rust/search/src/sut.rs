@@ -267,21 +267,8 @@ impl SystemUnderTest {
         let scenes = Scene::to_batch(std::slice::from_ref(&sampled.scene));
         let objects = Object::to_batch(&sampled.objects);
         self.renderer.load_scene(&scenes, &objects, scene_id)?;
-        // Ground-truth crops need only the region the network's window can reach: the box's
-        // projected bounding box grown by the crop margin (several times cheaper than the frame).
-        let request = RenderRequest {
-            crop_object: (self.crops == Crops::Gt)
-                .then_some((TARGET_OBJECT_ID, self.model.config.crop_margin)),
-            ..RenderRequest::default()
-        };
-        let rendered = self.renderer.render(&request)?;
+        let (frame, rendered) = self.render_frame(scene_id)?;
         outcome.seconds.render = start.elapsed().as_secs_f64();
-        let source = std::path::PathBuf::from(format!("<render of sample scene {scene_id}>"));
-        let frame = boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
-            .pop()
-            .ok_or_else(|| {
-                SearchError::Sample(format!("scene {scene_id}: the renderer returned no frame"))
-            })?;
         outcome.rendered = Some((rendered.frames, rendered.instances));
         let instance = frame
             .instances
@@ -303,6 +290,35 @@ impl SystemUnderTest {
         outcome.result = Ok(perceived);
         outcome.peaks = peaks;
         Ok(outcome)
+    }
+
+    /// Renders the loaded scene: the whole frame for the segmenter; for ground-truth crops only
+    /// the region the network's window reaches. That region is first the window of an unoccluded
+    /// target (its projected box × the crop margin); when occlusion moves the visible box so that
+    /// the window leaves it, the scene is rendered again with the region that holds any window
+    /// (the projected box grown by the margin on every side).
+    fn render_frame(&mut self, scene_id: i64) -> Result<(Frame, boxpose_render::Rendered)> {
+        let margin = self.model.config.crop_margin;
+        let mut margins: &[f64] = match self.crops {
+            Crops::Gt => &[margin, 1.0 + margin],
+            Crops::Predicted => &[],
+        };
+        loop {
+            let request = RenderRequest { crop_object: margins.first().map(|&m| (TARGET_OBJECT_ID, m)), ..RenderRequest::default() };
+            let rendered = self.renderer.render(&request)?;
+            let source = std::path::PathBuf::from(format!("<render of sample scene {scene_id}>"));
+            let frame = boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
+                .pop()
+                .ok_or_else(|| SearchError::Sample(format!("scene {scene_id}: the renderer returned no frame")))?;
+            let covered = match (request.crop_object, frame.instances.iter().find(|i| i.object_id == TARGET_OBJECT_ID).and_then(|i| i.visible_bbox)) {
+                (Some(_), Some(bbox)) => window_inside_render(&rendered.frames, &frame, bbox, margin)?,
+                _ => true,
+            };
+            if covered || margins.len() <= 1 {
+                return Ok((frame, rendered));
+            }
+            margins = &margins[1..];
+        }
     }
 
     fn perceive(
@@ -373,4 +389,24 @@ impl SystemUnderTest {
                 .collect(),
         ))
     }
+}
+
+/// Whether the network's window around the visible `bbox` (crop-frame pixels) lies inside the
+/// rendered region, or leaves it only where the full image ends as well (where a whole-frame
+/// render clips it the same way). One pixel of slack on each side for bilinear resampling.
+fn window_inside_render(frames: &RecordBatch, frame: &Frame, bbox: [i32; 4], margin: f64) -> Result<bool> {
+    use arrow::array::AsArray;
+    let settings = frames.column_by_name("render_settings").map(|c| c.as_string::<i32>().value(0).to_string()).unwrap_or_default();
+    let settings: serde_json::Value = serde_json::from_str(&settings).map_err(|e| SearchError::Sample(format!("render_settings: {e}")))?;
+    let numbers = |key: &str| -> Option<Vec<f64>> { settings.get(key)?.as_array()?.iter().map(|v| v.as_f64()).collect() };
+    let (Some(region), Some(image)) = (numbers("crop"), numbers("image_size")) else {
+        return Ok(true); // the whole frame was rendered
+    };
+    let window = data::CropWindow::around(bbox, margin);
+    let (w, h) = (frame.width as f64, frame.height as f64);
+    let left = window.x0 - 1.0 >= 0.0 || region[0] <= 0.0;
+    let top = window.y0 - 1.0 >= 0.0 || region[1] <= 0.0;
+    let right = window.x0 + window.side + 1.0 <= w || region[2] >= image[0];
+    let bottom = window.y0 + window.side + 1.0 <= h || region[3] >= image[1];
+    Ok(left && top && right && bottom)
 }
