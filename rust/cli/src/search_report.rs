@@ -137,7 +137,7 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
                 &[OverlayBox {
                     truth,
                     peaks,
-                    fitted: None,
+                    fitted: row.fitted_corners_camera_m.as_deref().map(|c| std::array::from_fn(|i| Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))),
                 }],
             )?;
             drawn.push((row.sample_id, name));
@@ -268,7 +268,7 @@ fn page(
     } else {
         writeln!(
             h,
-            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID --samples 64</code> re-renders it, <code>boxpose predict {0}/counterexamples --scene ID</code> re-runs the pipeline. True box white, the network's NMS peaks black.</p>",
+            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID</code> re-renders it (with ground-truth crops, add <code>--crop</code> with the region its frame's <code>render_settings</code> record), <code>boxpose predict {0}/counterexamples --scene ID</code> re-runs the pipeline. True box white, the network's NMS peaks black, the fitted box grey.</p>",
             escape(&run.dir.display().to_string())
         )?;
         writeln!(

@@ -557,8 +557,10 @@ pub const SEARCH_SAMPLES: Table = Table {
         nullable(col("rotation_error_deg", Float64, "deg", "Rotation error modulo the box's symmetries.")),
         nullable(col("translation_error_m", Float64, "m", "Distance between fitted and true centres.")),
         nullable(col("score", Float64, "", "The failure score log10(metric / threshold): > 0 is a failure; null when not scored or when nothing was fitted.")),
+        nullable(col("fit_confidence", Float64, "", "The fit's own confidence in [0, 1) (geometry `FitConfidence`): how much better its pose explains the peaks than the best different pose.")),
         col("failed", Bool, "", "Valid and the failure predicate holds (metric above threshold, not detected, or fit failed)."),
         nullable(list("peaks_camera_m", Float64, ANY_LENGTH, "m, camera frame", "The target's NMS peaks back-projected, x y z per peak, best first.")),
+        nullable(list("fitted_corners_camera_m", Float64, 24, "m, camera frame", "The fitted box's 8 corners, x y z each, in corner order.")),
     ],
 };
 

@@ -178,6 +178,9 @@ pub struct Scores {
     pub inliers: usize,
     /// [`FitConfidence::mirror_ambiguous`].
     pub mirror_ambiguous: bool,
+    /// The fitted box's 8 corners (its own size under its pose, in the model's corner order),
+    /// in the frame of the points: what an overlay draws.
+    pub fitted_corners: [[f64; 3]; 8],
 }
 
 /// Runs every [`Method`] on `points` (with NMS `scores`, best first) and scores each against the
@@ -234,6 +237,10 @@ pub fn fit_and_score(
             noise_scale_m: confidence.noise_scale_m,
             inliers: confidence.inliers,
             mirror_ambiguous: confidence.mirror_ambiguous,
+            fitted_corners: std::array::from_fn(|i| {
+                let c = fitted.pose * fitted.model.corners()[i];
+                [c.x, c.y, c.z]
+            }),
         })
     };
     Method::ALL

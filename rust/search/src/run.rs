@@ -170,8 +170,10 @@ pub struct SampleRow {
     pub translation_error_m: Option<f64>,
     /// Null when not scored or nothing fitted (then +∞ for the cross-entropy levels).
     pub score: Option<f64>,
+    pub fit_confidence: Option<f64>,
     pub failed: bool,
     pub peaks_camera_m: Option<Vec<f64>>,
+    pub fitted_corners_camera_m: Option<Vec<f64>>,
 }
 
 impl SampleRow {
@@ -865,7 +867,9 @@ fn sample_row(
         rotation_error_deg: None,
         translation_error_m: None,
         score: None,
+        fit_confidence: None,
         failed: false,
+        fitted_corners_camera_m: None,
         peaks_camera_m: outcome
             .result
             .is_ok()
@@ -892,6 +896,8 @@ fn sample_row(
             row.rotation_error_deg = Some(m.rotation_error_deg);
             row.translation_error_m = Some(m.translation_error_m);
             row.score = Some(score);
+            row.fit_confidence = Some(m.confidence);
+            row.fitted_corners_camera_m = Some(m.fitted_corners.iter().flatten().copied().collect());
             row.failed = score > 0.0;
         }
     }
@@ -940,12 +946,14 @@ pub fn samples_batch(rows: &[SampleRow]) -> RecordBatch {
         f(|r| r.rotation_error_deg),
         f(|r| r.translation_error_m),
         f(|r| r.score),
+        f(|r| r.fit_confidence),
         Arc::new(
             rows.iter()
                 .map(|r| Some(r.failed))
                 .collect::<BooleanArray>(),
         ),
         f64_list(rows.iter().map(|r| r.peaks_camera_m.as_ref())),
+        f64_list(rows.iter().map(|r| r.fitted_corners_camera_m.as_ref())),
     ];
     RecordBatch::try_new(Arc::new(SEARCH_SAMPLES.arrow_schema()), columns)
         .expect("columns in contract order and types")
@@ -986,6 +994,7 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
             col("seed").as_primitive::<Int64Type>().clone(),
         );
         let (z, params, peaks) = (lists("z"), lists("params"), lists("peaks_camera_m"));
+        let fitted = lists("fitted_corners_camera_m");
         let (lp, lq, lw) = (
             f64s("log_nominal"),
             f64s("log_proposal"),
@@ -1008,6 +1017,7 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
             "rotation_error_deg",
             "translation_error_m",
             "score",
+            "fit_confidence",
         ]
         .iter()
         .map(|n| f64s(n))
@@ -1046,7 +1056,9 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
                 translation_error_m: opt(&metrics[5], i),
                 score: opt(&metrics[6], i),
                 failed: failed.value(i),
+                fit_confidence: opt(&metrics[7], i),
                 peaks_camera_m: list(&peaks, i),
+                fitted_corners_camera_m: list(&fitted, i),
             });
         }
     }

@@ -111,6 +111,10 @@ pub struct Metrics {
     pub add_s_m: f64,
     pub rotation_error_deg: f64,
     pub translation_error_m: f64,
+    /// The fit's own confidence (geometry `FitConfidence`).
+    pub confidence: f64,
+    /// The fitted box's corners, camera frame.
+    pub fitted_corners: [[f64; 3]; 8],
 }
 
 impl Metrics {
@@ -123,6 +127,8 @@ impl Metrics {
             add_s_m: scores.add_s_m,
             rotation_error_deg: scores.rotation_error_deg,
             translation_error_m: scores.translation_error_m,
+            confidence: scores.confidence,
+            fitted_corners: scores.fitted_corners,
         }
     }
 }
