@@ -47,6 +47,26 @@ def test_four_confident_outliers_break_the_paper_search_but_not_the_robust_fit(t
     assert recall["robust"] > recall["paper_exact"]
 
 
+def test_every_fit_row_carries_its_confidence(tiny_dataset, boxpose_bin, tmp_path):
+    clean = evaluate(boxpose_bin, tiny_dataset, tmp_path / "clean.parquet", 0)
+    noisy = evaluate(boxpose_bin, tiny_dataset, tmp_path / "outliers.parquet", 4)
+    assert set(clean.method) == {"paper_exact", "fast_exact", "robust", "size_and_pose", "robust_fixed", "size_and_pose_ls"}
+    for rows in (clean, noisy):
+        fitted = rows[rows.fit_error.isna()]
+        assert fitted.confidence.between(0, 1).all()  # 1 when no different box is a hypothesis (infinite margin)
+        assert (fitted.inliers >= 3).all() and (fitted.inliers <= 8).all()
+        assert (fitted.noise_scale_m > 0).all()
+        assert fitted.mirror_ambiguous.dtype == bool
+        # a positive margin and only a positive margin gives a positive confidence
+        assert ((fitted.margin_nats > 0) == (fitted.confidence > 0)).all()
+    robust = lambda rows: rows[rows.method == "robust"]
+    # perfect heatmaps with 3 mm noise: every peak a corner, millimetre noise
+    assert (robust(clean).inliers == 8).mean() >= 0.8
+    assert robust(clean).noise_scale_m.median() < 0.006
+    # 4 of the 8 peaks are confident outliers: the robust fit counts about 4 inliers
+    assert robust(noisy).inliers.median() <= 5 < robust(clean).inliers.median()
+
+
 def test_missing_dataset_is_a_clear_error(boxpose_bin, tmp_path):
     result = run_boxpose(boxpose_bin, "eval-geometry", tmp_path / "nope", check=False)
     assert result.returncode != 0 and "does not exist" in result.stderr

@@ -95,8 +95,86 @@ def test_pose_and_size_fit_recovers_an_unknown_box():
     truth = random_pose(rng)
     size = [0.25, 0.15, 0.08]
     points = transform(truth, boxpose.box_corners(size)) + rng.normal(scale=0.001, size=(8, 3))
-    fit = boxpose.fit_pose_and_size(points)
-    assert np.allclose(sorted(fit["size"]), sorted(size), atol=0.005)
+    for method in ["robust", "least_squares"]:
+        fit = boxpose.fit_pose_and_size(points, method=method)
+        assert fit["method"] == method
+        assert np.allclose(sorted(fit["size"]), sorted(size), atol=0.005)
+    assert boxpose.fit_pose_and_size(points)["method"] == "robust"
+
+
+def perturbed_box(seed, outliers, noise=0.003):
+    """The issue-17 benchmark case: a random box (sides 0.1–0.5 m), 3 mm noise on its corners,
+    `outliers` of the 8 unordered peaks replaced by points within the box's diagonal of its centre.
+    Returns (size, true pose, peaks, which peaks are true corners)."""
+    rng = np.random.default_rng(seed)
+    size = rng.uniform(0.1, 0.5, 3)
+    truth = random_pose(rng)
+    corners = transform(truth, boxpose.box_corners(size)) + rng.normal(scale=noise, size=(8, 3))
+    diagonal = np.linalg.norm(size)
+    spurious = []
+    while len(spurious) < outliers:
+        offset = rng.uniform(-diagonal, diagonal, 3)
+        if np.linalg.norm(offset) <= diagonal:
+            spurious.append(truth[:3, 3] + offset)
+    kept = corners[rng.permutation(8)[: 8 - outliers]]
+    points = np.vstack([kept, np.reshape(spurious, (-1, 3))])
+    order = rng.permutation(8)
+    return size, truth, points[order], order < 8 - outliers
+
+
+def corner_mismatch(truth, size_a, pose_b, size_b):
+    """The larger of the two directed Hausdorff distances between two boxes' corner sets."""
+    a = transform(truth, boxpose.box_corners(size_a))
+    b = transform(pose_b, boxpose.box_corners(size_b))
+    d = np.linalg.norm(a[:, None] - b[None], axis=2)
+    return max(d.min(axis=0).max(), d.min(axis=1).max())
+
+
+def test_adaptive_fit_prefers_four_tight_inliers_to_five_loose_ones():
+    # Seed 180: the fixed threshold (¼ of the shortest side) lets a wrong pose collect 5 loose
+    # "inliers" and beat the true pose, whose 4 peaks lie within 1 cm (issue 17's failure mode).
+    size, truth, points, true_corner = perturbed_box(180, outliers=4)
+    diameter = np.linalg.norm(size)
+    fit = boxpose.robust_fit(size, points)
+    assert fit["method"] == "adaptive"
+    assert boxpose.mssd(size, fit["pose"], truth) < 0.05 * diameter
+    assert fit["inliers"] == list(true_corner)
+    assert fit["inlier_count"] == fit["confidence_inliers"] == 4
+    assert 0.001 < fit["noise_scale_m"] < 0.01
+    assert 0 < fit["confidence"] < 1 and not fit["mirror_ambiguous"]
+    # The former fit is kept for comparison (it may fail here: that is the point), with the
+    # noise-adaptive assessment of its pose as its confidence.
+    fixed = boxpose.robust_fit(size, points, method="fixed_threshold")
+    assert fixed["method"] == "fixed_threshold"
+    assert {"confidence", "margin_nats", "confidence_inliers", "noise_scale_m", "mirror_ambiguous"} <= fixed.keys()
+    if boxpose.mssd(size, fixed["pose"], truth) > 0.1 * diameter:
+        assert fixed["confidence"] < fit["confidence"]
+
+
+def test_robust_size_fit_survives_an_outlier_that_breaks_least_squares():
+    failures = {"robust": 0, "least_squares": 0}
+    for seed in range(20):
+        size, truth, points, _ = perturbed_box(seed, outliers=1)
+        for method in failures:
+            fit = boxpose.fit_pose_and_size(points, method=method)
+            if corner_mismatch(truth, size, fit["pose"], fit["size"]) > 0.1 * np.linalg.norm(size):
+                failures[method] += 1
+    assert failures["robust"] == 0
+    assert failures["least_squares"] >= 5  # 16 of 20 when written
+
+
+def test_confidence_is_lower_for_a_mirror_ambiguous_fit_than_for_a_clean_one():
+    rng = np.random.default_rng(5)
+    truth = random_pose(rng)
+    corners = transform(truth, boxpose.box_corners(SIZE))
+    clean = boxpose.robust_fit(SIZE, corners + rng.normal(scale=0.003, size=(8, 3)))
+    # One face's 4 corners: the box and its mirror image through that face fit them alike.
+    face = boxpose.robust_fit(SIZE, corners[4:] + rng.normal(scale=0.001, size=(4, 3)))
+    assert not clean["mirror_ambiguous"] and clean["confidence_inliers"] == 8
+    assert clean["confidence"] > 0.5
+    assert face["mirror_ambiguous"]
+    assert face["confidence"] < 0.1 < clean["confidence"]
+    assert face["margin_nats"] < clean["margin_nats"]
 
 
 def test_metrics_agree_with_their_definitions():
@@ -127,10 +205,14 @@ def test_metrics_agree_with_their_definitions():
         lambda: boxpose.kabsch(np.zeros((5, 3)), np.zeros((5, 3))),
         lambda: boxpose.nms(np.zeros((0, 4, 4), np.float32)),
         lambda: boxpose.robust_fit(SIZE, np.zeros((2, 3))),
+        lambda: boxpose.robust_fit(SIZE, np.eye(3), method="ransac"),
+        lambda: boxpose.robust_fit(SIZE, np.eye(3), inlier_threshold=0.01),
+        lambda: boxpose.fit_pose_and_size(np.eye(4, 3), method="icp"),
         lambda: boxpose.box_corners([0.1, -0.1, 0.1]),
         lambda: boxpose.mssd(SIZE, np.eye(3), np.eye(4)),
     ],
-    ids=["nan", "too-few", "coincident", "empty-heatmap", "robust-too-few", "negative-size", "bad-matrix"],
+    ids=["nan", "too-few", "coincident", "empty-heatmap", "robust-too-few", "unknown-robust-method",
+         "threshold-without-fixed-method", "unknown-size-fit-method", "negative-size", "bad-matrix"],
 )
 def test_bad_input_raises_value_error(call):
     with pytest.raises(ValueError):

@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use arrow::array::{ArrayRef, Float64Array, Int32Array, Int64Array, StringArray};
+use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, StringArray};
 use arrow::datatypes::{DataType, Field};
 use boxpose_geometry::pipeline::{Method, Scores};
 
@@ -15,6 +15,11 @@ pub struct FitRow {
     pub outcome: Result<Scores, String>,
 }
 
+/// The columns, one row per instance and method. `confidence`, `margin_nats`, `noise_scale_m`,
+/// `inliers` and `mirror_ambiguous` are the fit's [`Scores`] confidence fields (the fit's own for
+/// `robust` and `size_and_pose`, the noise-adaptive assessment of its pose for the others); like
+/// the metrics they are null where the fit failed. `margin_nats` is infinite (and `confidence`
+/// 1) when no other box hypothesis exists.
 pub fn fields() -> Vec<Field> {
     let f64_field = |name: &str| Field::new(name, DataType::Float64, true);
     vec![
@@ -29,6 +34,11 @@ pub fn fields() -> Vec<Field> {
         f64_field("rotation_error_deg"),
         f64_field("translation_error_m"),
         f64_field("fit_time_us"),
+        f64_field("confidence"),
+        f64_field("margin_nats"),
+        f64_field("noise_scale_m"),
+        Field::new("inliers", DataType::Int32, true),
+        Field::new("mirror_ambiguous", DataType::Boolean, true),
         Field::new("fit_error", DataType::Utf8, true),
     ]
 }
@@ -50,20 +60,31 @@ pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
         metric(|s| s.rotation_error_deg),
         metric(|s| s.translation_error_m),
         metric(|s| s.fit_time_us),
+        metric(|s| s.confidence),
+        metric(|s| s.margin_nats),
+        metric(|s| s.noise_scale_m),
+        Arc::new(rows.iter().map(|r| r.outcome.as_ref().ok().map(|s| s.inliers as i32)).collect::<Int32Array>()),
+        Arc::new(rows.iter().map(|r| r.outcome.as_ref().ok().map(|s| s.mirror_ambiguous)).collect::<BooleanArray>()),
         Arc::new(rows.iter().map(|r| r.outcome.as_ref().err().map(String::as_str)).collect::<StringArray>()),
     ]
 }
 
 /// A table per method: recall of MSSD below 5 % and 10 % of the diameter (failed fits count as
-/// misses), median MSSD, mean paper error, mean fit time.
+/// misses), median MSSD, mean paper error, mean fit time, mean confidence, and the AUROC of the
+/// confidence as a predictor of failure (MSSD ≥ 0.1 × diameter) over the fits that returned a
+/// pose ("—" when they are all right or all wrong).
 pub fn print(rows: &[FitRow]) {
-    println!("{:<14} {:>9} {:>11} {:>11} {:>13} {:>13} {:>12}", "method", "instances", "MSSD<0.05d", "MSSD<0.1d", "median MSSD", "mean error", "mean time");
+    let width = Method::ALL.iter().map(|m| m.name().len()).max().unwrap_or(0).max("method".len());
+    println!(
+        "{:<width$} {:>9} {:>11} {:>11} {:>13} {:>13} {:>12} {:>10} {:>10}",
+        "method", "instances", "MSSD<0.05d", "MSSD<0.1d", "median MSSD", "mean error", "mean time", "mean conf", "conf AUROC"
+    );
     for method in Method::ALL {
         let of_method: Vec<&FitRow> = rows.iter().filter(|r| r.method == method).collect();
         let scored: Vec<(&Scores, f64)> = of_method.iter().filter_map(|r| r.outcome.as_ref().ok().map(|s| (s, r.diameter_m))).collect();
         let name = method.name();
         if scored.is_empty() {
-            println!("{name:<14} {:>9} every fit failed", of_method.len());
+            println!("{name:<width$} {:>9} every fit failed", of_method.len());
             continue;
         }
         let total = of_method.len() as f64;
@@ -71,14 +92,62 @@ pub fn print(rows: &[FitRow]) {
         let mut mssd: Vec<f64> = scored.iter().map(|(s, _)| s.mssd_m).collect();
         mssd.sort_by(f64::total_cmp);
         let n = scored.len() as f64;
+        let judged: Vec<(f64, bool)> = scored.iter().map(|(s, d)| (s.confidence, s.mssd_m >= 0.1 * d)).collect();
+        let auroc = failure_auroc(&judged).map_or("—".to_string(), |a| format!("{a:.3}"));
         println!(
-            "{name:<14} {:>9} {:>10.1}% {:>10.1}% {:>11.4} m {:>13.6} {:>9.0} µs",
+            "{name:<width$} {:>9} {:>10.1}% {:>10.1}% {:>11.4} m {:>13.6} {:>9.0} µs {:>10.3} {:>10}",
             of_method.len(),
             100.0 * recall(0.05),
             100.0 * recall(0.1),
             mssd[mssd.len() / 2],
             scored.iter().map(|(s, _)| s.paper_error).sum::<f64>() / n,
             scored.iter().map(|(s, _)| s.fit_time_us).sum::<f64>() / n,
+            scored.iter().map(|(s, _)| s.confidence).sum::<f64>() / n,
+            auroc,
         );
+    }
+}
+
+/// The AUROC of confidence as a predictor of failure, from (confidence, failed) pairs: the
+/// probability that a failed fit has a lower confidence than a right one, ties counting half
+/// (Mann–Whitney U over mid-ranks). `None` when either class is empty.
+pub fn failure_auroc(fits: &[(f64, bool)]) -> Option<f64> {
+    let failed = fits.iter().filter(|(_, f)| *f).count();
+    let right = fits.len() - failed;
+    if failed == 0 || right == 0 {
+        return None;
+    }
+    // Ranks by descending confidence: a failure ranked high (low confidence) is a good prediction.
+    let mut order: Vec<usize> = (0..fits.len()).collect();
+    order.sort_by(|&a, &b| fits[b].0.total_cmp(&fits[a].0));
+    let mut rank_sum = 0.0;
+    let mut i = 0;
+    while i < order.len() {
+        let mut j = i;
+        while j + 1 < order.len() && fits[order[j + 1]].0 == fits[order[i]].0 {
+            j += 1;
+        }
+        let mid_rank = (i + j) as f64 / 2.0 + 1.0;
+        rank_sum += mid_rank * order[i..=j].iter().filter(|&&k| fits[k].1).count() as f64;
+        i = j + 1;
+    }
+    let (failed, right) = (failed as f64, right as f64);
+    Some((rank_sum - failed * (failed + 1.0) / 2.0) / (failed * right))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::failure_auroc;
+
+    #[test]
+    fn auroc_of_confidence_as_a_failure_predictor() {
+        // every failure less confident than every right fit: 1; the reverse: 0
+        assert_eq!(failure_auroc(&[(0.1, true), (0.2, true), (0.8, false), (0.9, false)]), Some(1.0));
+        assert_eq!(failure_auroc(&[(0.9, true), (0.1, false)]), Some(0.0));
+        // all tied: chance
+        assert_eq!(failure_auroc(&[(0.5, true), (0.5, false), (0.5, false)]), Some(0.5));
+        // one of the two failures below the right fit, one tied with it: (1 + ½) / 2
+        assert_eq!(failure_auroc(&[(0.2, true), (0.7, true), (0.7, false)]), Some(0.75));
+        assert_eq!(failure_auroc(&[(0.2, false), (0.7, false)]), None);
     }
 }

@@ -6,20 +6,29 @@
 //! `--intrinsics`). Boxes are cropped around the ground-truth boxes (`--crops gt`, dataset rows
 //! only), around the boxes the segmenter finds (`--crops predicted`, and files without `--bbox`),
 //! or around the bounding boxes given with `--bbox` (max exclusive).
+//!
+//! Each box's peaks are fitted by the noise-adaptive pose-and-size fit
+//! (`size_fit::robust_size_fit`, survives outlier peaks) or, with `--size-fit least-squares`, by
+//! the former least-squares fit (`size_fit::fit_pose_and_size`), for comparison. Every fit comes
+//! with its confidence (`adaptive::FitConfidence`: its own for the robust fit, the noise-adaptive
+//! assessment of its box for least squares), printed and written in both tables.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, bail};
-use arrow::array::{ArrayRef, Float64Array, Int32Array, Int64Array, ListArray, StringArray};
+use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, StringArray};
 use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, Int32Type, Schema};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Frame, Intrinsics, Pose};
+use boxpose_geometry::BoxModel;
+use boxpose_geometry::adaptive::FitConfidence;
+use boxpose_geometry::size_fit;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::evaluation::true_pose;
 use boxpose_learn::inference::{self, BoxPrediction, CropRequest, KeypointModel};
 use boxpose_learn::segmentation::{self, SegmenterModel};
-use nalgebra::Point3;
+use nalgebra::{Isometry3, Point3};
 use serde_json::json;
 
 use crate::plots::{self, OverlayBox};
@@ -30,6 +39,24 @@ pub enum Crops {
     Gt,
     /// Around each box the instance segmenter finds, at its predicted mask's median depth.
     Predicted,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum SizeFit {
+    /// Noise-adaptive hypotheses and refinement (`size_fit::robust_size_fit`): survives outlier
+    /// peaks.
+    Robust,
+    /// The former least-squares scaling ICP (`size_fit::fit_pose_and_size`), for comparison.
+    LeastSquares,
+}
+
+impl SizeFit {
+    fn name(self) -> &'static str {
+        match self {
+            SizeFit::Robust => "robust",
+            SizeFit::LeastSquares => "least-squares",
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -69,6 +96,50 @@ pub struct Args {
     out: PathBuf,
     #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
     backend: BackendKind,
+    /// The pose-and-size fit of each box's peaks.
+    #[arg(long, value_enum, default_value_t = SizeFit::Robust)]
+    size_fit: SizeFit,
+}
+
+/// One box's fit, with its confidence.
+struct Fit {
+    model: BoxModel,
+    pose: Isometry3<f64>,
+    /// Per peak: whether the fit counts it as an inlier (every peak, for least squares).
+    inliers: Vec<bool>,
+    /// Root mean square of the inliers' distances to their nearest fitted corner (metres).
+    inlier_rms: f64,
+    confidence: FitConfidence,
+}
+
+impl Fit {
+    fn corners(&self) -> [Point3<f64>; 8] {
+        self.model.corners().map(|c| self.pose * c)
+    }
+
+    fn inlier_count(&self) -> usize {
+        self.inliers.iter().filter(|b| **b).count()
+    }
+}
+
+/// Fits the peaks of one box. The pipeline (`inference::predict`) already fitted them robustly,
+/// but keeps no confidence: the fit (deterministic, well under a millisecond) is run again here.
+fn fit_box(points: &[Point3<f64>], method: SizeFit) -> Result<Fit, String> {
+    let rms = |residuals: &[f64], inliers: &[bool]| {
+        let squares: Vec<f64> = residuals.iter().zip(inliers).filter(|(_, i)| **i).map(|(r, _)| r * r).collect();
+        (squares.iter().sum::<f64>() / squares.len().max(1) as f64).sqrt()
+    };
+    match method {
+        SizeFit::Robust => {
+            let f = size_fit::robust_size_fit(points, &size_fit::RobustSizeParams::default()).map_err(|e| e.to_string())?;
+            Ok(Fit { inlier_rms: rms(&f.residuals, &f.inliers), model: f.model, pose: f.pose, inliers: f.inliers, confidence: f.confidence })
+        }
+        SizeFit::LeastSquares => {
+            let f = size_fit::fit_pose_and_size(points, &size_fit::SizeFitParams::default()).map_err(|e| e.to_string())?;
+            let confidence = size_fit::assess_sized_box(points, &f.model, &f.pose).map_err(|e| e.to_string())?;
+            Ok(Fit { model: f.model, pose: f.pose, inliers: f.inliers, inlier_rms: f.inlier_rms, confidence })
+        }
+    }
 }
 
 /// A box to predict: where it came from, and its crop.
@@ -126,36 +197,44 @@ fn finish(args: &Args, model: &KeypointModel, frame: Frame, targets: Vec<Target>
     anyhow::ensure!(!targets.is_empty(), "no box to predict in this frame");
     let crops: Vec<CropRequest> = targets.iter().map(|t| t.crop).collect();
     let predictions = inference::predict(model, &frame, &crops, 16)?;
+    let fits: Vec<Result<Fit, String>> = predictions.iter().map(|p| fit_box(&p.points, args.size_fit)).collect();
 
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
-    write_parquet(&args.out.join("predictions.parquet"), &frame, &targets, &predictions)?;
+    write_parquet(&args.out.join("predictions.parquet"), &frame, &targets, &predictions, &fits, args.size_fit)?;
     let json_path = args.out.join("predictions.json");
-    std::fs::write(&json_path, serde_json::to_string_pretty(&to_json(&frame, &targets, &predictions))?)
+    std::fs::write(&json_path, serde_json::to_string_pretty(&to_json(&frame, &targets, &predictions, &fits, args.size_fit))?)
         .with_context(|| format!("cannot write {}", json_path.display()))?;
     let overlay_boxes: Vec<OverlayBox> = targets
         .iter()
-        .zip(&predictions)
-        .map(|(t, p)| OverlayBox {
+        .zip(predictions.iter().zip(&fits))
+        .map(|(t, (p, fit))| OverlayBox {
             truth: t.object_id.and_then(|id| frame.instances.iter().find(|i| i.object_id == id)).map(|i| i.corners_camera.map(Point3::from)),
             peaks: p.points.clone(),
-            fitted: p.fit.as_ref().ok().map(fitted_corners),
+            fitted: fit.as_ref().ok().map(Fit::corners),
         })
         .collect();
     let overlay = args.out.join("overlay.png");
     plots::overlay(&overlay, &frame.rgb, frame.width, frame.height, &frame.intrinsics, &overlay_boxes)?;
 
-    for (t, p) in targets.iter().zip(&predictions) {
+    println!("pose-and-size fit: {}", args.size_fit.name());
+    for (t, (p, fit)) in targets.iter().zip(predictions.iter().zip(&fits)) {
         let who = t.object_id.map_or(format!("bbox {:?}", t.bbox), |id| format!("object {id}"));
-        match &p.fit {
+        match fit {
             Ok(fit) => {
                 let size = fit.model.size();
                 let at = fit.pose.translation.vector;
                 let truth = t.object_id.and_then(|id| frame.instances.iter().find(|i| i.object_id == id));
                 let error = truth.map_or(String::new(), |i| format!(", {:.1} mm from the true centre", 1000.0 * (at - true_pose(i).translation.vector).norm()));
+                let c = &fit.confidence;
                 println!(
                     "{who}: size {:.3}×{:.3}×{:.3} m at ({:.3}, {:.3}, {:.3}) m, {} of {} peaks inliers, residual {:.1} mm{error}",
                     size.x, size.y, size.z, at.x, at.y, at.z,
-                    fit.inliers.iter().filter(|b| **b).count(), p.points.len(), 1000.0 * fit.inlier_rms
+                    fit.inlier_count(), p.points.len(), 1000.0 * fit.inlier_rms
+                );
+                println!(
+                    "    confidence {:.2} (margin {:.1} nats, {} inliers, noise {:.1} mm{})",
+                    c.confidence, c.margin_nats, c.inliers, 1000.0 * c.noise_scale_m,
+                    if c.mirror_ambiguous { ", mirror-ambiguous" } else { "" }
                 );
             }
             Err(e) => println!("{who}: no pose ({e})"),
@@ -258,24 +337,31 @@ fn frame_from_files(rgb_path: &Path, depth_path: &Path, k: &[f64]) -> anyhow::Re
     })
 }
 
-fn fitted_corners(fit: &boxpose_geometry::size_fit::SizedBoxFit) -> [Point3<f64>; 8] {
-    fit.model.corners().map(|c| fit.pose * c)
-}
-
-fn to_json(frame: &Frame, targets: &[Target], predictions: &[BoxPrediction]) -> serde_json::Value {
+/// The JSON of every box. A fit's `confidence.margin_nats` is null when no other box hypothesis
+/// exists (an infinite margin).
+fn to_json(frame: &Frame, targets: &[Target], predictions: &[BoxPrediction], fits: &[Result<Fit, String>], method: SizeFit) -> serde_json::Value {
     let boxes: Vec<_> = targets
         .iter()
-        .zip(predictions)
-        .map(|(t, p)| {
-            let fit = p.fit.as_ref().map(|fit| {
+        .zip(predictions.iter().zip(fits))
+        .map(|(t, (p, fit))| {
+            let fit = fit.as_ref().map(|fit| {
                 let q = fit.pose.rotation.quaternion();
+                let c = &fit.confidence;
                 json!({
+                    "size_fit": method.name(),
                     "pose_quat_wxyz": [q.w, q.i, q.j, q.k],
                     "pose_translation_m": fit.pose.translation.vector.as_slice(),
                     "size_m": fit.model.size().as_slice(),
-                    "corners_camera_m": fitted_corners(fit).iter().map(|c| [c.x, c.y, c.z]).collect::<Vec<_>>(),
+                    "corners_camera_m": fit.corners().iter().map(|c| [c.x, c.y, c.z]).collect::<Vec<_>>(),
                     "inliers": fit.inliers,
                     "inlier_rms_m": fit.inlier_rms,
+                    "confidence": {
+                        "confidence": c.confidence,
+                        "margin_nats": c.margin_nats,
+                        "inliers": c.inliers,
+                        "noise_scale_m": c.noise_scale_m,
+                        "mirror_ambiguous": c.mirror_ambiguous,
+                    },
                 })
             });
             json!({
@@ -292,8 +378,11 @@ fn to_json(frame: &Frame, targets: &[Target], predictions: &[BoxPrediction]) -> 
     json!({ "scene_id": frame.scene_id, "frame_id": frame.frame_id, "boxes": boxes })
 }
 
-fn write_parquet(path: &Path, frame: &Frame, targets: &[Target], predictions: &[BoxPrediction]) -> anyhow::Result<()> {
-    let fits: Vec<_> = predictions.iter().map(|p| p.fit.as_ref().ok()).collect();
+/// One row per box; the fit's columns are null where it failed (`fit_error` says why).
+/// `confidence_inliers` counts the peaks the noise-adaptive cost takes as inliers (for the
+/// robust fit the same as `inlier_count`; least squares counts every peak in `inlier_count`).
+fn write_parquet(path: &Path, frame: &Frame, targets: &[Target], predictions: &[BoxPrediction], outcomes: &[Result<Fit, String>], method: SizeFit) -> anyhow::Result<()> {
+    let fits: Vec<Option<&Fit>> = outcomes.iter().map(|f| f.as_ref().ok()).collect();
     let f64_list = |values: Vec<Option<Vec<f64>>>| -> ArrayRef {
         Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(values.into_iter().map(|v| v.map(|v| v.into_iter().map(Some).collect::<Vec<_>>()))))
     };
@@ -312,6 +401,12 @@ fn write_parquet(path: &Path, frame: &Frame, targets: &[Target], predictions: &[
         list("peak_scores", DataType::Float32, false),
         Field::new("inlier_count", DataType::Int32, true),
         Field::new("inlier_rms_m", DataType::Float64, true),
+        Field::new("size_fit", DataType::Utf8, false),
+        Field::new("confidence", DataType::Float64, true),
+        Field::new("margin_nats", DataType::Float64, true),
+        Field::new("confidence_inliers", DataType::Int32, true),
+        Field::new("noise_scale_m", DataType::Float64, true),
+        Field::new("mirror_ambiguous", DataType::Boolean, true),
         Field::new("fit_error", DataType::Utf8, true),
     ]));
     let columns: Vec<ArrayRef> = vec![
@@ -323,12 +418,18 @@ fn write_parquet(path: &Path, frame: &Frame, targets: &[Target], predictions: &[
         f64_list(fits.iter().map(|f| f.map(|f| { let q = f.pose.rotation.quaternion(); vec![q.w, q.i, q.j, q.k] })).collect()),
         f64_list(fits.iter().map(|f| f.map(|f| f.pose.translation.vector.as_slice().to_vec())).collect()),
         f64_list(fits.iter().map(|f| f.map(|f| f.model.size().as_slice().to_vec())).collect()),
-        f64_list(fits.iter().map(|f| f.map(|f| fitted_corners(f).iter().flat_map(|c| [c.x, c.y, c.z]).collect())).collect()),
+        f64_list(fits.iter().map(|f| f.map(|f| f.corners().iter().flat_map(|c| [c.x, c.y, c.z]).collect())).collect()),
         f64_list(predictions.iter().map(|p| Some(p.points.iter().flat_map(|c| [c.x, c.y, c.z]).collect())).collect()),
         Arc::new(ListArray::from_iter_primitive::<Float32Type, _, _>(predictions.iter().map(|p| Some(p.peaks.iter().map(|k| Some(k.score)).collect::<Vec<_>>())))),
-        Arc::new(fits.iter().map(|f| f.map(|f| f.inliers.iter().filter(|b| **b).count() as i32)).collect::<Int32Array>()),
+        Arc::new(fits.iter().map(|f| f.map(|f| f.inlier_count() as i32)).collect::<Int32Array>()),
         Arc::new(fits.iter().map(|f| f.map(|f| f.inlier_rms)).collect::<Float64Array>()),
-        Arc::new(predictions.iter().map(|p| p.fit.as_ref().err().cloned()).collect::<StringArray>()),
+        Arc::new(StringArray::from(vec![method.name(); targets.len()])),
+        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.confidence)).collect::<Float64Array>()),
+        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.margin_nats)).collect::<Float64Array>()),
+        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.inliers as i32)).collect::<Int32Array>()),
+        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.noise_scale_m)).collect::<Float64Array>()),
+        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.mirror_ambiguous)).collect::<BooleanArray>()),
+        Arc::new(outcomes.iter().map(|f| f.as_ref().err().cloned()).collect::<StringArray>()),
     ];
     boxpose_data::write_parquet(path, schema.clone(), &[RecordBatch::try_new(schema, columns)?])?;
     Ok(())

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use boxpose_data::Frame;
 use boxpose_geometry::GeometryError;
 use boxpose_geometry::heatmap::{self, NmsParams, Peak, VoxelGrid};
-use boxpose_geometry::size_fit::{self, SizeFitParams, SizedBoxFit};
+use boxpose_geometry::size_fit::{self, SizedBoxFit};
 use burn::prelude::*;
 use nalgebra::Point3;
 use serde::Serialize;
@@ -143,7 +143,22 @@ pub fn predict(model: &KeypointModel, frame: &Frame, crops: &[CropRequest], batc
         .map(|(crop, heatmap)| {
             let grid = data::voxel_grid(&model.config, &frame.intrinsics, &crop.window, crop.z_ref);
             let (peaks, points) = decode(&model.config, heatmap, &grid)?;
-            let fit = size_fit::fit_pose_and_size(&points, &SizeFitParams::default()).map_err(|e| e.to_string());
+            // The noise-adaptive pose-and-size fit (survives outlier peaks); `SizedBoxFit::cost` is
+            // its plain sum of squared residuals, as `fit_pose_and_size`'s default would give.
+            let fit = size_fit::robust_size_fit(&points, &size_fit::RobustSizeParams::default())
+                .map(|f| {
+                    let inlier_squares: Vec<f64> = f.residuals.iter().zip(&f.inliers).filter(|(_, i)| **i).map(|(r, _)| r * r).collect();
+                    SizedBoxFit {
+                        inlier_rms: (inlier_squares.iter().sum::<f64>() / inlier_squares.len().max(1) as f64).sqrt(),
+                        cost: f.residuals.iter().map(|r| r * r).sum(),
+                        model: f.model,
+                        pose: f.pose,
+                        nearest_corners: f.nearest_corners,
+                        residuals: f.residuals,
+                        inliers: f.inliers,
+                    }
+                })
+                .map_err(|e| e.to_string());
             Ok(BoxPrediction { peaks, points, fit })
         })
         .collect()

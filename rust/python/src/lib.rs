@@ -8,6 +8,7 @@
 use boxpose_geometry::heatmap::{
     self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord, VoxelGrid,
 };
+use boxpose_geometry::adaptive::FitConfidence;
 use boxpose_geometry::{BoxModel, GeometryError, align, correspondence, metrics, robust, size_fit};
 use nalgebra::{Isometry3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
@@ -181,44 +182,123 @@ fn fast_exact_search<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArr
     search(py, correspondence::fast_exact_search, size, points, scores, m)
 }
 
-/// Pose that survives up to half the points being outliers (minimal hypotheses, truncated
-/// least squares, inlier refinement). Returns {"pose", "inliers", "nearest_corners",
-/// "residuals", "inlier_count", "inlier_rms", "truncated_cost"}.
+fn confidence_items(dict: &Bound<'_, PyDict>, c: &FitConfidence) -> PyResult<()> {
+    dict.set_item("confidence", c.confidence)?;
+    dict.set_item("margin_nats", c.margin_nats)?;
+    dict.set_item("confidence_inliers", c.inliers)?;
+    dict.set_item("noise_scale_m", c.noise_scale_m)?;
+    dict.set_item("mirror_ambiguous", c.mirror_ambiguous)?;
+    Ok(())
+}
+
+fn inlier_rms(residuals: &[f64], inliers: &[bool]) -> f64 {
+    let squares: Vec<f64> = residuals.iter().zip(inliers).filter(|(_, i)| **i).map(|(r, _)| r * r).collect();
+    (squares.iter().sum::<f64>() / squares.len().max(1) as f64).sqrt()
+}
+
+/// Pose of a box of known size that survives up to half the points being outliers.
+///
+/// `method="adaptive"` (default): every minimal hypothesis scored by the noise-adaptive cost (no
+/// threshold in box units; `robust::adaptive_fit`). `method="fixed_threshold"`: the former fit,
+/// truncated least squares at `inlier_threshold` (default a quarter of the shortest side;
+/// `robust::robust_fit`), for comparison.
+///
+/// Returns {"method", "pose", "inliers", "nearest_corners", "residuals", "inlier_count",
+/// "inlier_rms", "cost" (nats for "adaptive", Σ min(r², τ²) for "fixed_threshold"), and the
+/// confidence: "confidence" in [0, 1], "margin_nats" (to the best different pose; inf, and a
+/// confidence of 1, when there is none), "confidence_inliers", "noise_scale_m",
+/// "mirror_ambiguous"}. The fixed-threshold fit's confidence is the noise-adaptive assessment of
+/// its pose (`robust::assess_pose`).
 #[pyfunction]
-#[pyo3(signature = (size, points, inlier_threshold = None))]
-fn robust_fit<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64>, inlier_threshold: Option<f64>) -> PyResult<Bound<'py, PyDict>> {
+#[pyo3(signature = (size, points, inlier_threshold = None, *, method = "adaptive"))]
+fn robust_fit<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64>, inlier_threshold: Option<f64>, method: &str) -> PyResult<Bound<'py, PyDict>> {
     let model = box_model(size)?;
     let pts = self::points(&points, "points")?;
-    let mut params = robust::RobustParams::for_box(&model);
-    if let Some(threshold) = inlier_threshold {
-        params.inlier_threshold = threshold;
-    }
-    let fit = py.detach(|| robust::robust_fit(&model, &pts, &params)).map_err(value_error)?;
     let dict = PyDict::new(py);
-    dict.set_item("pose", matrix(py, &fit.pose))?;
-    dict.set_item("inliers", fit.inliers)?;
-    dict.set_item("nearest_corners", fit.nearest_corners)?;
-    dict.set_item("residuals", fit.residuals)?;
-    dict.set_item("inlier_count", fit.inlier_count)?;
-    dict.set_item("inlier_rms", fit.inlier_rms)?;
-    dict.set_item("truncated_cost", fit.truncated_cost)?;
+    dict.set_item("method", method)?;
+    match method {
+        "adaptive" => {
+            if inlier_threshold.is_some() {
+                return Err(PyValueError::new_err("inlier_threshold applies to method=\"fixed_threshold\" only"));
+            }
+            let fit = py.detach(|| robust::adaptive_fit(&model, &pts, &robust::AdaptiveParams::default())).map_err(value_error)?;
+            dict.set_item("pose", matrix(py, &fit.pose))?;
+            dict.set_item("inlier_rms", inlier_rms(&fit.residuals, &fit.inliers))?;
+            dict.set_item("inliers", fit.inliers)?;
+            dict.set_item("nearest_corners", fit.nearest_corners)?;
+            dict.set_item("residuals", fit.residuals)?;
+            dict.set_item("inlier_count", fit.inlier_count)?;
+            dict.set_item("cost", fit.cost)?;
+            confidence_items(&dict, &fit.confidence)?;
+        }
+        "fixed_threshold" => {
+            let mut params = robust::RobustParams::for_box(&model);
+            if let Some(threshold) = inlier_threshold {
+                params.inlier_threshold = threshold;
+            }
+            let (fit, confidence) = py
+                .detach(|| -> boxpose_geometry::Result<_> {
+                    let fit = robust::robust_fit(&model, &pts, &params)?;
+                    let confidence = robust::assess_pose(&model, &pts, &fit.pose)?;
+                    Ok((fit, confidence))
+                })
+                .map_err(value_error)?;
+            dict.set_item("pose", matrix(py, &fit.pose))?;
+            dict.set_item("inliers", fit.inliers)?;
+            dict.set_item("nearest_corners", fit.nearest_corners)?;
+            dict.set_item("residuals", fit.residuals)?;
+            dict.set_item("inlier_count", fit.inlier_count)?;
+            dict.set_item("inlier_rms", fit.inlier_rms)?;
+            dict.set_item("cost", fit.truncated_cost)?;
+            confidence_items(&dict, &confidence)?;
+        }
+        other => return Err(PyValueError::new_err(format!("method must be \"adaptive\" or \"fixed_threshold\", got {other:?}"))),
+    }
     Ok(dict)
 }
 
-/// Pose and box size together, for boxes of unknown size. Returns {"size", "pose",
-/// "nearest_corners", "residuals", "inliers", "inlier_rms"}.
+/// Pose and box size together, for boxes of unknown size.
+///
+/// `method="robust"` (default): minimal hypotheses scored by the noise-adaptive cost, survives
+/// outlier points (`size_fit::robust_size_fit`). `method="least_squares"`: the former
+/// least-squares scaling ICP (`size_fit::fit_pose_and_size`), for comparison; every point is its
+/// inlier.
+///
+/// Returns {"method", "size", "pose", "nearest_corners", "residuals", "inliers", "inlier_count",
+/// "inlier_rms", and the confidence fields of `robust_fit`}; the least-squares fit's confidence
+/// is the noise-adaptive assessment of its box (`size_fit::assess_sized_box`).
 #[pyfunction]
-fn fit_pose_and_size<'py>(py: Python<'py>, points: PyReadonlyArray2<f64>) -> PyResult<Bound<'py, PyDict>> {
+#[pyo3(signature = (points, *, method = "robust"))]
+fn fit_pose_and_size<'py>(py: Python<'py>, points: PyReadonlyArray2<f64>, method: &str) -> PyResult<Bound<'py, PyDict>> {
     let pts = self::points(&points, "points")?;
-    let fit = py.detach(|| size_fit::fit_pose_and_size(&pts, &size_fit::SizeFitParams::default())).map_err(value_error)?;
+    let fit = match method {
+        "robust" => py
+            .detach(|| -> boxpose_geometry::Result<_> {
+                let f = size_fit::robust_size_fit(&pts, &size_fit::RobustSizeParams::default())?;
+                Ok((f.model, f.pose, f.nearest_corners, inlier_rms(&f.residuals, &f.inliers), f.residuals, f.inliers, f.confidence))
+            })
+            .map_err(value_error)?,
+        "least_squares" => py
+            .detach(|| -> boxpose_geometry::Result<_> {
+                let f = size_fit::fit_pose_and_size(&pts, &size_fit::SizeFitParams::default())?;
+                let confidence = size_fit::assess_sized_box(&pts, &f.model, &f.pose)?;
+                Ok((f.model, f.pose, f.nearest_corners, f.inlier_rms, f.residuals, f.inliers, confidence))
+            })
+            .map_err(value_error)?,
+        other => return Err(PyValueError::new_err(format!("method must be \"robust\" or \"least_squares\", got {other:?}"))),
+    };
+    let (model, pose, nearest_corners, rms, residuals, inliers, confidence): (BoxModel, Isometry3<f64>, Vec<usize>, f64, Vec<f64>, Vec<bool>, FitConfidence) = fit;
     let dict = PyDict::new(py);
-    let size = fit.model.size();
+    dict.set_item("method", method)?;
+    let size = model.size();
     dict.set_item("size", [size.x, size.y, size.z])?;
-    dict.set_item("pose", matrix(py, &fit.pose))?;
-    dict.set_item("nearest_corners", fit.nearest_corners)?;
-    dict.set_item("residuals", fit.residuals)?;
-    dict.set_item("inliers", fit.inliers)?;
-    dict.set_item("inlier_rms", fit.inlier_rms)?;
+    dict.set_item("pose", matrix(py, &pose))?;
+    dict.set_item("nearest_corners", nearest_corners)?;
+    dict.set_item("residuals", residuals)?;
+    dict.set_item("inlier_count", inliers.iter().filter(|b| **b).count())?;
+    dict.set_item("inliers", inliers)?;
+    dict.set_item("inlier_rms", rms)?;
+    confidence_items(&dict, &confidence)?;
     Ok(dict)
 }
 
