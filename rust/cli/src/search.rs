@@ -246,13 +246,19 @@ fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
         .map_or("no interval (no failure)".to_string(), |(lo, hi)| {
             format!("95% CI [{lo:.3e}, {hi:.3e}] ({:?})", e.ci_method)
         });
+    // with every sample valid, P(valid) is 1; its weighted estimate mean(w) only says how far
+    // the weights are from averaging 1 (a diagnostic, in summary.json)
+    let p_valid = if e.valid == e.samples {
+        "1 (every sample valid)".to_string()
+    } else {
+        format!("{:.3} ± {:.3}", e.p_valid, e.p_valid_std_error)
+    };
     println!(
-        "P(fail | valid) = {:.3e}  {ci}\n  {} samples in the estimate ({} valid, {} failing), {spent} spent in all; P(valid) = {:.3}; ESS {:.0}, failure ESS {:.1}, largest weight share {:.2}",
+        "P(fail | valid) = {:.3e}  {ci}\n  {} samples in the estimate ({} valid, {} failing), {spent} spent in all; P(valid) = {p_valid}; ESS {:.0}, failure ESS {:.1}, largest weight share {:.2}",
         e.p_hat,
         e.samples,
         e.valid,
         e.failures,
-        e.p_valid,
         e.kish_ess,
         e.failure_ess,
         e.max_weight_share

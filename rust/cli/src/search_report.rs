@@ -243,7 +243,7 @@ fn page(
                 f("valid"),
                 f("failures"),
                 rows.len(),
-                f("p_valid"),
+                if f("valid") == f("samples") { 1.0 } else { f("p_valid") },
                 f("kish_ess"),
                 f("failure_ess"),
                 f("max_weight_share"),
