@@ -220,3 +220,53 @@ pub fn parameter_map(path: &Path, names: &[&str], points: &[(Vec<f64>, f64, bool
     }
     save_png(path, &buffer, width, height)
 }
+
+/// A 3D view of one box in the camera frame: true corners and edges white-on-dark as black, the
+/// NMS peaks red, the fitted box grey — where the peaks lie that the frame cannot show (depth).
+pub fn view_3d(path: &Path, title: &str, truth: &[Point3<f64>; 8], peaks: &[Point3<f64>], fitted: Option<&[Point3<f64>; 8]>) -> anyhow::Result<()> {
+    register_font();
+    let all: Vec<&Point3<f64>> = truth.iter().chain(peaks).chain(fitted.into_iter().flatten()).collect();
+    let range = |k: usize| {
+        let (lo, hi) = all.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p[k]), hi.max(p[k])));
+        let pad = (hi - lo).max(1e-3) * 0.1;
+        (lo - pad)..(hi + pad)
+    };
+    let (width, height) = (520u32, 480u32);
+    let mut buffer = vec![0u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (width, height)).into_drawing_area();
+        root.fill(&WHITE)?;
+        // camera frame: x right, y down, z forward; drawn with z as depth away from the viewer
+        let mut chart = ChartBuilder::on(&root).caption(title, ("sans-serif", 16)).margin(10).build_cartesian_3d(range(0), range(1), range(2))?;
+        chart.with_projection(|mut p| {
+            p.pitch = 0.5;
+            p.yaw = 0.6;
+            p.scale = 0.8;
+            p.into_matrix()
+        });
+        chart.configure_axes().draw()?;
+        let edges = |corners: &[Point3<f64>; 8]| -> Vec<Vec<(f64, f64, f64)>> {
+            let mut out = Vec::new();
+            for a in 0..8usize {
+                for bit in [1usize, 2, 4] {
+                    if a & bit == 0 {
+                        let b = a | bit;
+                        out.push(vec![(corners[a].x, corners[a].y, corners[a].z), (corners[b].x, corners[b].y, corners[b].z)]);
+                    }
+                }
+            }
+            out
+        };
+        for edge in edges(truth) {
+            chart.draw_series(LineSeries::new(edge, BLACK.stroke_width(2)))?;
+        }
+        if let Some(fitted) = fitted {
+            for edge in edges(fitted) {
+                chart.draw_series(LineSeries::new(edge, RGBColor(150, 150, 150).stroke_width(1)))?;
+            }
+        }
+        chart.draw_series(peaks.iter().map(|p| Circle::new((p.x, p.y, p.z), 4, SERIES_COLORS[0].filled())))?;
+        root.present()?;
+    }
+    save_png(path, &buffer, width, height)
+}

@@ -120,13 +120,17 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
                 .iter()
                 .find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID)
                 .map(|i| i.corners_camera.map(Point3::from));
-            let peaks = row
+            let peaks: Vec<Point3<f64>> = row
                 .peaks_camera_m
                 .as_deref()
                 .unwrap_or_default()
                 .chunks(3)
                 .map(|p| Point3::new(p[0], p[1], p[2]))
                 .collect();
+            let fitted: Option<[Point3<f64>; 8]> = row
+                .fitted_corners_camera_m
+                .as_deref()
+                .map(|c| std::array::from_fn(|i| Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2])));
             let name = format!("sample-{}.png", row.sample_id);
             plots::overlay(
                 &tmp.join(&name),
@@ -134,12 +138,12 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
                 frame.width,
                 frame.height,
                 &frame.intrinsics,
-                &[OverlayBox {
-                    truth,
-                    peaks,
-                    fitted: row.fitted_corners_camera_m.as_deref().map(|c| std::array::from_fn(|i| Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))),
-                }],
+                &[OverlayBox { truth, peaks: peaks.clone(), fitted }],
             )?;
+            if let Some(truth) = &truth {
+                let view = format!("sample-{}-3d.png", row.sample_id);
+                plots::view_3d(&tmp.join(&view), &format!("sample {} (camera frame, m)", row.sample_id), truth, &peaks, fitted.as_ref())?;
+            }
             drawn.push((row.sample_id, name));
         }
     }
@@ -291,9 +295,11 @@ fn page(
         }
         writeln!(h, "</table>")?;
         for (id, file) in drawn {
+            let view = file.replace(".png", "-3d.png");
             writeln!(
                 h,
-                "<figure style=\"display:inline-block;width:32%\"><img src=\"{file}\"><figcaption>sample {id}</figcaption></figure>"
+                "<div><figure style=\"display:inline-block;width:48%\"><img src=\"{file}\" style=\"width:100%;image-rendering:pixelated\"><figcaption>sample {id}</figcaption></figure>\
+                 <figure style=\"display:inline-block;width:48%\"><img src=\"{view}\"><figcaption>sample {id} in 3D (camera frame): true box black, NMS peaks red, fitted box grey</figcaption></figure></div>"
             )?;
         }
     }
