@@ -130,8 +130,11 @@ def test_a_killed_run_resumes_to_identical_samples(mc_run, spaces, boxpose_bin, 
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     assert not (out / "samples.parquet").exists(), "killed before the end"
+    committed = {p.name: p.stat().st_mtime_ns for p in batches.glob("*.parquet")}
     search(boxpose_bin, spaces["single"], "--out", out, "--fail-when", "mssd:0.05", *MC)
     assert (out / "samples.parquet").read_bytes() == (mc_run / "samples.parquet").read_bytes()
+    # the batches committed before the kill were kept, not recomputed
+    assert all((batches / name).stat().st_mtime_ns == mtime for name, mtime in committed.items())
 
 
 def test_two_shards_merge_to_the_single_process_table(mc_run, spaces, boxpose_bin, tmp_path):
@@ -199,7 +202,9 @@ def test_clutter_on_the_segmenters_crops(spaces, boxpose_bin, tmp_path):
     # with the segmenter's crops a missed box is a failure, not a skipped sample
     assert (scored.detected.notna()).all() and (scored[scored.detected == False].failed).all()  # noqa: E712
     summary = json.loads((out / "summary.json").read_text())
-    assert len(summary["estimate"]["strata"]) == 2
+    # strata are allocated in proportion (index mod count), each with its own estimate
+    assert sorted(samples.stratum) == [1, 1, 2]
+    assert [s["neighbours"] for s in summary["strata"]] == [1, 2]
 
 
 @pytest.mark.parametrize(

@@ -212,6 +212,9 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     let run = Run::create(out, record)?;
     if run.complete()? {
         println!("{}: every batch is already done", out.display());
+        if args.shard != 0 {
+            return Ok(()); // shard 0 merges
+        }
     } else {
         let device = args.backend.device()?;
         let model = KeypointModel::load(&args.model, device.clone())?;
@@ -224,9 +227,10 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         let mut progress = Progress::new(run.record.settings.sampler);
         run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
         progress.bar.finish_and_clear();
-        if !run.complete()? {
+        // shard 0 merges (it waits for the others): two merging processes would race
+        if args.shard != 0 || !run.complete()? {
             println!(
-                "shard {} of {} done; the run completes when every shard has finished (then `boxpose search merge {}`)",
+                "shard {} of {} done; shard 0 merges once every shard has finished (or run `boxpose search merge {}`)",
                 args.shard,
                 args.num_shards,
                 out.display()

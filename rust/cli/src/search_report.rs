@@ -174,7 +174,7 @@ fn estimate_curve(rows: &[SampleRow], run: &Run) -> anyhow::Result<Vec<(f64, f64
     for n in (step..=estimating.len()).step_by(step) {
         let prefix = &estimating[..n];
         // an early prefix may miss a stratum: no estimate there yet
-        let Ok(e) = estimate(prefix, sampler, &run.record.strata) else {
+        let Ok(e) = estimate(prefix, sampler, None) else {
             continue;
         };
         let (lo, hi) = e.ci95.unwrap_or((0.0, e.p_hat));

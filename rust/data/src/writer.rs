@@ -25,12 +25,16 @@ pub fn write_shard(dataset: &Path, table: &Table, file_name: &str, batches: &[Re
     Ok(path)
 }
 
-/// Writes `batches` (zstd) first under a `.tmp` name, then renames the file once complete and
+/// Writes `batches` (zstd) first under a temporary name unique to this writer (`.<pid>-<n>.tmp`),
+/// then renames the file once complete and
 /// synced, so an interrupted job never leaves a half file that looks valid.
 pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) -> Result<()> {
     let dir = path.parent().unwrap_or(Path::new("."));
     fs::create_dir_all(dir).map_err(|source| DataError::Io { path: dir.to_path_buf(), source })?;
-    let tmp = path.with_file_name(format!("{}.tmp", path.file_name().unwrap_or_default().to_string_lossy()));
+    // unique per writer: two processes (or threads) publishing one file never share a temporary
+    static WRITES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let tmp = path.with_file_name(format!("{}.{}-{n}.tmp", path.file_name().unwrap_or_default().to_string_lossy(), std::process::id()));
     let io = |source| DataError::Io { path: tmp.clone(), source };
     let parquet = |source| DataError::Parquet { path: tmp.clone(), source };
 

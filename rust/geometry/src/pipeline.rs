@@ -195,6 +195,16 @@ pub fn fit_and_score(
     points: &[Point3<f64>],
     scores: &[f64],
 ) -> Vec<(Method, Result<Scores, String>)> {
+    fit_and_score_methods(&Method::ALL, model, truth, points, scores)
+}
+
+fn fit_and_score_methods(
+    methods: &[Method],
+    model: &BoxModel,
+    truth: &Isometry3<f64>,
+    points: &[Point3<f64>],
+    scores: &[f64],
+) -> Vec<(Method, Result<Scores, String>)> {
     let truth_corners: Vec<Point3<f64>> = model.corners().iter().map(|c| truth * c).collect();
     let text = |e: GeometryError| e.to_string();
     let score = |fitted: &Fitted, fit_time_us: f64| -> Result<Scores, String> {
@@ -243,9 +253,9 @@ pub fn fit_and_score(
             }),
         })
     };
-    Method::ALL
-        .into_iter()
-        .map(|method| {
+    methods
+        .iter()
+        .map(|&method| {
             let start = Instant::now();
             let fitted = fit_method(method, model, points, scores);
             let fit_time_us = start.elapsed().as_secs_f64() * 1e6;
@@ -255,6 +265,17 @@ pub fn fit_and_score(
             )
         })
         .collect()
+}
+
+/// [`fit_and_score`] for one method only (the counterexample search runs the fit under test).
+pub fn fit_and_score_one(
+    method: Method,
+    model: &BoxModel,
+    truth: &Isometry3<f64>,
+    points: &[Point3<f64>],
+    scores: &[f64],
+) -> Result<Scores, String> {
+    fit_and_score_methods(&[method], model, truth, points, scores).remove(0).1
 }
 
 /// A box fitted without knowing its size has no preferred axis labels: the size fit may call the

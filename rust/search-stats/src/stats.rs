@@ -270,6 +270,25 @@ impl ImportanceEstimate {
         samples: &[WeightedSample],
         stratum_probabilities: &[f64],
     ) -> Result<Self, EstimateError> {
+        Self::compute_as(samples, stratum_probabilities, false)
+    }
+
+    /// [`compute`](Self::compute) with the ratio estimator of P(fail | valid) even when every
+    /// sample happens to be valid: the estimate a search needs whenever a drawn scene *can* be
+    /// invalid (the nominal's normaliser P(valid) is then unknown, and mean(w·1{fail}) would
+    /// estimate P(fail ∧ valid) instead).
+    pub fn compute_ratio(
+        samples: &[WeightedSample],
+        stratum_probabilities: &[f64],
+    ) -> Result<Self, EstimateError> {
+        Self::compute_as(samples, stratum_probabilities, true)
+    }
+
+    fn compute_as(
+        samples: &[WeightedSample],
+        stratum_probabilities: &[f64],
+        force_ratio: bool,
+    ) -> Result<Self, EstimateError> {
         if samples.is_empty() {
             return Err(EstimateError::NoSamples);
         }
@@ -298,7 +317,7 @@ impl ImportanceEstimate {
                 });
             }
         }
-        let ratio = samples.iter().any(|s| !s.valid);
+        let ratio = force_ratio || samples.iter().any(|s| !s.valid);
         let plain_mc = samples.iter().all(|s| s.log_weight == 0.0)
             && stratum_probabilities.iter().filter(|p| **p > 0.0).count() == 1;
 

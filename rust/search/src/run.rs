@@ -4,8 +4,8 @@
 //! Run folder (every file published atomically):
 //! - `run.json`: what is searched and how (space, recipe, sampler settings, seed): a resumed or
 //!   sharded process must find the same, or it refuses to touch the folder.
-//! - `proposals/iter-KKKK.json`: the proposal iteration K draws from (computed at the barrier
-//!   after iteration K − 1 from all of its samples; iteration 0 draws from the nominal).
+//! - `proposals/iter-KKKK.json`, K ≥ 1: the proposal iteration K draws from (computed at the
+//!   barrier after iteration K − 1 from all of its samples; iteration 0 draws from the nominal).
 //! - `batches/samples/iter-KKKK-batch-BBBBB.parquet` and `batches/timings/…`: one file per batch,
 //!   the samples file last (it is the batch's commit point); a batch whose samples file exists
 //!   is done and skipped on resume. Sample i's z, stratum and seed are a function of
@@ -139,10 +139,6 @@ pub trait Observer {
     fn waiting(&mut self, _what: &str) {}
 }
 
-/// An observer that reports nothing.
-pub struct Silent;
-impl Observer for Silent {}
-
 /// One row of the `samples` table (see [`schema::SEARCH_SAMPLES`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SampleRow {
@@ -252,10 +248,14 @@ impl Run {
             }
             return Ok(run);
         }
-        // another shard may be publishing run.json right now: its temporary file is no stranger
+        // another shard may be publishing run.json right now: neither it nor its temporary file
+        // is a stranger (run.json itself is compared below, once written)
         let foreign = |entry: std::io::Result<std::fs::DirEntry>| {
             entry
-                .map(|e| !e.file_name().to_string_lossy().ends_with(".tmp"))
+                .map(|e| {
+                    let name = e.file_name().to_string_lossy().into_owned();
+                    !(name.ends_with(".tmp") || name == "run.json")
+                })
                 .unwrap_or(true)
         };
         if dir.exists()
@@ -552,15 +552,17 @@ impl Run {
         for index in first..last {
             let sample_id = self.first_id(iteration) + index as i64;
             let mut rng = sample_rng(s.seed, iteration, index as u64);
-            let stratum = if strata.len() > 1 {
-                rng.random_range(0..strata.len())
-            } else {
-                0
-            };
+            // proportional allocation: every stratum gets its nominal share of every iteration
+            let stratum = index % strata.len();
             let z = plan.proposal.sample(&mut rng);
             let seed = (rng.random::<u64>() >> 1) as i64;
             let parameters = space.parameters(&z, strata[stratum])?;
-            let outcome = sut.run(space, &parameters, sample_id, seed)?;
+            let outcome = sut.run(space, &parameters, sample_id, seed).map_err(|e| {
+                SearchError::Sample(format!(
+                    "sample {sample_id} (iteration {iteration}, index {index}, seed {seed}, {} neighbours): {e}",
+                    strata[stratum]
+                ))
+            })?;
             let log_p = log_nominal(&z);
             let log_q = plan.proposal.log_density(&z);
             let row = sample_row(
@@ -643,7 +645,7 @@ impl Run {
     /// The estimate from the samples the sampler's estimator uses: all of them for Monte Carlo,
     /// the final (frozen-proposal) batch for cross-entropy.
     pub fn estimate(&self, rows: &[SampleRow]) -> Result<ImportanceEstimate> {
-        estimate(rows, self.settings().sampler, &self.record.strata)
+        estimate(rows, self.settings().sampler, None)
     }
 
     /// Merges the batches into `samples.parquet` and `timings.parquet` and writes
@@ -677,7 +679,7 @@ impl Run {
     }
 
     fn summary(&self, samples: &[SampleRow], timings: &[TimingRow]) -> Result<Summary> {
-        let estimate = self.estimate(samples)?;
+        let headline = self.estimate(samples)?;
         let plans = self.plans()?;
         let mean = |f: fn(&TimingRow) -> f64| {
             if timings.is_empty() {
@@ -727,47 +729,51 @@ impl Run {
                 inference: mean(|t| t.inference_s),
                 fit: mean(|t| t.fit_s),
             },
-            estimate,
+            estimate: headline,
+            strata: if self.record.strata.len() > 1 {
+                self.record
+                    .strata
+                    .iter()
+                    .map(|&n| StratumSummary { neighbours: n, estimate: estimate(samples, s.sampler, Some(n)).map_err(|e| e.to_string()) })
+                    .collect()
+            } else {
+                Vec::new()
+            },
             boxpose_version: env!("CARGO_PKG_VERSION").into(),
             mujoco_version: boxpose_physics::MUJOCO_VERSION.into(),
         })
     }
 }
 
-/// The estimate of P(fail | valid) from the rows a sampler's estimator uses.
-pub fn estimate(
-    rows: &[SampleRow],
-    sampler: Sampler,
-    strata: &[u32],
-) -> Result<ImportanceEstimate> {
+/// The estimate of P(fail | valid) from the rows a sampler's estimator uses (all of Monte
+/// Carlo's; cross-entropy's final stage), optionally only those of stratum `neighbours`.
+///
+/// Always the ratio estimator Σ w 1{valid ∧ fail} / Σ w 1{valid}: a drawn scene can always turn
+/// out invalid, so the nominal's normaliser P(valid) is unknown even when every drawn sample is
+/// valid. Strata are allocated in proportion to their nominal probabilities and never tilted
+/// (their weight is 1), so pooling the samples of every stratum estimates P(fail | valid) over
+/// the whole space; each stratum's own estimate is in [`Summary::strata`]. Plain Monte Carlo
+/// gets the exact Clopper–Pearson interval on (failures, valid samples).
+pub fn estimate(rows: &[SampleRow], sampler: Sampler, neighbours: Option<u32>) -> Result<ImportanceEstimate> {
     let stage = match sampler {
         Sampler::Mc => "mc",
         Sampler::Ce => "final",
     };
     let weighted: Vec<WeightedSample> = rows
         .iter()
-        .filter(|r| r.stage == stage)
-        .map(|r| {
-            let stratum = strata
-                .iter()
-                .position(|&n| n as i32 == r.stratum)
-                .ok_or_else(|| {
-                    SearchError::Sample(format!(
-                        "sample {} is in stratum {}, not one of the run's {strata:?}",
-                        r.sample_id, r.stratum
-                    ))
-                })?;
-            Ok(WeightedSample {
-                log_weight: r.log_weight,
-                valid: r.valid,
-                failed: r.failed,
-                stratum,
-            })
-        })
-        .collect::<Result<_>>()?;
-    let probabilities = vec![1.0 / strata.len() as f64; strata.len()];
-    ImportanceEstimate::compute(&weighted, &probabilities)
-        .map_err(|e| SearchError::Sample(format!("estimate: {e}")))
+        .filter(|r| r.stage == stage && neighbours.is_none_or(|n| r.stratum == n as i32))
+        .map(|r| WeightedSample { log_weight: r.log_weight, valid: r.valid, failed: r.failed, stratum: 0 })
+        .collect();
+    ImportanceEstimate::compute_ratio(&weighted, &[1.0]).map_err(|e| SearchError::Sample(format!("estimate: {e}")))
+}
+
+/// One stratum's own estimate.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct StratumSummary {
+    /// Number of neighbouring boxes.
+    pub neighbours: u32,
+    /// Its estimate, or why there is none (e.g. no valid sample in it).
+    pub estimate: std::result::Result<ImportanceEstimate, String>,
 }
 
 /// Mean seconds per sample in each stage.
@@ -799,6 +805,8 @@ pub struct Summary {
     pub mean_seconds: StageMeans,
     /// P(fail | valid) with its 95% interval, from the estimating stage.
     pub estimate: ImportanceEstimate,
+    /// The same per stratum (number of neighbours), when the space has more than one.
+    pub strata: Vec<StratumSummary>,
     pub boxpose_version: String,
     pub mujoco_version: String,
 }

@@ -62,7 +62,7 @@ impl Nuisance {
             match recipe
                 .get("materials")
                 .and_then(|s| s.get(key))
-                .and_then(|v| v.as_float())
+                .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
             {
                 Some(p) if (0.0..=1.0).contains(&p) => Ok(p),
                 _ => Err(SearchError::Space {
@@ -117,6 +117,13 @@ impl Nuisance {
             has_label,
         }
     }
+}
+
+/// Checks the base recipe's sections the scenes draw their nuisance from ([boxes] density and
+/// friction, [materials]), so a bad recipe is refused before any work starts.
+pub(crate) fn check_recipe(recipe_toml: &str) -> Result<()> {
+    let recipe: toml::Table = recipe_toml.parse().map_err(|e| SearchError::Space { key: "recipe".into(), problem: format!("{e}") })?;
+    Nuisance::new(&recipe, 0).map(|_| ())
 }
 
 /// Half the vertical extent of a box of `size` turned by `quat_wxyz`: its centre's height above

@@ -18,6 +18,14 @@ use statrs::function::erf::{erfc, erfc_inv};
 
 use crate::error::{Result, SearchError};
 
+/// `{ normal = [mean, std], within = [min, max] }`.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TruncatedNormal {
+    pub normal: [f64; 2],
+    pub within: [f64; 2],
+}
+
 /// A bounded scalar parameter and its nominal distribution.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(untagged)]
@@ -25,7 +33,7 @@ pub enum Distribution {
     /// `[min, max]`: uniform.
     Uniform([f64; 2]),
     /// `{ normal = [mean, std], within = [min, max] }`: a normal truncated to [min, max].
-    TruncatedNormal { normal: [f64; 2], within: [f64; 2] },
+    TruncatedNormal(TruncatedNormal),
 }
 
 impl Distribution {
@@ -34,10 +42,10 @@ impl Distribution {
         let u = standard_normal_cdf(z);
         match *self {
             Distribution::Uniform([lo, hi]) => lo + (hi - lo) * u,
-            Distribution::TruncatedNormal {
+            Distribution::TruncatedNormal(TruncatedNormal {
                 normal: [mean, std],
                 within: [lo, hi],
-            } => {
+            }) => {
                 let (a, b) = (
                     standard_normal_cdf((lo - mean) / std),
                     standard_normal_cdf((hi - mean) / std),
@@ -58,7 +66,7 @@ impl Distribution {
         };
         let [lo, hi] = match *self {
             Distribution::Uniform(range) => range,
-            Distribution::TruncatedNormal { within, .. } => within,
+            Distribution::TruncatedNormal(TruncatedNormal { within, .. }) => within,
         };
         if !(lo.is_finite() && hi.is_finite()) {
             return bad(format!("range [{lo}, {hi}] must be finite"));
@@ -66,10 +74,10 @@ impl Distribution {
         if lo > hi {
             return bad(format!("range [{lo}, {hi}] is empty (min > max)"));
         }
-        if let Distribution::TruncatedNormal {
+        if let Distribution::TruncatedNormal(TruncatedNormal {
             normal: [mean, std],
             within: [lo, hi],
-        } = *self
+        }) = *self
         {
             if !(mean.is_finite() && std.is_finite() && std > 0.0) {
                 return bad(format!(
@@ -268,6 +276,7 @@ impl SearchSpace {
                 problem: format!("{}: {e}", file.recipe),
             }
         })?;
+        crate::scene::check_recipe(&recipe_toml)?;
         let mut dimensions = Vec::new();
         let mut scalar = |name: &str, d: &Distribution| -> Result<()> {
             d.validate(name)?;
@@ -349,6 +358,9 @@ impl SearchSpace {
         scalar("lighting.sun_azimuth_deg", &l.sun_azimuth_deg)?;
         scalar("lighting.sun_strength", &l.sun_strength)?;
         scalar("lighting.world_strength", &l.world_strength)?;
+        if !(bounds(&l.sun_elevation_deg)[0] >= -90.0 && bounds(&l.sun_elevation_deg)[1] <= 90.0) {
+            return Err(SearchError::Space { key: "lighting.sun_elevation_deg".into(), problem: "must lie in [-90, 90]".into() });
+        }
         for (key, d) in [
             ("lighting.sun_strength", &l.sun_strength),
             ("lighting.world_strength", &l.world_strength),
@@ -374,22 +386,18 @@ impl SearchSpace {
                     problem: format!("at most {MAX_NEIGHBOURS} neighbours"),
                 });
             }
-            for i in 0..hi {
-                for (axis, d) in ["x", "y", "z"]
-                    .iter()
-                    .zip([&n.size_m.x, &n.size_m.y, &n.size_m.z])
-                {
-                    scalar(&format!("neighbour{i}.size_m.{axis}"), d)?;
-                    if bounds(d)[0] <= 0.0 {
-                        return Err(SearchError::Space {
-                            key: format!("neighbours.size_m.{axis}"),
-                            problem: "box sizes must be positive".into(),
-                        });
-                    }
+            // checked once under their TOML keys, then laid out once per possible neighbour
+            let per_box = [("size_m.x", &n.size_m.x), ("size_m.y", &n.size_m.y), ("size_m.z", &n.size_m.z), ("yaw_deg", &n.yaw_deg), ("x_m", &n.x_m), ("y_m", &n.y_m)];
+            for (key, d) in per_box {
+                d.validate(&format!("neighbours.{key}"))?;
+                if key.starts_with("size_m") && bounds(d)[0] <= 0.0 {
+                    return Err(SearchError::Space { key: format!("neighbours.{key}"), problem: "box sizes must be positive".into() });
                 }
-                scalar(&format!("neighbour{i}.yaw_deg"), &n.yaw_deg)?;
-                scalar(&format!("neighbour{i}.x_m"), &n.x_m)?;
-                scalar(&format!("neighbour{i}.y_m"), &n.y_m)?;
+            }
+            for i in 0..hi {
+                for (key, d) in per_box {
+                    scalar(&format!("neighbour{i}.{key}"), d)?;
+                }
             }
         }
         if t.orientation == Orientation::So3 {
@@ -473,7 +481,7 @@ pub const MAX_NEIGHBOURS: u32 = 24;
 fn bounds(d: &Distribution) -> [f64; 2] {
     match *d {
         Distribution::Uniform(r) => r,
-        Distribution::TruncatedNormal { within, .. } => within,
+        Distribution::TruncatedNormal(TruncatedNormal { within, .. }) => within,
     }
 }
 
@@ -521,6 +529,10 @@ mod tests {
             "distance_m = { normal = [5.0, 0.01], within = [0.6, 0.9] }",
         );
         assert!(error_of(&improper).contains("cannot be normalised"));
+        let extra = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = { normal = [0.7, 0.1], within = [0.6, 0.9], skew = 1.0 }");
+        assert!(parse(&extra).is_err());
+        let sun = SINGLE.replace("sun_elevation_deg = [30.0, 80.0]", "sun_elevation_deg = [-100.0, 80.0]");
+        assert!(error_of(&sun).contains("lighting.sun_elevation_deg"));
         let nan = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = [nan, 0.9]");
         assert!(error_of(&nan).contains("camera.distance_m"));
     }
@@ -530,14 +542,21 @@ mod tests {
         let d = Distribution::Uniform([2.0, 4.0]);
         assert!((d.value(0.0) - 3.0).abs() < 1e-12);
         assert!(d.value(-40.0) >= 2.0 && d.value(40.0) <= 4.0);
-        let t = Distribution::TruncatedNormal {
-            normal: [0.0, 1.0],
-            within: [-1.0, 1.0],
-        };
+        let t = Distribution::TruncatedNormal(TruncatedNormal { normal: [0.0, 1.0], within: [-1.0, 1.0] });
         assert!(t.value(0.0).abs() < 1e-9);
-        // the median of the truncated normal maps to the median of z
-        let u = standard_normal_cdf(0.5);
-        assert!((standard_normal_quantile(u) - 0.5).abs() < 1e-9);
+        // an asymmetric truncation: the truncated CDF of value(z) is Φ(z), so z's quantiles map
+        // to the parameter's
+        let (mean, std, lo, hi) = (0.3, 0.2, 0.25, 0.9);
+        let t = Distribution::TruncatedNormal(TruncatedNormal { normal: [mean, std], within: [lo, hi] });
+        let cdf = |x: f64| {
+            let (a, b) = (standard_normal_cdf((lo - mean) / std), standard_normal_cdf((hi - mean) / std));
+            (standard_normal_cdf((x - mean) / std) - a) / (b - a)
+        };
+        for z in [-2.0, -0.7, 0.0, 0.4, 1.9] {
+            let x = t.value(z);
+            assert!((lo..=hi).contains(&x));
+            assert!((cdf(x) - standard_normal_cdf(z)).abs() < 1e-9, "z {z}: F(x) {} Φ(z) {}", cdf(x), standard_normal_cdf(z));
+        }
     }
 
     #[test]

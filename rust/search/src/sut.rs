@@ -131,6 +131,13 @@ impl Metrics {
             fitted_corners: scores.fitted_corners,
         }
     }
+
+    fn is_finite(&self) -> bool {
+        [self.paper_error, self.paper_error_normalized, self.mssd_over_diameter, self.add_s_m, self.rotation_error_deg, self.translation_error_m, self.confidence]
+            .iter()
+            .chain(self.fitted_corners.iter().flatten())
+            .all(|v| v.is_finite())
+    }
 }
 
 /// Why a sample was not scored; such samples are counted (P(valid)) and never scored.
@@ -186,16 +193,6 @@ pub struct Outcome {
     pub peaks: Vec<[f64; 3]>,
 }
 
-impl Outcome {
-    /// The failure score (see [`Predicate::score`]); `None` for an invalid sample.
-    pub fn score(&self, predicate: &Predicate) -> Option<f64> {
-        match &self.result {
-            Ok(Perceived::Fitted(m)) => Some(predicate.score(m)),
-            Ok(_) => Some(f64::INFINITY),
-            Err(_) => None,
-        }
-    }
-}
 
 /// Everything loaded once for a search: the renderer (one per process), the networks, the fit.
 pub struct SystemUnderTest {
@@ -375,16 +372,18 @@ impl SystemUnderTest {
         let start = Instant::now();
         let model = BoxModel::new(Vector3::from(instance.size))?;
         let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
-        let fits =
-            pipeline::fit_and_score(&model, &evaluation::true_pose(instance), &points, &scores);
+        let outcome = pipeline::fit_and_score_one(
+            self.method,
+            &model,
+            &evaluation::true_pose(instance),
+            &points,
+            &scores,
+        );
         seconds.fit = start.elapsed().as_secs_f64();
-        let outcome = fits
-            .into_iter()
-            .find(|(m, _)| *m == self.method)
-            .map(|(_, o)| o)
-            .expect("fit_and_score runs every method");
-        let perceived = match outcome {
-            Ok(s) => Perceived::Fitted(Metrics::of(&s, instance.size)),
+        let perceived = match outcome.map(|s| Metrics::of(&s, instance.size)) {
+            Ok(m) if m.is_finite() => Perceived::Fitted(m),
+            // a committed sample must read back: a NaN metric is a fit that failed, named as such
+            Ok(m) => Perceived::FitFailed(format!("the fit's metrics are not finite: {m:?}")),
             Err(e) => Perceived::FitFailed(e),
         };
         Ok((
