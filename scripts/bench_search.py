@@ -40,30 +40,32 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--boxpose", type=Path, default=REPO / "target" / "release" / "boxpose")
     parser.add_argument("--space", default="single_box")
-    parser.add_argument("--samples", type=int, default=100, help="samples per timing run")
-    parser.add_argument("--ce-tune", type=int, default=100, help="cross-entropy samples per tuning iteration")
-    parser.add_argument("--ce-final", type=int, default=200, help="cross-entropy samples from the frozen proposal")
+    parser.add_argument("--samples", type=int, default=100, help="samples of the segmenter-crop timing run")
+    parser.add_argument("--mc-samples", type=int, default=1000, help="Monte Carlo samples (ground-truth crops): the timing run and the event's reference")
+    parser.add_argument("--ce-tune", type=int, default=200, help="cross-entropy samples per tuning iteration")
+    parser.add_argument("--ce-final", type=int, default=500, help="cross-entropy samples from the frozen proposal")
+    parser.add_argument("--ce-components", type=int, default=3, help="cross-entropy mixture components")
     parser.add_argument("--fail-when", default="paper", help="the real pipeline event (failure predicate)")
     parser.add_argument("--out", type=Path, default=REPO / "build" / "bench_search")
     args = parser.parse_args()
 
     runs = {}
-    for crops in ("gt", "predicted"):
-        runs[crops] = search(args.boxpose, args.out / f"mc-{crops}", args.space, "--samples", args.samples, "--batch-size", 25, "--crops", crops, "--fail-when", args.fail_when)
-    print(f"\n## CPU-seconds per sample, {args.space}, {args.samples} samples, one Cycles thread\n")
-    print("| crops | settle | render | inference | fit | stages (wall) | process CPU-s / sample | samples/s |")
-    print("|---|---|---|---|---|---|---|---|")
+    for crops, n in (("gt", args.mc_samples), ("predicted", args.samples)):
+        runs[crops] = search(args.boxpose, args.out / f"mc-{crops}", args.space, "--samples", n, "--batch-size", 25, "--crops", crops, "--fail-when", args.fail_when)
+    print(f"\n## Seconds per sample by stage, {args.space}, one Cycles thread\n")
+    print("| crops | samples | settle | render | inference | fit | stages (wall) | process CPU-s / sample | samples/s |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for crops, r in runs.items():
         t = r["timings"]
         stages = t[["settle_s", "render_s", "inference_s", "fit_s"]].mean()
         print(
-            f"| {crops} | {stages.settle_s:.3f} | {stages.render_s:.3f} | {stages.inference_s:.3f} | {stages.fit_s:.3f} | {stages.sum():.3f} "
+            f"| {crops} | {r['samples']} | {stages.settle_s:.3f} | {stages.render_s:.3f} | {stages.inference_s:.3f} | {stages.fit_s:.3f} | {stages.sum():.3f} "
             f"| {r['cpu_s'] / r['samples']:.3f} | {r['samples'] / r['wall_s']:.2f} |"
         )
 
     mc = runs["gt"]["summary"]["estimate"]
     ce_run = search(args.boxpose, args.out / "ce-gt", args.space, "--sampler", "ce", "--samples", args.ce_final, "--batch-size", 25,
-                    "--ce-samples-per-iteration", args.ce_tune, "--fail-when", args.fail_when)
+                    "--ce-samples-per-iteration", args.ce_tune, "--ce-components", args.ce_components, "--fail-when", args.fail_when)
     ce = ce_run["summary"]["estimate"]
     tuning = ce_run["summary"]["tuning_samples"]
     target = 0.2

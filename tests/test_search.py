@@ -224,3 +224,25 @@ def test_a_bad_search_space_is_one_clear_error_before_any_work(edit, key, spaces
     r = search(boxpose_bin, bad, "--out", out, check=False)
     assert r.returncode != 0 and key in r.stderr, r.stderr
     assert not out.exists()
+
+
+def test_cross_entropy_tilts_only_the_named_parameters(spaces, boxpose_bin, tmp_path):
+    out = tmp_path / "tilt"
+    search(boxpose_bin, spaces["single"], "--out", out, "--sampler", "ce", "--samples", 2, "--batch-size", 4, "--ce-samples-per-iteration", 4,
+           "--ce-max-iterations", 1, "--ce-rho", 0.5, "--ce-tilt", "target.size_m", "--fail-when", "mssd:0.02", "--threads", 1)
+    names = json.loads((out / "run.json").read_text())["dimensions"]
+    plan = json.loads((out / "proposals" / "iter-0001.json").read_text())
+    for component in plan["proposal"]["components"]:
+        for name, mean, std in zip(names, component["mean"], component["std"]):
+            if not name.startswith("target.size_m"):
+                assert (mean, std) == (0.0, 1.0), name
+    final = pd.read_parquet(out / "samples.parquet").query("stage == 'final'")
+    # the weight depends on the tilted dimensions only
+    assert len(final) == 2 and final.log_weight.abs().max() > 0
+
+
+def test_an_unknown_tilt_is_refused_before_any_work(spaces, boxpose_bin, tmp_path):
+    out = tmp_path / "run"
+    r = search(boxpose_bin, spaces["single"], "--out", out, "--sampler", "ce", "--ce-tilt", "target.colour", check=False)
+    assert r.returncode != 0 and "target.colour" in r.stderr and "target.size_m.x" in r.stderr, r.stderr
+    assert not out.exists()

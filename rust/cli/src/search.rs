@@ -126,6 +126,11 @@ struct RunArgs {
     /// Cross-entropy: Gaussian mixture components of the proposal (more where failures are multimodal).
     #[arg(long, default_value_t = 1)]
     ce_components: usize,
+    /// Cross-entropy: tilt only these parameters (comma-separated names or prefixes, e.g.
+    /// `target.size_m,target.orientation`); the others keep their nominal and add no weight
+    /// variance. Default: all.
+    #[arg(long, value_delimiter = ',')]
+    ce_tilt: Vec<String>,
     /// This process's shard (batches b with b mod N = shard).
     #[arg(long, default_value_t = 0)]
     shard: usize,
@@ -203,6 +208,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
             components: args.ce_components,
             ..CeConfig::default()
         },
+        ce_tilt: args.ce_tilt.clone(),
         model: args.model.display().to_string(),
         segmenter: (crops == Crops::Predicted).then(|| args.segmenter.display().to_string()),
     };

@@ -76,6 +76,11 @@ pub struct RunSettings {
     pub predicate: Predicate,
     /// Cross-entropy settings (`final_samples` is `samples`); unused by Monte Carlo.
     pub ce: CeConfig,
+    /// Cross-entropy: the parameters the proposal may tilt (names or prefixes of z's dimensions,
+    /// e.g. `target.size_m`); the others stay at their nominal, so they add no weight variance.
+    /// Empty: all of them.
+    #[serde(default)]
+    pub ce_tilt: Vec<String>,
     /// The networks, as given (their files are not hashed).
     pub model: String,
     pub segmenter: Option<String>,
@@ -106,6 +111,15 @@ impl RunRecord {
             ce.final_samples = settings.samples;
             ce.validate()
                 .map_err(|e| SearchError::Sample(e.to_string()))?;
+        }
+        let names: Vec<&str> = space.dimensions.iter().map(|d| d.name.as_str()).collect();
+        for prefix in &settings.ce_tilt {
+            if !names.iter().any(|n| n.starts_with(prefix.as_str())) {
+                return Err(SearchError::Sample(format!(
+                    "--ce-tilt {prefix}: no parameter of the space starts with it (they are: {})",
+                    names.join(", ")
+                )));
+            }
         }
         Ok(Self {
             format: RUN_FORMAT,
@@ -345,13 +359,35 @@ impl Run {
     /// Where z's orientation blocks start (four normals normalised to a quaternion each): the
     /// cross-entropy proposal gives them an angular central Gaussian, the rest a Gaussian.
     fn rotation_blocks(&self) -> Vec<usize> {
+        let tilted = self.tilted();
         self.record
             .dimensions
             .iter()
             .enumerate()
-            .filter(|(_, name)| name.ends_with(".orientation.q0"))
+            .filter(|&(i, name)| name.ends_with(".orientation.q0") && tilted[i])
             .map(|(i, _)| i)
             .collect()
+    }
+
+    /// Per dimension of z: whether the cross-entropy proposal may move it (`--ce-tilt`).
+    fn tilted(&self) -> Vec<bool> {
+        let tilt = &self.settings().ce_tilt;
+        self.record.dimensions.iter().map(|name| tilt.is_empty() || tilt.iter().any(|p| name.starts_with(p.as_str()))).collect()
+    }
+
+    /// `proposal` with every untilted dimension back at N(0, 1) in every component: the
+    /// proposal then factorises into the nominal on those dimensions, and the weights do not
+    /// depend on them at all.
+    fn untilt(&self, mut proposal: Proposal) -> Proposal {
+        for (d, tilted) in self.tilted().into_iter().enumerate() {
+            if !tilted {
+                for c in &mut proposal.components {
+                    c.mean[d] = 0.0;
+                    c.std[d] = 1.0;
+                }
+            }
+        }
+        proposal
     }
 
     /// The plan of `iteration`, if it is known yet (written at the barrier before it).
@@ -494,11 +530,12 @@ impl Run {
         let zs: Vec<Vec<f64>> = rows.iter().map(|r| r.z.clone()).collect();
         let scores: Vec<f64> = rows.iter().map(SampleRow::level_score).collect();
         let ce = &self.settings().ce;
-        let step =
+        let mut step =
             ce_step(&plan.proposal, &zs, &scores, 0.0, ce).map_err(|e| SearchError::Run {
                 path: self.dir.clone(),
                 problem: format!("cross-entropy step after iteration {iteration}: {e}"),
             })?;
+        step.next = self.untilt(step.next);
         let last = step.reached || iteration + 1 >= ce.max_iterations;
         let next = if last {
             IterationPlan {
