@@ -170,6 +170,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let run = Run::open(run)?;
             let summary = run.merge()?;
             print_estimate(&run.dir, &summary.estimate, summary.samples_spent);
+            print_warnings(&summary.warnings);
             Ok(())
         }
         None => search(&args.run),
@@ -246,8 +247,15 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     }
     let summary = run.merge()?;
     print_estimate(out, &summary.estimate, summary.samples_spent);
+    print_warnings(&summary.warnings);
     search_report::write(out, 6)?;
     Ok(())
+}
+
+fn print_warnings(warnings: &[String]) {
+    for w in warnings {
+        println!("  warning: {w}");
+    }
 }
 
 fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {

@@ -259,6 +259,9 @@ fn page(
             rows.len()
         )?,
     }
+    for warning in summary.as_ref().and_then(|v| v.get("warnings")).and_then(|v| v.as_array()).into_iter().flatten() {
+        writeln!(h, "<p style=\"color:#b00\"><b>Warning:</b> {}</p>", escape(warning.as_str().unwrap_or_default()))?;
+    }
     for (file, caption) in figures {
         writeln!(
             h,

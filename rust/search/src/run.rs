@@ -766,6 +766,7 @@ impl Run {
                 inference: mean(|t| t.inference_s),
                 fit: mean(|t| t.fit_s),
             },
+            warnings: warnings(&headline),
             estimate: headline,
             strata: if self.record.strata.len() > 1 {
                 self.record
@@ -802,6 +803,31 @@ pub fn estimate(rows: &[SampleRow], sampler: Sampler, neighbours: Option<u32>) -
         .map(|r| WeightedSample { log_weight: r.log_weight, valid: r.valid, failed: r.failed, stratum: 0 })
         .collect();
     ImportanceEstimate::compute_ratio(&weighted, &[1.0]).map_err(|e| SearchError::Sample(format!("estimate: {e}")))
+}
+
+/// Effective failures below which an importance-sampling interval is flagged.
+pub const MIN_FAILURE_ESS: f64 = 10.0;
+/// Share of the estimate one failure may carry before the interval is flagged.
+pub const MAX_WEIGHT_SHARE: f64 = 0.5;
+
+/// Why an importance-sampling interval may under-cover: a Wald interval rests on the failures'
+/// weights being many and comparable, and the diagnostics say when they are not (Owen, *Monte
+/// Carlo*, §9.3). Monte Carlo's exact interval needs no such warning.
+pub fn warnings(e: &ImportanceEstimate) -> Vec<String> {
+    let mut out = Vec::new();
+    if e.ci_method == boxpose_search_stats::CiMethod::ClopperPearson {
+        return out;
+    }
+    if e.failures > 0 && e.failure_ess < MIN_FAILURE_ESS {
+        out.push(format!(
+            "only {:.1} effective failures (of {}): the weights are too uneven for the interval to be trusted; tilt fewer parameters (--ce-tilt), add components, or draw more samples",
+            e.failure_ess, e.failures
+        ));
+    }
+    if e.max_weight_share > MAX_WEIGHT_SHARE {
+        out.push(format!("one failure carries {:.0}% of the estimate", 100.0 * e.max_weight_share));
+    }
+    out
 }
 
 /// One stratum's own estimate.
@@ -844,6 +870,8 @@ pub struct Summary {
     pub estimate: ImportanceEstimate,
     /// The same per stratum (number of neighbours), when the space has more than one.
     pub strata: Vec<StratumSummary>,
+    /// Why the interval may not be trusted (see [`warnings`]); empty when nothing stands out.
+    pub warnings: Vec<String>,
     pub boxpose_version: String,
     pub mujoco_version: String,
 }
@@ -1152,4 +1180,30 @@ fn write_counterexamples(dir: &Path, name: &str, outcomes: &[Outcome]) -> Result
     boxpose_data::write_shard(dir, &schema::FRAMES, name, &frames)?;
     boxpose_data::write_shard(dir, &schema::INSTANCES, name, &instances)?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(log_weight: f64, failed: bool) -> WeightedSample {
+        WeightedSample { log_weight, valid: true, failed, stratum: 0 }
+    }
+
+    #[test]
+    fn uneven_failure_weights_are_flagged_and_monte_carlo_is_not() {
+        // one failure with a weight 50× the others' carries most of the estimate
+        let mut uneven: Vec<WeightedSample> = (0..200).map(|i| sample(-2.0, i < 3)).collect();
+        uneven.push(sample(50f64.ln() - 2.0, true));
+        let e = ImportanceEstimate::compute_ratio(&uneven, &[1.0]).unwrap();
+        let w = warnings(&e);
+        assert!(w.iter().any(|m| m.contains("effective failures")), "{w:?}");
+        assert!(w.iter().any(|m| m.contains("of the estimate")), "{w:?}");
+        // many comparable weights: nothing to flag
+        let even: Vec<WeightedSample> = (0..400).map(|i| sample(-1.0 + 0.01 * (i % 7) as f64, i % 20 == 0)).collect();
+        assert!(warnings(&ImportanceEstimate::compute_ratio(&even, &[1.0]).unwrap()).is_empty());
+        // Monte Carlo's exact interval needs no warning, however few the failures
+        let mc: Vec<WeightedSample> = (0..100).map(|i| sample(0.0, i == 0)).collect();
+        assert!(warnings(&ImportanceEstimate::compute_ratio(&mc, &[1.0]).unwrap()).is_empty());
+    }
 }
