@@ -79,7 +79,7 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	$(BOXPOSE) eval $(DEMO_DATASET) --crops predicted --model $(MODEL) --segmenter $(SEGMENTER) --out $(DEMO_RESULTS)/eval_predicted_crops
 	@echo; echo "== counterexample search on single_box (the paper's setting, docs/search.md): Monte Carlo, then cross-entropy importance sampling"
 	$(BOXPOSE) search single_box --samples 200 --out $(DEMO_RESULTS)/search-mc
-	$(BOXPOSE) search single_box --sampler ce --samples 120 --ce-samples-per-iteration 60 --ce-max-iterations 3 --out $(DEMO_RESULTS)/search-ce
+	$(BOXPOSE) search single_box --sampler ce --ce-tilt target.size_m --samples 150 --ce-samples-per-iteration 60 --ce-max-iterations 3 --out $(DEMO_RESULTS)/search-ce
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
 
