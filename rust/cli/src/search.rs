@@ -231,7 +231,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         };
         let renderer = Renderer::new(args.threads)?;
         let mut sut = SystemUnderTest::new(&space, renderer, model, segmenter, crops, method)?;
-        let mut progress = Progress::new(run.record.settings.sampler);
+        let mut progress = Progress::new();
         run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
         progress.bar.finish_and_clear();
         // shard 0 merges (it waits for the others): two merging processes would race
@@ -273,13 +273,7 @@ fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
     };
     println!(
         "P(fail | valid) = {:.3e}  {ci}\n  {} samples in the estimate ({} valid, {} failing), {spent} spent in all; P(valid) = {p_valid}; ESS {:.0}, failure ESS {:.1}, largest weight share {:.2}",
-        e.p_hat,
-        e.samples,
-        e.valid,
-        e.failures,
-        e.kish_ess,
-        e.failure_ess,
-        e.max_weight_share
+        e.p_hat, e.samples, e.valid, e.failures, e.kish_ess, e.failure_ess, e.max_weight_share
     );
     println!(
         "run: {}  (samples.parquet, summary.json, counterexamples/, report/index.html)",
@@ -287,42 +281,80 @@ fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
     );
 }
 
-/// The progress bar: samples/s, failures so far, the running estimate.
+/// The progress bar: samples/s, failures so far, the running estimate of this iteration's
+/// samples (Monte Carlo: p̂ with its Clopper–Pearson interval; the cross-entropy final stage: the
+/// ratio estimate Σ w·1{fail} / Σ w·1{valid}), counting the batches already committed.
 struct Progress {
     bar: ProgressBar,
-    sampler: Sampler,
     stage: String,
     valid: u64,
     failures: u64,
+    weight_valid: f64,
+    weight_failed: f64,
     total_failures: u64,
     started: Instant,
 }
 
 impl Progress {
-    fn new(sampler: Sampler) -> Self {
+    fn new() -> Self {
         let bar = ProgressBar::new(0).with_style(
             ProgressStyle::with_template("{prefix} {bar:25} {pos}/{len} samples [{elapsed_precise}<{eta_precise}, {per_sec}] {msg}").expect("a valid template"),
         );
         Self {
             bar,
-            sampler,
             stage: String::new(),
             valid: 0,
             failures: 0,
+            weight_valid: 0.0,
+            weight_failed: 0.0,
             total_failures: 0,
             started: Instant::now(),
         }
     }
+
+    fn count(&mut self, row: &SampleRow) {
+        let w = row.log_weight.exp();
+        self.valid += row.valid as u64;
+        self.failures += row.failed as u64;
+        self.total_failures += row.failed as u64;
+        self.weight_valid += if row.valid { w } else { 0.0 };
+        self.weight_failed += if row.failed { w } else { 0.0 };
+    }
+
+    fn show(&self) {
+        let estimate = match self.stage.as_str() {
+            "mc" if self.valid > 0 => {
+                let (lo, hi) = clopper_pearson(self.failures, self.valid, 0.95);
+                format!(
+                    "p̂ {:.2e} [{lo:.1e}, {hi:.1e}]",
+                    self.failures as f64 / self.valid as f64
+                )
+            }
+            "final" if self.weight_valid > 0.0 => {
+                format!("p̂ ≈ {:.2e}", self.weight_failed / self.weight_valid)
+            }
+            _ => format!("{} valid", self.valid),
+        };
+        self.bar.set_message(format!(
+            "{} failures, {estimate}, {:.0} s",
+            self.total_failures,
+            self.started.elapsed().as_secs_f64()
+        ));
+    }
 }
 
 impl Observer for Progress {
-    fn iteration(&mut self, iteration: u32, plan: &IterationPlan, done: usize) {
+    fn iteration(&mut self, iteration: u32, plan: &IterationPlan, done: &[SampleRow]) {
         self.bar.set_length(plan.samples as u64);
-        self.bar.set_position(done as u64);
+        self.bar.set_position(done.len() as u64);
         self.bar.set_prefix(format!("{} {}", plan.stage, iteration));
         self.stage = plan.stage.clone();
-        self.valid = 0;
-        self.failures = 0;
+        (
+            self.valid,
+            self.failures,
+            self.weight_valid,
+            self.weight_failed,
+        ) = (0, 0, 0.0, 0.0);
         if let Some(step) = &plan.step {
             self.bar.suspend(|| {
                 println!(
@@ -338,7 +370,7 @@ impl Observer for Progress {
                 )
             });
         }
-        if plan.stage == "final" && self.sampler == Sampler::Ce {
+        if plan.stage == "final" {
             self.bar.suspend(|| {
                 println!(
                     "frozen proposal: {} fresh samples for the estimate",
@@ -346,27 +378,16 @@ impl Observer for Progress {
                 )
             });
         }
+        for row in done {
+            self.count(row);
+        }
+        self.show();
     }
 
     fn sample(&mut self, row: &SampleRow) {
         self.bar.inc(1);
-        self.valid += row.valid as u64;
-        self.failures += row.failed as u64;
-        self.total_failures += row.failed as u64;
-        let estimate = if self.stage == "mc" && self.valid > 0 {
-            let (lo, hi) = clopper_pearson(self.failures, self.valid, 0.95);
-            format!(
-                "p̂ {:.2e} [{lo:.1e}, {hi:.1e}]",
-                self.failures as f64 / self.valid as f64
-            )
-        } else {
-            format!("{} valid", self.valid)
-        };
-        self.bar.set_message(format!(
-            "{} failures, {estimate}, {:.0} s",
-            self.total_failures,
-            self.started.elapsed().as_secs_f64()
-        ));
+        self.count(row);
+        self.show();
     }
 
     fn waiting(&mut self, what: &str) {

@@ -127,10 +127,10 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
                 .chunks(3)
                 .map(|p| Point3::new(p[0], p[1], p[2]))
                 .collect();
-            let fitted: Option<[Point3<f64>; 8]> = row
-                .fitted_corners_camera_m
-                .as_deref()
-                .map(|c| std::array::from_fn(|i| Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2])));
+            let fitted: Option<[Point3<f64>; 8]> =
+                row.fitted_corners_camera_m.as_deref().map(|c| {
+                    std::array::from_fn(|i| Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))
+                });
             let name = format!("sample-{}.png", row.sample_id);
             plots::overlay(
                 &tmp.join(&name),
@@ -138,11 +138,21 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
                 frame.width,
                 frame.height,
                 &frame.intrinsics,
-                &[OverlayBox { truth, peaks: peaks.clone(), fitted }],
+                &[OverlayBox {
+                    truth,
+                    peaks: peaks.clone(),
+                    fitted,
+                }],
             )?;
             if let Some(truth) = &truth {
                 let view = format!("sample-{}-3d.png", row.sample_id);
-                plots::view_3d(&tmp.join(&view), &format!("sample {} (camera frame, m)", row.sample_id), truth, &peaks, fitted.as_ref())?;
+                plots::view_3d(
+                    &tmp.join(&view),
+                    &format!("sample {} (camera frame, m)", row.sample_id),
+                    truth,
+                    &peaks,
+                    fitted.as_ref(),
+                )?;
             }
             drawn.push((row.sample_id, name));
         }
@@ -247,7 +257,11 @@ fn page(
                 f("valid"),
                 f("failures"),
                 rows.len(),
-                if f("valid") == f("samples") { 1.0 } else { f("p_valid") },
+                if f("valid") == f("samples") {
+                    1.0
+                } else {
+                    f("p_valid")
+                },
                 f("kish_ess"),
                 f("failure_ess"),
                 f("max_weight_share"),
@@ -259,8 +273,18 @@ fn page(
             rows.len()
         )?,
     }
-    for warning in summary.as_ref().and_then(|v| v.get("warnings")).and_then(|v| v.as_array()).into_iter().flatten() {
-        writeln!(h, "<p style=\"color:#b00\"><b>Warning:</b> {}</p>", escape(warning.as_str().unwrap_or_default()))?;
+    for warning in summary
+        .as_ref()
+        .and_then(|v| v.get("warnings"))
+        .and_then(|v| v.as_array())
+        .into_iter()
+        .flatten()
+    {
+        writeln!(
+            h,
+            "<p style=\"color:#b00\"><b>Warning:</b> {}</p>",
+            escape(warning.as_str().unwrap_or_default())
+        )?;
     }
     for (file, caption) in figures {
         writeln!(

@@ -146,7 +146,9 @@ pub struct IterationPlan {
 /// Progress reports from a run; the CLI draws them (the library never prints).
 pub trait Observer {
     /// Iteration `iteration` starts: `plan`, and how many of its samples are already done.
-    fn iteration(&mut self, _iteration: u32, _plan: &IterationPlan, _done: usize) {}
+    /// Iteration `iteration` starts: its plan, and the samples of its batches already committed
+    /// (by an earlier, interrupted run or by other shards).
+    fn iteration(&mut self, _iteration: u32, _plan: &IterationPlan, _done: &[SampleRow]) {}
     /// A sample finished.
     fn sample(&mut self, _row: &SampleRow) {}
     /// This process waits for other shards' batches.
@@ -372,7 +374,11 @@ impl Run {
     /// Per dimension of z: whether the cross-entropy proposal may move it (`--ce-tilt`).
     fn tilted(&self) -> Vec<bool> {
         let tilt = &self.settings().ce_tilt;
-        self.record.dimensions.iter().map(|name| tilt.is_empty() || tilt.iter().any(|p| name.starts_with(p.as_str()))).collect()
+        self.record
+            .dimensions
+            .iter()
+            .map(|name| tilt.is_empty() || tilt.iter().any(|p| name.starts_with(p.as_str())))
+            .collect()
     }
 
     /// `proposal` with every untilted dimension back at N(0, 1) in every component: the
@@ -462,14 +468,14 @@ impl Run {
         loop {
             let plan = self.wait_for_plan(iteration, observer)?;
             let batches = self.batches(plan.samples);
-            let done = (0..batches)
-                .filter(|&b| self.batch_path(&SEARCH_SAMPLES, iteration, b).exists())
-                .count();
-            observer.iteration(
-                iteration,
-                &plan,
-                (done * self.settings().batch_size).min(plan.samples),
-            );
+            let mut done = Vec::new();
+            for batch in 0..batches {
+                let path = self.batch_path(&SEARCH_SAMPLES, iteration, batch);
+                if path.exists() {
+                    done.extend(read_samples(&path)?);
+                }
+            }
+            observer.iteration(iteration, &plan, &done);
             for batch in (0..batches).filter(|b| b % num_shards == shard) {
                 if self.batch_path(&SEARCH_SAMPLES, iteration, batch).exists() {
                     continue;
@@ -772,7 +778,10 @@ impl Run {
                 self.record
                     .strata
                     .iter()
-                    .map(|&n| StratumSummary { neighbours: n, estimate: estimate(samples, s.sampler, Some(n)).map_err(|e| e.to_string()) })
+                    .map(|&n| StratumSummary {
+                        neighbours: n,
+                        estimate: estimate(samples, s.sampler, Some(n)).map_err(|e| e.to_string()),
+                    })
                     .collect()
             } else {
                 Vec::new()
@@ -792,7 +801,11 @@ impl Run {
 /// (their weight is 1), so pooling the samples of every stratum estimates P(fail | valid) over
 /// the whole space; each stratum's own estimate is in [`Summary::strata`]. Plain Monte Carlo
 /// gets the exact Clopper–Pearson interval on (failures, valid samples).
-pub fn estimate(rows: &[SampleRow], sampler: Sampler, neighbours: Option<u32>) -> Result<ImportanceEstimate> {
+pub fn estimate(
+    rows: &[SampleRow],
+    sampler: Sampler,
+    neighbours: Option<u32>,
+) -> Result<ImportanceEstimate> {
     let stage = match sampler {
         Sampler::Mc => "mc",
         Sampler::Ce => "final",
@@ -800,9 +813,15 @@ pub fn estimate(rows: &[SampleRow], sampler: Sampler, neighbours: Option<u32>) -
     let weighted: Vec<WeightedSample> = rows
         .iter()
         .filter(|r| r.stage == stage && neighbours.is_none_or(|n| r.stratum == n as i32))
-        .map(|r| WeightedSample { log_weight: r.log_weight, valid: r.valid, failed: r.failed, stratum: 0 })
+        .map(|r| WeightedSample {
+            log_weight: r.log_weight,
+            valid: r.valid,
+            failed: r.failed,
+            stratum: 0,
+        })
         .collect();
-    ImportanceEstimate::compute_ratio(&weighted, &[1.0]).map_err(|e| SearchError::Sample(format!("estimate: {e}")))
+    ImportanceEstimate::compute_ratio(&weighted, &[1.0])
+        .map_err(|e| SearchError::Sample(format!("estimate: {e}")))
 }
 
 /// Effective failures below which an importance-sampling interval is flagged.
@@ -825,7 +844,10 @@ pub fn warnings(e: &ImportanceEstimate) -> Vec<String> {
         ));
     }
     if e.max_weight_share > MAX_WEIGHT_SHARE {
-        out.push(format!("one failure carries {:.0}% of the estimate", 100.0 * e.max_weight_share));
+        out.push(format!(
+            "one failure carries {:.0}% of the estimate",
+            100.0 * e.max_weight_share
+        ));
     }
     out
 }
@@ -970,7 +992,8 @@ fn sample_row(
             row.translation_error_m = Some(m.translation_error_m);
             row.score = Some(score);
             row.fit_confidence = Some(m.confidence);
-            row.fitted_corners_camera_m = Some(m.fitted_corners.iter().flatten().copied().collect());
+            row.fitted_corners_camera_m =
+                Some(m.fitted_corners.iter().flatten().copied().collect());
             row.failed = score > 0.0;
         }
     }
@@ -1187,7 +1210,12 @@ mod tests {
     use super::*;
 
     fn sample(log_weight: f64, failed: bool) -> WeightedSample {
-        WeightedSample { log_weight, valid: true, failed, stratum: 0 }
+        WeightedSample {
+            log_weight,
+            valid: true,
+            failed,
+            stratum: 0,
+        }
     }
 
     #[test]
@@ -1200,7 +1228,9 @@ mod tests {
         assert!(w.iter().any(|m| m.contains("effective failures")), "{w:?}");
         assert!(w.iter().any(|m| m.contains("of the estimate")), "{w:?}");
         // many comparable weights: nothing to flag
-        let even: Vec<WeightedSample> = (0..400).map(|i| sample(-1.0 + 0.01 * (i % 7) as f64, i % 20 == 0)).collect();
+        let even: Vec<WeightedSample> = (0..400)
+            .map(|i| sample(-1.0 + 0.01 * (i % 7) as f64, i % 20 == 0))
+            .collect();
         assert!(warnings(&ImportanceEstimate::compute_ratio(&even, &[1.0]).unwrap()).is_empty());
         // Monte Carlo's exact interval needs no warning, however few the failures
         let mc: Vec<WeightedSample> = (0..100).map(|i| sample(0.0, i == 0)).collect();

@@ -122,7 +122,10 @@ impl Nuisance {
 /// Checks the base recipe's sections the scenes draw their nuisance from ([boxes] density and
 /// friction, [materials]), so a bad recipe is refused before any work starts.
 pub(crate) fn check_recipe(recipe_toml: &str) -> Result<()> {
-    let recipe: toml::Table = recipe_toml.parse().map_err(|e| SearchError::Space { key: "recipe".into(), problem: format!("{e}") })?;
+    let recipe: toml::Table = recipe_toml.parse().map_err(|e| SearchError::Space {
+        key: "recipe".into(),
+        problem: format!("{e}"),
+    })?;
     Nuisance::new(&recipe, 0).map(|_| ())
 }
 

@@ -359,7 +359,10 @@ impl SearchSpace {
         scalar("lighting.sun_strength", &l.sun_strength)?;
         scalar("lighting.world_strength", &l.world_strength)?;
         if !(bounds(&l.sun_elevation_deg)[0] >= -90.0 && bounds(&l.sun_elevation_deg)[1] <= 90.0) {
-            return Err(SearchError::Space { key: "lighting.sun_elevation_deg".into(), problem: "must lie in [-90, 90]".into() });
+            return Err(SearchError::Space {
+                key: "lighting.sun_elevation_deg".into(),
+                problem: "must lie in [-90, 90]".into(),
+            });
         }
         for (key, d) in [
             ("lighting.sun_strength", &l.sun_strength),
@@ -387,11 +390,21 @@ impl SearchSpace {
                 });
             }
             // checked once under their TOML keys, then laid out once per possible neighbour
-            let per_box = [("size_m.x", &n.size_m.x), ("size_m.y", &n.size_m.y), ("size_m.z", &n.size_m.z), ("yaw_deg", &n.yaw_deg), ("x_m", &n.x_m), ("y_m", &n.y_m)];
+            let per_box = [
+                ("size_m.x", &n.size_m.x),
+                ("size_m.y", &n.size_m.y),
+                ("size_m.z", &n.size_m.z),
+                ("yaw_deg", &n.yaw_deg),
+                ("x_m", &n.x_m),
+                ("y_m", &n.y_m),
+            ];
             for (key, d) in per_box {
                 d.validate(&format!("neighbours.{key}"))?;
                 if key.starts_with("size_m") && bounds(d)[0] <= 0.0 {
-                    return Err(SearchError::Space { key: format!("neighbours.{key}"), problem: "box sizes must be positive".into() });
+                    return Err(SearchError::Space {
+                        key: format!("neighbours.{key}"),
+                        problem: "box sizes must be positive".into(),
+                    });
                 }
             }
             for i in 0..hi {
@@ -529,9 +542,15 @@ mod tests {
             "distance_m = { normal = [5.0, 0.01], within = [0.6, 0.9] }",
         );
         assert!(error_of(&improper).contains("cannot be normalised"));
-        let extra = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = { normal = [0.7, 0.1], within = [0.6, 0.9], skew = 1.0 }");
+        let extra = SINGLE.replace(
+            "distance_m = [0.6, 0.9]",
+            "distance_m = { normal = [0.7, 0.1], within = [0.6, 0.9], skew = 1.0 }",
+        );
         assert!(parse(&extra).is_err());
-        let sun = SINGLE.replace("sun_elevation_deg = [30.0, 80.0]", "sun_elevation_deg = [-100.0, 80.0]");
+        let sun = SINGLE.replace(
+            "sun_elevation_deg = [30.0, 80.0]",
+            "sun_elevation_deg = [-100.0, 80.0]",
+        );
         assert!(error_of(&sun).contains("lighting.sun_elevation_deg"));
         let nan = SINGLE.replace("distance_m = [0.6, 0.9]", "distance_m = [nan, 0.9]");
         assert!(error_of(&nan).contains("camera.distance_m"));
@@ -542,20 +561,34 @@ mod tests {
         let d = Distribution::Uniform([2.0, 4.0]);
         assert!((d.value(0.0) - 3.0).abs() < 1e-12);
         assert!(d.value(-40.0) >= 2.0 && d.value(40.0) <= 4.0);
-        let t = Distribution::TruncatedNormal(TruncatedNormal { normal: [0.0, 1.0], within: [-1.0, 1.0] });
+        let t = Distribution::TruncatedNormal(TruncatedNormal {
+            normal: [0.0, 1.0],
+            within: [-1.0, 1.0],
+        });
         assert!(t.value(0.0).abs() < 1e-9);
         // an asymmetric truncation: the truncated CDF of value(z) is Φ(z), so z's quantiles map
         // to the parameter's
         let (mean, std, lo, hi) = (0.3, 0.2, 0.25, 0.9);
-        let t = Distribution::TruncatedNormal(TruncatedNormal { normal: [mean, std], within: [lo, hi] });
+        let t = Distribution::TruncatedNormal(TruncatedNormal {
+            normal: [mean, std],
+            within: [lo, hi],
+        });
         let cdf = |x: f64| {
-            let (a, b) = (standard_normal_cdf((lo - mean) / std), standard_normal_cdf((hi - mean) / std));
+            let (a, b) = (
+                standard_normal_cdf((lo - mean) / std),
+                standard_normal_cdf((hi - mean) / std),
+            );
             (standard_normal_cdf((x - mean) / std) - a) / (b - a)
         };
         for z in [-2.0, -0.7, 0.0, 0.4, 1.9] {
             let x = t.value(z);
             assert!((lo..=hi).contains(&x));
-            assert!((cdf(x) - standard_normal_cdf(z)).abs() < 1e-9, "z {z}: F(x) {} Φ(z) {}", cdf(x), standard_normal_cdf(z));
+            assert!(
+                (cdf(x) - standard_normal_cdf(z)).abs() < 1e-9,
+                "z {z}: F(x) {} Φ(z) {}",
+                cdf(x),
+                standard_normal_cdf(z)
+            );
         }
     }
 

@@ -133,10 +133,18 @@ impl Metrics {
     }
 
     fn is_finite(&self) -> bool {
-        [self.paper_error, self.paper_error_normalized, self.mssd_over_diameter, self.add_s_m, self.rotation_error_deg, self.translation_error_m, self.confidence]
-            .iter()
-            .chain(self.fitted_corners.iter().flatten())
-            .all(|v| v.is_finite())
+        [
+            self.paper_error,
+            self.paper_error_normalized,
+            self.mssd_over_diameter,
+            self.add_s_m,
+            self.rotation_error_deg,
+            self.translation_error_m,
+            self.confidence,
+        ]
+        .iter()
+        .chain(self.fitted_corners.iter().flatten())
+        .all(|v| v.is_finite())
     }
 }
 
@@ -192,7 +200,6 @@ pub struct Outcome {
     /// NMS peaks of the target, back-projected (camera frame, metres), best first.
     pub peaks: Vec<[f64; 3]>,
 }
-
 
 /// Everything loaded once for a search: the renderer (one per process), the networks, the fit.
 pub struct SystemUnderTest {
@@ -307,14 +314,31 @@ impl SystemUnderTest {
             Crops::Predicted => &[],
         };
         loop {
-            let request = RenderRequest { crop_object: margins.first().map(|&m| (TARGET_OBJECT_ID, m)), ..RenderRequest::default() };
+            let request = RenderRequest {
+                crop_object: margins.first().map(|&m| (TARGET_OBJECT_ID, m)),
+                ..RenderRequest::default()
+            };
             let rendered = self.renderer.render(&request)?;
             let source = std::path::PathBuf::from(format!("<render of sample scene {scene_id}>"));
-            let frame = boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
-                .pop()
-                .ok_or_else(|| SearchError::Sample(format!("scene {scene_id}: the renderer returned no frame")))?;
-            let covered = match (request.crop_object, frame.instances.iter().find(|i| i.object_id == TARGET_OBJECT_ID).and_then(|i| i.visible_bbox)) {
-                (Some(_), Some(bbox)) => window_inside_render(&rendered.frames, &frame, bbox, margin)?,
+            let frame =
+                boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
+                    .pop()
+                    .ok_or_else(|| {
+                        SearchError::Sample(format!(
+                            "scene {scene_id}: the renderer returned no frame"
+                        ))
+                    })?;
+            let covered = match (
+                request.crop_object,
+                frame
+                    .instances
+                    .iter()
+                    .find(|i| i.object_id == TARGET_OBJECT_ID)
+                    .and_then(|i| i.visible_bbox),
+            ) {
+                (Some(_), Some(bbox)) => {
+                    window_inside_render(&rendered.frames, &frame, bbox, margin)?
+                }
                 _ => true,
             };
             if covered || margins.len() <= 1 {
@@ -399,11 +423,27 @@ impl SystemUnderTest {
 /// Whether the network's window around the visible `bbox` (crop-frame pixels) lies inside the
 /// rendered region, or leaves it only where the full image ends as well (where a whole-frame
 /// render clips it the same way). One pixel of slack on each side for bilinear resampling.
-fn window_inside_render(frames: &RecordBatch, frame: &Frame, bbox: [i32; 4], margin: f64) -> Result<bool> {
+fn window_inside_render(
+    frames: &RecordBatch,
+    frame: &Frame,
+    bbox: [i32; 4],
+    margin: f64,
+) -> Result<bool> {
     use arrow::array::AsArray;
-    let settings = frames.column_by_name("render_settings").map(|c| c.as_string::<i32>().value(0).to_string()).unwrap_or_default();
-    let settings: serde_json::Value = serde_json::from_str(&settings).map_err(|e| SearchError::Sample(format!("render_settings: {e}")))?;
-    let numbers = |key: &str| -> Option<Vec<f64>> { settings.get(key)?.as_array()?.iter().map(|v| v.as_f64()).collect() };
+    let settings = frames
+        .column_by_name("render_settings")
+        .map(|c| c.as_string::<i32>().value(0).to_string())
+        .unwrap_or_default();
+    let settings: serde_json::Value = serde_json::from_str(&settings)
+        .map_err(|e| SearchError::Sample(format!("render_settings: {e}")))?;
+    let numbers = |key: &str| -> Option<Vec<f64>> {
+        settings
+            .get(key)?
+            .as_array()?
+            .iter()
+            .map(|v| v.as_f64())
+            .collect()
+    };
     let (Some(region), Some(image)) = (numbers("crop"), numbers("image_size")) else {
         return Ok(true); // the whole frame was rendered
     };
