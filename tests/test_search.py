@@ -246,3 +246,16 @@ def test_an_unknown_tilt_is_refused_before_any_work(spaces, boxpose_bin, tmp_pat
     r = search(boxpose_bin, spaces["single"], "--out", out, "--sampler", "ce", "--ce-tilt", "target.colour", check=False)
     assert r.returncode != 0 and "target.colour" in r.stderr and "target.size_m.x" in r.stderr, r.stderr
     assert not out.exists()
+
+
+def test_cross_entropy_on_clutter_pools_its_strata(spaces, boxpose_bin, tmp_path):
+    out = tmp_path / "clutter-ce"
+    search(boxpose_bin, spaces["clutter"], "--out", out, "--sampler", "ce", "--samples", 4, "--batch-size", 4, "--ce-samples-per-iteration", 4,
+           "--ce-max-iterations", 1, "--ce-rho", 0.5, "--fail-when", "mssd:0.02", "--threads", 1)
+    samples = pd.read_parquet(out / "samples.parquet")
+    final = samples[samples.stage == "final"]
+    # both strata in every stage, each with its nominal share, and never tilted: the neighbour
+    # count is not part of z, so it never enters the weights
+    assert sorted(final.stratum) == [1, 1, 2, 2] and sorted(samples[samples.stage == "tune"].stratum) == [1, 1, 2, 2]
+    summary = json.loads((out / "summary.json").read_text())
+    assert [s["neighbours"] for s in summary["strata"]] == [1, 2] and summary["estimate"]["samples"] == 4
