@@ -137,9 +137,11 @@ def test_eval_writes_metrics_a_summary_and_the_error_histogram(trained, tiny_dat
     out = tmp_path / "eval"
     r = run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", run / "model", "--out", out, "--min-visible-fraction", "0.05")
     rows = pd.read_parquet(out / "eval.parquet")
-    assert set(rows.method) == {"paper_exact", "fast_exact", "robust", "size_and_pose"}
+    # the four fits, and the former robust and size fits beside them for comparison
+    methods = {"paper_exact", "fast_exact", "robust", "size_and_pose", "robust_fixed", "size_and_pose_ls"}
+    assert set(rows.method) == methods
     per_instance = rows.groupby(["scene_id", "frame_id", "object_id"])
-    assert (per_instance.size() == 4).all()
+    assert (per_instance.size() == len(methods)).all()
     assert rows.corners_found.between(0, 8).all() and (rows.heatmap_mse > 0).all()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["instances"] == per_instance.ngroups
