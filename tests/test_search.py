@@ -259,3 +259,18 @@ def test_cross_entropy_on_clutter_pools_its_strata(spaces, boxpose_bin, tmp_path
     assert sorted(final.stratum) == [1, 1, 2, 2] and sorted(samples[samples.stage == "tune"].stratum) == [1, 1, 2, 2]
     summary = json.loads((out / "summary.json").read_text())
     assert [s["neighbours"] for s in summary["strata"]] == [1, 2] and summary["estimate"]["samples"] == 4
+
+
+def test_a_sample_replays_to_its_recorded_outcome(mc_run, boxpose_bin, tmp_path):
+    samples = pd.read_parquet(mc_run / "samples.parquet")
+    failed = samples[samples.failed]
+    row = (failed if not failed.empty else samples[samples.valid]).iloc[0]
+    r = search(boxpose_bin, "replay", mc_run, "--sample", int(row.sample_id), "--out", tmp_path, "--threads", 1)
+    assert "reproduced" in r.stdout, r.stdout
+    recorded, replayed = [line for line in r.stdout.splitlines() if line.strip().startswith(("recorded", "replayed"))]
+    assert recorded.split(maxsplit=1)[1] == replayed.split(maxsplit=1)[1]
+    if row.score == row.score:  # scored: the printed score is the stored one
+        assert f"score {row.score:.4f}" in recorded
+    assert (tmp_path / f"sample-{int(row.sample_id)}.png").is_file()
+    missing = search(boxpose_bin, "replay", mc_run, "--sample", 999, "--out", tmp_path, check=False)
+    assert missing.returncode != 0 and "no sample 999" in missing.stderr

@@ -64,6 +64,27 @@ enum Command {
         #[arg(long, default_value_t = 6)]
         worst: usize,
     },
+    /// Run one sample of a run again, end to end, from its stored inputs and seed, and compare
+    /// with what the run recorded: does a counterexample still fail (after a change to the
+    /// networks or the fits, pass --model)? Draws the replayed frame and a 3D view into --out.
+    Replay {
+        /// Run folder.
+        run: PathBuf,
+        /// The sample's id (the samples table's sample_id; counterexamples' scene_id).
+        #[arg(long)]
+        sample: i64,
+        /// Keypoint network to replay with (default: the run's).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Folder for the replayed frame's overlay and 3D view.
+        #[arg(long, default_value = "results/replay")]
+        out: PathBuf,
+        /// Cycles threads (0 = all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+        #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
+        backend: BackendKind,
+    },
     /// Merge a run's batches (after every shard finished) into samples.parquet, timings.parquet
     /// and summary.json, and print the estimate.
     Merge {
@@ -166,6 +187,14 @@ enum CropsArg {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     match &args.command {
         Some(Command::Report { run, worst }) => search_report::write(run, *worst),
+        Some(Command::Replay {
+            run,
+            sample,
+            model,
+            out,
+            threads,
+            backend,
+        }) => replay(run, *sample, model.as_deref(), out, *threads, *backend),
         Some(Command::Merge { run }) => {
             let run = Run::open(run)?;
             let summary = run.merge()?;
@@ -249,6 +278,123 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     print_estimate(out, &summary.estimate, summary.samples_spent);
     print_warnings(&summary.warnings);
     search_report::write(out, 6)?;
+    Ok(())
+}
+
+fn replay(
+    run_dir: &Path,
+    sample: i64,
+    model: Option<&Path>,
+    out: &Path,
+    threads: usize,
+    backend: BackendKind,
+) -> anyhow::Result<()> {
+    let run = Run::open(run_dir)?;
+    let (rows, _) = run.rows()?;
+    let recorded = rows
+        .iter()
+        .find(|r| r.sample_id == sample)
+        .with_context(|| {
+            format!(
+                "{}: no sample {sample} (the run holds {} samples)",
+                run_dir.display(),
+                rows.len()
+            )
+        })?;
+    let space = SearchSpace::from_texts(&run.record.space_toml, &run.record.recipe_toml)?;
+    let settings = &run.record.settings;
+    let device = backend.device()?;
+    let model_dir = model.map_or_else(|| PathBuf::from(&settings.model), Path::to_path_buf);
+    let network = KeypointModel::load(&model_dir, device.clone())?;
+    let segmenter = match (&settings.crops, &settings.segmenter) {
+        (Crops::Predicted, Some(dir)) => Some(SegmenterModel::load(Path::new(dir), device)?),
+        _ => None,
+    };
+    let method = sut::method_named(&settings.fit).map_err(anyhow::Error::msg)?;
+    let mut sut = SystemUnderTest::new(
+        &space,
+        Renderer::new(threads)?,
+        network,
+        segmenter,
+        settings.crops,
+        method,
+    )?;
+    let (replayed, outcome) = run.replay(&space, &mut sut, recorded)?;
+    let describe = |r: &SampleRow| match (r.valid, r.score) {
+        (false, _) => format!("invalid ({})", r.invalid_reason.as_deref().unwrap_or("")),
+        (true, Some(score)) => format!(
+            "{} score {score:.4} (paper error / (diag²/3) {:.3e}, MSSD/d {:.3})",
+            if r.failed { "FAILS," } else { "passes," },
+            r.paper_error_normalized.unwrap_or(f64::NAN),
+            r.mssd_over_diameter.unwrap_or(f64::NAN)
+        ),
+        (true, None) => format!(
+            "FAILS, nothing fitted ({})",
+            r.fit_error.as_deref().unwrap_or("not detected")
+        ),
+    };
+    println!(
+        "sample {sample} of {}:\n  recorded  {}\n  replayed  {}",
+        run_dir.display(),
+        describe(recorded),
+        describe(&replayed)
+    );
+    std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
+    if let Some((frames, instances)) = &outcome.rendered {
+        let frame = boxpose_data::decode_frames(Path::new("<replayed render>"), frames, instances)?
+            .remove(0);
+        let truth = frame
+            .instances
+            .iter()
+            .find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID)
+            .map(|i| i.corners_camera.map(nalgebra::Point3::from));
+        let peaks: Vec<nalgebra::Point3<f64>> = outcome
+            .peaks
+            .iter()
+            .map(|p| nalgebra::Point3::from(*p))
+            .collect();
+        let fitted = replayed.fitted_corners_camera_m.as_deref().map(|c| {
+            std::array::from_fn(|i| nalgebra::Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))
+        });
+        let overlay = out.join(format!("sample-{sample}.png"));
+        crate::plots::overlay(
+            &overlay,
+            &frame.rgb,
+            frame.width,
+            frame.height,
+            &frame.intrinsics,
+            &[crate::plots::OverlayBox {
+                truth,
+                peaks: peaks.clone(),
+                fitted,
+            }],
+        )?;
+        if let Some(truth) = &truth {
+            crate::plots::view_3d(
+                &out.join(format!("sample-{sample}-3d.png")),
+                &format!("sample {sample}, replayed"),
+                truth,
+                &peaks,
+                fitted.as_ref(),
+            )?;
+        }
+        println!("  drawn: {}", overlay.display());
+    }
+    if recorded.failed != replayed.failed || recorded.valid != replayed.valid {
+        println!(
+            "  the outcome changed: {}",
+            if replayed.failed {
+                "it fails now"
+            } else {
+                "it no longer fails"
+            }
+        );
+    } else {
+        println!(
+            "  reproduced: it {} as recorded",
+            if replayed.failed { "fails" } else { "passes" }
+        );
+    }
     Ok(())
 }
 

@@ -652,6 +652,42 @@ impl Run {
         Ok(())
     }
 
+    /// Runs sample `row` of this run again, end to end (settle, render, perception, fit), from
+    /// its stored z, stratum and seed: the counterexample loop's "does it still fail?". Returns
+    /// the new row and the outcome (the scene, frame and peaks, for drawing).
+    pub fn replay(
+        &self,
+        space: &SearchSpace,
+        sut: &mut SystemUnderTest,
+        row: &SampleRow,
+    ) -> Result<(SampleRow, Outcome)> {
+        let iteration = row.iteration as u32;
+        let plan = self.plan(iteration)?.ok_or_else(|| SearchError::Run {
+            path: self.dir.clone(),
+            problem: format!(
+                "sample {} is in iteration {iteration}, whose proposal is missing",
+                row.sample_id
+            ),
+        })?;
+        let parameters = space.parameters(&row.z, row.stratum as u32)?;
+        let outcome = sut.run(space, &parameters, row.sample_id, row.seed)?;
+        let replayed = sample_row(
+            row.sample_id,
+            self.settings(),
+            &plan,
+            iteration,
+            row.stratum as u32,
+            row.seed,
+            &row.z,
+            space,
+            &parameters,
+            log_nominal(&row.z),
+            plan.proposal.log_density(&row.z),
+            &outcome,
+        );
+        Ok((replayed, outcome))
+    }
+
     /// Whether every batch of the run exists.
     pub fn complete(&self) -> Result<bool> {
         let plans = self.plans()?;

@@ -268,6 +268,15 @@ impl SearchSpace {
         })
     }
 
+    /// The space a run searched, from the texts its `run.json` stores (no file is read).
+    pub fn from_texts(space_toml: &str, recipe_toml: &str) -> Result<Self> {
+        let file: SpaceFile = toml::from_str(space_toml).map_err(|e| SearchError::Space {
+            key: "run.json space_toml".into(),
+            problem: e.to_string(),
+        })?;
+        Self::from_parts(file, space_toml.to_string(), recipe_toml.to_string())
+    }
+
     /// Validates a parsed file against its base recipe and lays out z.
     pub fn from_parts(file: SpaceFile, text: String, recipe_toml: String) -> Result<Self> {
         boxpose_physics::RecipePhysics::from_toml(&recipe_toml).map_err(|e| {
