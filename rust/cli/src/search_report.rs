@@ -223,7 +223,7 @@ fn page(
     )?;
     writeln!(
         h,
-        "<h1>Counterexample search</h1><p>Run <code>{}</code>: sampler <b>{}</b>, {} crops, fit <b>{}</b>, failure when {:?}.</p>",
+        "<h1>Counterexample search</h1><p>Run <code>{}</code>: sampler <b>{}</b>, {} crops, fit <b>{}</b>; a sample fails when {}.</p>",
         escape(&run.dir.display().to_string()),
         s.sampler.name(),
         if s.crops == boxpose_search::sut::Crops::Gt {
@@ -232,7 +232,7 @@ fn page(
             "segmenter"
         },
         escape(&s.fit),
-        s.predicate
+        escape(&s.predicate.to_string())
     )?;
     match summary.as_ref().and_then(|v| v.get("estimate")) {
         Some(e) => {
@@ -299,7 +299,7 @@ fn page(
     } else {
         writeln!(
             h,
-            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID</code> re-renders it (with ground-truth crops, add <code>--crop</code> with the region its frame's <code>render_settings</code> record), <code>boxpose predict {0}/counterexamples --scene ID</code> re-runs the pipeline. True box white, the network's NMS peaks black, the fitted box grey.</p>",
+            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID</code> re-renders it (with ground-truth crops, add <code>--crop</code> with the region its frame's <code>render_settings</code> record), <code>boxpose search replay {0} --sample ID</code> runs it again end to end. True box white, the network's NMS peaks black, the fitted box grey.</p>",
             escape(&run.dir.display().to_string())
         )?;
         writeln!(
