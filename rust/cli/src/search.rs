@@ -35,11 +35,13 @@ use crate::search_report;
         --sampler mc draws from the nominal distribution and reports the failure probability with the exact \
         Clopper–Pearson interval. --sampler ce (cross-entropy importance sampling) first tunes a proposal towards \
         failures (--ce-* options), then draws --samples fresh samples from the frozen proposal mixed with the \
-        nominal, and reports the unbiased weighted estimate, its 95% interval, the effective sample size and \
-        the largest weight's share. Both estimate P(fail | valid scene) and report P(valid).\n\n\
+        nominal, and reports the weighted (ratio) estimate, its 95% interval, the effective sample size and \
+        the largest weight's share, with a warning when the weights are too uneven to trust the interval \
+        (--ce-tilt keeps parameters the failures do not depend on at their nominal). Both estimate \
+        P(fail | valid scene) and report P(valid).\n\n\
         The run folder (--out) resumes: re-run the same command after an interruption. Several processes can \
         split one run with --shard/--num-shards (same --out). Failing samples are written as dataset rows in \
-        OUT/counterexamples, which `boxpose render` re-renders and `boxpose predict` re-runs.",
+        OUT/counterexamples, which `boxpose render` re-renders; `boxpose search replay` runs any sample again.",
     after_help = "Examples:\n  \
         boxpose search single_box --samples 500 --out results/search/mc\n  \
         boxpose search single_box --sampler ce --samples 500 --ce-samples-per-iteration 200 --out results/search/ce\n  \
