@@ -50,8 +50,15 @@ def main() -> None:
     args = parser.parse_args()
 
     runs = {}
-    for crops, n in (("gt", args.mc_samples), ("predicted", args.samples)):
-        runs[crops] = search(args.boxpose, args.out / f"mc-{crops}", args.space, "--samples", n, "--batch-size", 25, "--crops", crops, "--fail-when", args.fail_when)
+    configurations = (
+        ("gt", args.mc_samples, []),
+        ("gt, whole frames", args.samples, ["--whole-frames"]),
+        ("predicted", args.samples, []),
+    )
+    for name, n, extra in configurations:
+        crops = name.split(",")[0]
+        folder = args.out / ("mc-" + name.replace(", ", "-").replace(" ", "-"))
+        runs[name] = search(args.boxpose, folder, args.space, "--samples", n, "--batch-size", 25, "--crops", crops, "--fail-when", args.fail_when, *extra)
     print(f"\n## Seconds per sample by stage, {args.space}, one Cycles thread\n")
     print("| crops | samples | settle | render | inference | fit | stages (wall) | process CPU-s / sample | samples/s |")
     print("|---|---|---|---|---|---|---|---|---|")
@@ -62,6 +69,9 @@ def main() -> None:
             f"| {crops} | {r['samples']} | {stages.settle_s:.3f} | {stages.render_s:.3f} | {stages.inference_s:.3f} | {stages.fit_s:.3f} | {stages.sum():.3f} "
             f"| {r['cpu_s'] / r['samples']:.3f} | {r['samples'] / r['wall_s']:.2f} |"
         )
+
+    region, whole = (runs[k]["cpu_s"] / runs[k]["samples"] for k in ("gt", "gt, whole frames"))
+    print(f"\nground-truth crops: region renders {region:.3f} CPU-s per sample, whole frames {whole:.3f}: {whole / region:.2f}× faster")
 
     mc = runs["gt"]["summary"]["estimate"]
     ce_run = search(args.boxpose, args.out / "ce-gt", args.space, "--sampler", "ce", "--samples", args.ce_final, "--batch-size", 25,

@@ -118,6 +118,10 @@ struct RunArgs {
     /// Where the keypoint network's crop comes from: the target's ground-truth box, or the segmenter.
     #[arg(long, value_enum, default_value = "gt")]
     crops: CropsArg,
+    /// Render whole frames even with ground-truth crops (by default only the region the
+    /// network's window reaches is rendered): the reference for `make bench-search`.
+    #[arg(long)]
+    whole_frames: bool,
     /// The pose fit under test: paper (the paper's search over the 5 best peaks), fast, robust, size.
     #[arg(long, default_value = "paper", value_parser = ["paper", "fast", "robust", "size"])]
     fit: String,
@@ -228,6 +232,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         batch_size: args.batch_size,
         seed: args.seed,
         crops,
+        whole_frames: args.whole_frames,
         fit: args.fit.clone(),
         predicate: args.fail_when,
         ce: CeConfig {
@@ -262,6 +267,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         };
         let renderer = Renderer::new(args.threads)?;
         let mut sut = SystemUnderTest::new(&space, renderer, model, segmenter, crops, method)?;
+        sut.whole_frames = args.whole_frames;
         let mut progress = Progress::new();
         run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
         progress.bar.finish_and_clear();
@@ -321,6 +327,7 @@ fn replay(
         settings.crops,
         method,
     )?;
+    sut.whole_frames = settings.whole_frames;
     let (replayed, outcome) = run.replay(&space, &mut sut, recorded)?;
     let describe = |r: &SampleRow| match (r.valid, r.score) {
         (false, _) => format!("invalid ({})", r.invalid_reason.as_deref().unwrap_or("")),

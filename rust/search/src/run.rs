@@ -71,6 +71,10 @@ pub struct RunSettings {
     pub batch_size: usize,
     pub seed: u64,
     pub crops: Crops,
+    /// Render whole frames even for ground-truth crops (the samples' frames then differ from a
+    /// region render's, so it is part of the run's identity).
+    #[serde(default)]
+    pub whole_frames: bool,
     /// The pose fit: paper, fast, robust or size.
     pub fit: String,
     pub predicate: Predicate,

@@ -220,6 +220,9 @@ pub struct SystemUnderTest {
     pub method: Method,
     /// Targets less visible than this are not scored (as `boxpose eval`'s default).
     pub min_visible_fraction: f32,
+    /// Render whole frames even for ground-truth crops (the reference the region renders are
+    /// measured against).
+    pub whole_frames: bool,
 }
 
 impl SystemUnderTest {
@@ -244,6 +247,7 @@ impl SystemUnderTest {
             crops,
             method,
             min_visible_fraction: 0.25,
+            whole_frames: false,
         })
     }
 
@@ -319,8 +323,8 @@ impl SystemUnderTest {
     fn render_frame(&mut self, scene_id: i64) -> Result<(Frame, boxpose_render::Rendered)> {
         let margin = self.model.config.crop_margin;
         let mut margins: &[f64] = match self.crops {
-            Crops::Gt => &[margin, 1.0 + margin],
-            Crops::Predicted => &[],
+            Crops::Gt if !self.whole_frames => &[margin, 1.0 + margin],
+            _ => &[],
         };
         loop {
             let request = RenderRequest {
