@@ -274,3 +274,14 @@ def test_a_sample_replays_to_its_recorded_outcome(mc_run, boxpose_bin, tmp_path)
     assert (tmp_path / f"sample-{int(row.sample_id)}.png").is_file()
     missing = search(boxpose_bin, "replay", mc_run, "--sample", 999, "--out", tmp_path, check=False)
     assert missing.returncode != 0 and "no sample 999" in missing.stderr
+
+
+def test_ground_truth_crops_render_a_region_unless_whole_frames_are_asked_for(spaces, boxpose_bin, tmp_path):
+    widths = {}
+    for name, extra in (("region", []), ("whole", ["--whole-frames"])):
+        out = tmp_path / name
+        # a threshold nothing meets: every sample fails, so every frame is kept as a counterexample
+        search(boxpose_bin, spaces["single"], "--out", out, "--samples", 2, "--batch-size", 2, "--fail-when", "mssd:0.000001", "--threads", 1, *extra)
+        frames = pd.read_parquet(out / "counterexamples" / "frames")
+        widths[name] = set(frames.width) | set(frames.height)
+    assert widths["whole"] == {96} and max(widths["region"]) < 96, widths
