@@ -3,6 +3,7 @@
 mod dump;
 mod eval;
 mod eval_geometry;
+mod export;
 mod fit_table;
 mod plots;
 mod predict;
@@ -71,6 +72,7 @@ enum Command {
     /// and the error histogram (the paper's Fig. 6).
     Eval(eval::Args),
     Search(search::Args),
+    Export(export::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -89,6 +91,7 @@ fn main() -> anyhow::Result<()> {
         Command::Predict(args) => predict::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
         Command::Search(args) => search::run(&args)?,
+        Command::Export(args) => export::run(&args)?,
     }
     Ok(())
 }
