@@ -284,7 +284,6 @@ def test_coco_annotations_match_the_rows(coco, rows):
 
 
 def test_coco_evaluates_to_ap_1_with_pycocotools(coco):
-    pytest.importorskip("pycocotools", reason="pycocotools is not installed (the numpy RLE decoder test covers the masks)")
     from pycocotools.coco import COCO
     from pycocotools.cocoeval import COCOeval
 

@@ -152,11 +152,19 @@ def test_a_resumed_run_with_other_settings_is_refused(mc_run, spaces, boxpose_bi
     assert r.returncode != 0 and "another search" in r.stderr, r.stderr
 
 
-def test_counterexamples_re_render_exactly(mc_run, boxpose_bin, tmp_path):
+@pytest.fixture(scope="module")
+def failing_run(spaces, boxpose_bin, tmp_path_factory) -> Path:
+    """A run where every sample fails (a threshold nothing meets), so it has counterexamples."""
+    out = tmp_path_factory.mktemp("failing") / "run"
+    search(boxpose_bin, spaces["single"], "--out", out, "--samples", 2, "--batch-size", 2, "--fail-when", "mssd:0.000001", "--threads", 1)
+    return out
+
+
+def test_counterexamples_re_render_exactly(failing_run, boxpose_bin, tmp_path):
+    mc_run = failing_run
     samples = pd.read_parquet(mc_run / "samples.parquet")
     failed = samples[samples.failed]
-    if failed.empty:
-        pytest.skip("this seed found no failure to re-render")  # the MC test asserts the run itself
+    assert len(failed) == 2, samples[["valid", "invalid_reason", "score"]]
     sample = int(failed.sample_id.iloc[0])
     out = tmp_path / "rerender"
     # ground-truth-crop searches render the region around the target: render_settings say which
