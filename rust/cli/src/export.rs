@@ -123,14 +123,14 @@ fn key_mm(key: SizeKey) -> [f64; 3] {
 
 /// obj_id (1-based) of every distinct box size of the dataset's `objects`, in increasing
 /// (dx, dy, dz) order: the same dataset always gets the same ids.
-fn object_ids(dataset: &Dataset) -> anyhow::Result<BTreeMap<SizeKey, u32>> {
+pub(crate) fn object_ids(dataset: &Dataset) -> anyhow::Result<BTreeMap<SizeKey, u32>> {
     let mut keys: Vec<SizeKey> = dataset.objects()?.iter().map(|o| size_key(o.size)).collect();
     keys.sort();
     keys.dedup();
     Ok(keys.into_iter().zip(1..).collect())
 }
 
-fn obj_id(ids: &BTreeMap<SizeKey, u32>, instance: &Instance) -> anyhow::Result<u32> {
+pub(crate) fn obj_id(ids: &BTreeMap<SizeKey, u32>, instance: &Instance) -> anyhow::Result<u32> {
     ids.get(&size_key(instance.size)).copied().with_context(|| {
         format!(
             "scene {} frame {} object {}: size {:?} m is in no `objects` row",

@@ -3,6 +3,7 @@
 mod dump;
 mod eval;
 mod eval_geometry;
+mod eval_results;
 mod export;
 mod fit_table;
 mod plots;
@@ -73,6 +74,7 @@ enum Command {
     Eval(eval::Args),
     Search(search::Args),
     Export(export::Args),
+    EvalResults(eval_results::Args),
 }
 
 fn main() -> anyhow::Result<()> {
@@ -92,6 +94,7 @@ fn main() -> anyhow::Result<()> {
         Command::Eval(args) => eval::run(&args)?,
         Command::Search(args) => search::run(&args)?,
         Command::Export(args) => export::run(&args)?,
+        Command::EvalResults(args) => eval_results::run(&args)?,
     }
     Ok(())
 }
