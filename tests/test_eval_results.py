@@ -5,7 +5,6 @@ errors; a malformed line is one clear error naming the line."""
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,35 +12,18 @@ import pandas as pd
 import pytest
 
 import bpy  # noqa: E402, F401  (installed by `make setup`: a missing bpy fails, never skips)
-import boxpose_io  # noqa: E402
 
-from blender_scripts.synthetic import synthetic_scene  # noqa: E402
+from conftest import REPO, render_synthetic_dataset  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 HEADER = "scene_id,im_id,obj_id,score,R,t,time"
 
 
-def recipe(width: int, height: int, frames: int) -> str:
-    text = (REPO / "datasets" / "recipes" / "tiny.toml").read_text()
-    return text.replace("width = 64", f"width = {width}").replace("height = 64", f"height = {height}").replace("frames_per_scene = 1", f"frames_per_scene = {frames}")
-
-
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
-    """Two scenes, two 64×48 views each (as tests/test_export.py builds it): scene 0's two boxes
-    share one size, hence one obj_id (matching must tell them apart)."""
-    root = tmp_path_factory.mktemp("eval_results") / "ds"
-    rows = [synthetic_scene(k, recipe(64, 48, 2), 2 + k, seed=40 + k, stack=k == 1, spread_m=0.1) for k in range(2)]
-    objs0 = rows[0][1]
-    a = min(objs0[0]["size_m"][:2])
-    for o in objs0:
-        o["size_m"] = [a, a, objs0[0]["size_m"][2]]
-    boxpose_io.write_shard(boxpose_io.shard_path(root, "scenes", 0, 1), boxpose_io.table_from_rows("scenes", [s for s, _ in rows]))
-    boxpose_io.write_shard(boxpose_io.shard_path(root, "objects", 0, 1), boxpose_io.table_from_rows("objects", [o for _, objs in rows for o in objs]))
-    cmd = [sys.executable, "-m", "blender_scripts.worker", "--dataset", str(root), "--shard", "0", "--num-shards", "1"]
-    r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return root
+    """Two scenes, two 64×48 views each: scene 0's two boxes share one size, hence one obj_id
+    (matching must tell them apart)."""
+    return render_synthetic_dataset(tmp_path_factory.mktemp("eval_results") / "ds", 64, 48, shared_size_in_scene_0=True)
 
 
 def boxpose(boxpose_bin: Path, *args) -> subprocess.CompletedProcess:

@@ -6,7 +6,6 @@ import io
 import json
 import os
 import subprocess
-import sys
 from collections import Counter
 from pathlib import Path
 
@@ -16,35 +15,15 @@ import pytest
 from PIL import Image
 
 import bpy  # noqa: E402, F401  (installed by `make setup`: a missing bpy fails, never skips)
-import boxpose_io  # noqa: E402
 
 from blender_scripts import geometry as geo  # noqa: E402
-from blender_scripts.synthetic import synthetic_scene  # noqa: E402
-
-REPO = Path(__file__).resolve().parent.parent
-
-
-def recipe(width: int, height: int, frames: int) -> str:
-    text = (REPO / "datasets" / "recipes" / "tiny.toml").read_text()
-    return text.replace("width = 64", f"width = {width}").replace("height = 64", f"height = {height}").replace("frames_per_scene = 1", f"frames_per_scene = {frames}")
-
+from conftest import REPO, render_synthetic_dataset  # noqa: E402
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
     """Two scenes, two 96×72 views each, rendered by the Python worker. Scene 0's two boxes get the
     same square-based size, so they share one BOP obj_id whose model has 7 discrete symmetries."""
-    root = tmp_path_factory.mktemp("export") / "ds"
-    rows = [synthetic_scene(k, recipe(96, 72, 2), 2 + k, seed=40 + k, stack=k == 1, spread_m=0.1) for k in range(2)]
-    objs0 = rows[0][1]
-    a = min(objs0[0]["size_m"][:2])
-    for o in objs0:
-        o["size_m"] = [a, a, objs0[0]["size_m"][2]]
-    boxpose_io.write_shard(boxpose_io.shard_path(root, "scenes", 0, 1), boxpose_io.table_from_rows("scenes", [s for s, _ in rows]))
-    boxpose_io.write_shard(boxpose_io.shard_path(root, "objects", 0, 1), boxpose_io.table_from_rows("objects", [o for _, objs in rows for o in objs]))
-    cmd = [sys.executable, "-m", "blender_scripts.worker", "--dataset", str(root), "--shard", "0", "--num-shards", "1"]
-    r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return root
+    return render_synthetic_dataset(tmp_path_factory.mktemp("export") / "ds", 96, 72, shared_size_in_scene_0=True)
 
 
 def boxpose(boxpose_bin: Path, *args) -> subprocess.CompletedProcess:

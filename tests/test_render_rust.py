@@ -5,7 +5,6 @@ import io
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,29 +13,13 @@ import pytest
 from PIL import Image
 
 import bpy  # noqa: E402, F401  (installed by `make setup`: a missing bpy fails, never skips)
-import boxpose_io  # noqa: E402
 
-from blender_scripts.synthetic import synthetic_scene  # noqa: E402
-
-REPO = Path(__file__).resolve().parent.parent
-
-
-def recipe(width: int, height: int, frames: int) -> str:
-    text = (REPO / "datasets" / "recipes" / "tiny.toml").read_text()
-    return text.replace("width = 64", f"width = {width}").replace("height = 64", f"height = {height}").replace("frames_per_scene = 1", f"frames_per_scene = {frames}")
-
+from conftest import REPO, render_synthetic_dataset  # noqa: E402
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
     """Two scenes, two 96×72 views each, rendered by the Python worker."""
-    root = tmp_path_factory.mktemp("rust") / "ds"
-    rows = [synthetic_scene(k, recipe(96, 72, 2), 2 + k, seed=40 + k, stack=k == 1, spread_m=0.1) for k in range(2)]
-    boxpose_io.write_shard(boxpose_io.shard_path(root, "scenes", 0, 1), boxpose_io.table_from_rows("scenes", [s for s, _ in rows]))
-    boxpose_io.write_shard(boxpose_io.shard_path(root, "objects", 0, 1), boxpose_io.table_from_rows("objects", [o for _, objs in rows for o in objs]))
-    cmd = [sys.executable, "-m", "blender_scripts.worker", "--dataset", str(root), "--shard", "0", "--num-shards", "1"]
-    r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=300)
-    assert r.returncode == 0, r.stderr
-    return root
+    return render_synthetic_dataset(tmp_path_factory.mktemp("rust") / "ds", 96, 72)
 
 
 def boxpose(boxpose_bin: Path, *args, env: dict | None = None) -> subprocess.CompletedProcess:
