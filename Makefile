@@ -16,7 +16,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train demo test bench bench-geometry bench-settle bench-render bench-learn bench-search clean
+.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -61,6 +61,13 @@ train: setup ## Train the shipped networks: render the `train` recipe, train the
 	mkdir -p $(MODEL) $(SEGMENTER)
 	cp runs/keypoint-slim/model/* runs/keypoint-slim/history.csv runs/keypoint-slim/config.toml $(MODEL)/
 	cp runs/segmenter-slim/model/* runs/segmenter-slim/history.csv runs/segmenter-slim/config.toml $(SEGMENTER)/
+
+SPACE ?= single_box
+SAMPLER ?= mc
+SAMPLES ?= 2000
+SEARCH_OUT ?= results/search/$(SPACE)-$(SAMPLER)
+search: setup ## Counterexample search, resumable (SPACE=single_box|clutter SAMPLER=mc|ce SAMPLES=2000; more options: boxpose search --help)
+	$(BOXPOSE) search $(SPACE) --sampler $(SAMPLER) --samples $(SAMPLES) --out $(SEARCH_OUT)
 
 DEMO_DATASET := datasets/generated/demo
 DEMO_RESULTS := results/demo
