@@ -6,7 +6,6 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use boxpose_data::{Pose, schema, shard_file_name, write_shard};
 use boxpose_render::arrow::array::{Array, AsArray};
-use boxpose_render::arrow::datatypes::{Float64Type, Int32Type};
 use boxpose_render::arrow::record_batch::RecordBatch;
 use boxpose_render::{RenderRequest, Renderer, conform, scene_rows};
 
@@ -122,21 +121,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let out = renderer.render(&request)?;
         let seconds = t.elapsed().as_secs_f64();
         let f = &out.frames;
-        let width = f
-            .column_by_name("width")
-            .expect("contract")
-            .as_primitive::<Int32Type>()
-            .value(0);
-        let height = f
-            .column_by_name("height")
-            .expect("contract")
-            .as_primitive::<Int32Type>()
-            .value(0);
-        let samples = f
-            .column_by_name("samples")
-            .expect("contract")
-            .as_primitive::<Int32Type>()
-            .value(0);
+        // the renderer's rows pass the same validation as a dataset shard before anything is read
+        let source = Path::new("<embedded Blender render>");
+        let decoded = boxpose_data::decode_frames(source, f, &out.instances)?;
+        let frame = decoded.first().context("the renderer returned no frame row")?;
+        let (width, height, samples, fx) = (frame.width, frame.height, frame.samples, frame.intrinsics.fx);
         let stem = format!("scene-{:06}-frame-{frame_id:03}", args.scene);
         write_png(&args.out.join(format!("{stem}-rgb.png")), f, "rgb_png")?;
         write_png(
@@ -144,17 +133,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             f,
             "instance_mask_png",
         )?;
-        let visible = out
-            .instances
-            .column_by_name("visible_pixels")
-            .expect("contract")
-            .as_primitive::<Int32Type>();
-        let seen = visible.values().iter().filter(|&&p| p > 0).count();
-        let fx = f
-            .column_by_name("fx")
-            .expect("contract")
-            .as_primitive::<Float64Type>()
-            .value(0);
+        let seen = frame.instances.iter().filter(|i| i.visible_pixels > 0).count();
         println!(
             "{stem}: {width}×{height} px (fx {fx:.1}), {samples} samples, {seen}/{} boxes visible, {seconds:.2} s → {}",
             out.instances.num_rows(),
@@ -185,7 +164,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 fn write_png(path: &Path, batch: &RecordBatch, column: &str) -> anyhow::Result<()> {
     let array = batch
         .column_by_name(column)
-        .expect("contract")
+        .with_context(|| format!("the render has no {column} column"))?
         .as_binary::<i32>();
     if array.is_null(0) {
         bail!("{column} is null");
