@@ -187,8 +187,9 @@ pub struct Scores {
 /// true pose of `model`; a fit that fails gives its error message instead of scores.
 ///
 /// The size-known fits are scored with the true model. The size-and-pose fits are scored as the
-/// box they fitted: their MSSD and ADD-S compare their own corners with the true ones, so a wrong
-/// size counts, and their rotation is taken in the axis labels that best match the true corners.
+/// box they fitted: their MSSD compares their own corners with the true ones and their ADD-S their
+/// own surface points with the true box's ([`metrics::add_s_between`]), so a wrong size counts,
+/// and their rotation is taken in the axis labels that best match the true corners.
 pub fn fit_and_score(
     model: &BoxModel,
     truth: &Isometry3<f64>,
@@ -210,18 +211,10 @@ fn fit_and_score_methods(
     let score = |fitted: &Fitted, fit_time_us: f64| -> Result<Scores, String> {
         let confidence = fitted.confidence(points).map_err(text)?;
         let (mssd_m, add_s_m, rotation_error_deg) = if fitted.fits_size {
-            let (relabelled, corners, mssd_m) =
+            let (relabelled, _, mssd_m) =
                 closest_labelling(&fitted.model, &fitted.pose, &truth_corners);
-            let add_s_m = corners
-                .iter()
-                .map(|c| {
-                    truth_corners
-                        .iter()
-                        .map(|t| (c - t).norm())
-                        .fold(f64::INFINITY, f64::min)
-                })
-                .sum::<f64>()
-                / corners.len() as f64;
+            let add_s_m =
+                metrics::add_s_between(&fitted.model, &fitted.pose, model, truth).map_err(text)?;
             (
                 mssd_m,
                 add_s_m,

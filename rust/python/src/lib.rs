@@ -315,7 +315,8 @@ fn pose_metric(metric: PoseMetric, size: [f64; 3], estimate: PyReadonlyArray2<f6
     metric(&box_model(size)?, &isometry(&estimate, "estimate")?, &isometry(&truth, "truth")?).map_err(value_error)
 }
 
-/// ADD-S: mean distance from each estimated corner to the nearest true corner (metres).
+/// ADD-S as bop_toolkit's `adi`: mean distance from each true-placed point of the box's surface
+/// sample to the nearest estimate-placed one (metres; see `metrics::add_s` for the sample).
 #[pyfunction]
 fn add_s(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
     pose_metric(metrics::add_s, size, estimate, truth)
