@@ -117,7 +117,19 @@ def test_known_perturbations(gt, boxpose_bin, tmp_path, dataset):
     assert rr.translation_error_m < 1e-9
 
     rs = row(shifted)
-    assert rs.mssd_m == pytest.approx(0.01, rel=1e-6) and rs.add_s_m == pytest.approx(0.01, rel=1e-6)
+    assert rs.mssd_m == pytest.approx(0.01, rel=1e-6)
+    # ADD-S (bop_toolkit's adi over the box's surface sample) matches each true surface point to the
+    # nearest shifted one, so it is at most the shift; its value is the library's own metric (checked
+    # against a brute-force adi in rust/geometry/tests/metrics.rs)
+    import boxpose as bp
+
+    inst = instances[(instances.scene_id == shifted["scene_id"]) & (instances.frame_id == shifted["im_id"])].sort_values("object_id").iloc[shifted["gt_id"]]
+    truth = np.eye(4)
+    truth[:3, :3], truth[:3, 3] = shifted["R"], np.asarray(shifted["t"]) / 1000.0
+    estimate = truth.copy()
+    estimate[0, 3] += 0.01
+    assert 0.0 < rs.add_s_m <= 0.01 + 1e-9
+    assert rs.add_s_m == pytest.approx(bp.add_s(list(map(float, inst.size_m)), estimate, truth), abs=1e-6)
     assert rs.translation_error_m == pytest.approx(0.01, rel=1e-6) and rs.rotation_error_deg < 1e-4
 
     rd = row(dropped)
