@@ -29,12 +29,7 @@ pub fn write_shard(dataset: &Path, table: &Table, file_name: &str, batches: &[Re
 /// then renames the file once complete and
 /// synced, so an interrupted job never leaves a half file that looks valid.
 pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) -> Result<()> {
-    let dir = path.parent().unwrap_or(Path::new("."));
-    fs::create_dir_all(dir).map_err(|source| DataError::Io { path: dir.to_path_buf(), source })?;
-    // unique per writer: two processes (or threads) publishing one file never share a temporary
-    static WRITES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
-    let n = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let tmp = path.with_file_name(format!("{}.{}-{n}.tmp", path.file_name().unwrap_or_default().to_string_lossy(), std::process::id()));
+    let tmp = temporary_beside(path)?;
     let io = |source| DataError::Io { path: tmp.clone(), source };
     let parquet = |source| DataError::Parquet { path: tmp.clone(), source };
 
@@ -60,5 +55,26 @@ pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) ->
     }
     let file = writer.into_inner().map_err(parquet)?;
     file.sync_all().map_err(io)?;
+    fs::rename(&tmp, path).map_err(|source| DataError::Io { path: path.to_path_buf(), source })
+}
+
+/// A temporary name beside `path`, unique to this writer (`<name>.<pid>-<n>.tmp`: two processes or
+/// threads publishing one file never share a temporary), its folder created.
+fn temporary_beside(path: &Path) -> Result<PathBuf> {
+    static WRITES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let dir = path.parent().unwrap_or(Path::new("."));
+    fs::create_dir_all(dir).map_err(|source| DataError::Io { path: dir.to_path_buf(), source })?;
+    let n = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    Ok(path.with_file_name(format!("{}.{}-{n}.tmp", path.file_name().unwrap_or_default().to_string_lossy(), std::process::id())))
+}
+
+/// Writes `bytes` to `path` atomically, as [`write_parquet`] publishes a shard: under a temporary
+/// name unique to this writer, synced, then renamed.
+pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    use std::io::Write;
+    let tmp = temporary_beside(path)?;
+    let io = |source| DataError::Io { path: tmp.clone(), source };
+    let mut file = fs::File::create(&tmp).map_err(io)?;
+    file.write_all(bytes).and_then(|_| file.sync_all()).map_err(io)?;
     fs::rename(&tmp, path).map_err(|source| DataError::Io { path: path.to_path_buf(), source })
 }

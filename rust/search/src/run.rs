@@ -227,23 +227,6 @@ fn io_error(path: &Path, e: impl std::fmt::Display) -> SearchError {
     }
 }
 
-/// Writes `bytes` to `path` atomically: a temporary file unique to this process, fsync, rename.
-fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    use std::io::Write;
-    let dir = path.parent().unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).map_err(|e| io_error(dir, e))?;
-    let tmp = path.with_file_name(format!(
-        "{}.{}.tmp",
-        path.file_name().unwrap_or_default().to_string_lossy(),
-        std::process::id()
-    ));
-    let mut file = std::fs::File::create(&tmp).map_err(|e| io_error(&tmp, e))?;
-    file.write_all(bytes)
-        .and_then(|_| file.sync_all())
-        .map_err(|e| io_error(&tmp, e))?;
-    std::fs::rename(&tmp, path).map_err(|e| io_error(path, e))
-}
-
 impl Run {
     /// Creates the run folder, or reopens it when it holds the same search (resume); refuses a
     /// folder holding another search or anything else.
@@ -289,7 +272,7 @@ impl Run {
             });
         }
         let json = serde_json::to_vec_pretty(&record).expect("a run record serialises");
-        write_atomically(&path, &json)?;
+        boxpose_data::write_file_atomically(&path, &json)?;
         // two shards started together both write run.json; the one that lost the race re-reads it
         let run = Self::open(dir)?;
         if run.record != record {
@@ -562,10 +545,11 @@ impl Run {
                 step: Some(step),
             }
         };
-        write_atomically(
+        boxpose_data::write_file_atomically(
             &path,
             &serde_json::to_vec_pretty(&next).expect("a plan serialises"),
-        )
+        )?;
+        Ok(())
     }
 
     fn iteration_rows(&self, iteration: u32, batches: usize) -> Result<Vec<SampleRow>> {
@@ -754,7 +738,7 @@ impl Run {
             &[timings_batch(&timings)],
         )?;
         let summary = self.summary(&samples, &timings)?;
-        write_atomically(
+        boxpose_data::write_file_atomically(
             &self.dir.join("summary.json"),
             &serde_json::to_vec_pretty(&summary).expect("a summary serialises"),
         )?;
