@@ -16,7 +16,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search clean
+.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search fuzz clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -115,9 +115,18 @@ $(TORCH_VENV)/.stamp:
 bench-learn: setup $(TORCH_VENV)/.stamp ## Keypoint network training step and per-crop inference: burn next to PyTorch, same architecture
 	$(TORCH_VENV)/bin/python scripts/bench_learn.py
 
+# Property tests draw their cases from this seed, so a run is reproducible and CI cannot fail by
+# chance; `make fuzz` explores fresh seeds. A failure's case is kept in the test's
+# `*.proptest-regressions` file, which is replayed first on every run.
+PROPTEST_SEED ?= 20261201
+
 test: setup ## Run every test: Rust unit/property tests, then the Python/Rust end-to-end tests
-	cargo test --release --workspace
+	PROPTEST_RNG_SEED=$(PROPTEST_SEED) cargo test --release --workspace
 	$(PY) -m pytest -q tests
+
+fuzz: rust ## Property tests on fresh random seeds with many cases (FUZZ_CASES, default 2000)
+	PROPTEST_CASES=$(or $(FUZZ_CASES),2000) PROPTEST_MAX_GLOBAL_REJECTS=1000000 \
+		cargo test --release --workspace --tests
 
 clean: ## Remove build outputs and generated datasets (keeps .venv)
 	cargo clean

@@ -14,6 +14,7 @@ use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Instance};
 use boxpose_geometry::BoxModel;
+use boxpose_geometry::align::nearest_rotation;
 use boxpose_geometry::metrics;
 use nalgebra::{Isometry3, Matrix3, Point3, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde_json::json;
@@ -104,12 +105,12 @@ fn parse_line(text: &str) -> Result<(i64, i32, u32, f64, Isometry3<f64>), String
     let t = floats("t", cols[5], 3)?;
     floats("time", cols[6], 1)?;
     let m = Matrix3::from_row_slice(&r);
-    let svd = m.svd(true, true);
-    let (u, v_t) = (svd.u.expect("u"), svd.v_t.expect("v_t"));
-    let nearest = u * v_t;
-    if nearest.determinant() < 0.0 {
+    if m.determinant() < 0.0 {
         return Err("R is a reflection (determinant < 0), not a rotation".into());
     }
+    let nearest = nearest_rotation(&m)
+        .ok_or("R is not a rotation: it has rank ≤ 1")?
+        .into_inner();
     let off = (m - nearest).abs().max();
     if off > ROTATION_TOLERANCE {
         return Err(format!("R is not a rotation: it differs from the nearest rotation by {off:.3e} (> {ROTATION_TOLERANCE})"));

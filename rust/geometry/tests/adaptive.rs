@@ -3,12 +3,14 @@
 
 mod common;
 
+use boxpose_geometry::BoxModel;
 use boxpose_geometry::benchmark::{self, Case, Outliers, Shape, WRONG_FRACTION_OF_DIAMETER};
 use boxpose_geometry::correspondence::fast_exact_search;
 use boxpose_geometry::metrics::mssd;
 use boxpose_geometry::pipeline::{Method, fit_and_score, fit_method};
 use boxpose_geometry::robust::{AdaptiveParams, adaptive_fit};
 use common::*;
+use nalgebra::{Isometry3, Point3};
 use proptest::prelude::*;
 
 fn cases(seed: u64, per_shape: usize, k: usize, kind: Outliers, noise: f64) -> Vec<Case> {
@@ -38,6 +40,26 @@ fn outcomes(method: Method, cases: &[Case]) -> Vec<(bool, f64)> {
         .collect()
 }
 
+/// Hausdorff distance between the corner sets of the box at two poses: what corner peaks determine.
+fn corner_set_distance(model: &BoxModel, a: &Isometry3<f64>, b: &Isometry3<f64>) -> f64 {
+    let (a, b) = (true_corners(model, a), true_corners(model, b));
+    let one_way = |from: &[Point3<f64>], to: &[Point3<f64>]| {
+        from.iter()
+            .map(|p| to.iter().map(|q| (p - q).norm()).fold(f64::INFINITY, f64::min))
+            .fold(0.0, f64::max)
+    };
+    one_way(&a, &b).max(one_way(&b, &a))
+}
+
+/// Whether every two sides are either equal (an exact symmetry) or differ by more than ten
+/// times the peak noise, so that a quarter turn cannot explain the peaks as well as the truth.
+fn sides_resolvable(model: &BoxModel, noise: f64) -> bool {
+    let s = model.size();
+    [(0, 1), (1, 2), (0, 2)]
+        .into_iter()
+        .all(|(i, j)| s[i] == s[j] || (s[i] - s[j]).abs() > 10.0 * noise)
+}
+
 fn failures(outcomes: &[(bool, f64)]) -> usize {
     outcomes.iter().filter(|o| o.0).count()
 }
@@ -45,7 +67,11 @@ fn failures(outcomes: &[(bool, f64)]) -> usize {
 proptest! {
     #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
 
-    /// On clean peaks (no outlier, noise ≤ 2 mm) the adaptive fit finds the exact search's pose.
+    /// On clean peaks (no outlier, noise ≤ 2 mm) the adaptive fit places the box's corners where
+    /// the exact search does, and finds its pose wherever the peaks determine it: when two sides
+    /// differ by less than the noise, a quarter turn puts the corners on the same points and only
+    /// the exact symmetries that MSSD knows are told apart (the case proptest found in CI: sides
+    /// 0.5312 and 0.5318 at 1.2 mm noise).
     #[test]
     fn adaptive_fit_agrees_with_the_exact_search_on_clean_peaks(
         model in arb_model(),
@@ -56,7 +82,12 @@ proptest! {
         let points = detections(&model, &pose, noise, &jitter, &[], &[[0.0; 3]; 8]);
         let exact = fast_exact_search(&model, &points, &[1.0; 8], 8).unwrap();
         let fit = adaptive_fit(&model, &points, &AdaptiveParams::default()).unwrap();
-        prop_assert!(mssd(&model, &fit.pose, &exact.pose).unwrap() < 2.0 * noise + 1e-9);
+        let corner_gap = corner_set_distance(&model, &fit.pose, &exact.pose);
+        prop_assert!(corner_gap < 2.0 * noise + 1e-9, "corner sets {corner_gap} m apart");
+        if sides_resolvable(&model, noise) {
+            let pose_gap = mssd(&model, &fit.pose, &exact.pose).unwrap();
+            prop_assert!(pose_gap < 2.0 * noise + 1e-9, "MSSD {pose_gap} m");
+        }
         prop_assert_eq!(fit.inlier_count, 8);
         prop_assert!(fit.confidence.confidence > 0.5, "{:?}", fit.confidence);
     }
