@@ -12,7 +12,9 @@ use std::path::PathBuf;
 fn main() {
     println!("cargo::rerun-if-env-changed=MUJOCO_DYNAMIC_LINK_DIR");
     let Ok(dir) = env::var("MUJOCO_DYNAMIC_LINK_DIR") else {
-        println!("cargo::warning=MUJOCO_DYNAMIC_LINK_DIR is not set: mujoco-rs will fail to link (run `make setup`, or export it as the Makefile does)");
+        println!(
+            "cargo::warning=MUJOCO_DYNAMIC_LINK_DIR is not set: mujoco-rs will fail to link (run `make setup`, or export it as the Makefile does)"
+        );
         return;
     };
     let dir = PathBuf::from(dir);
@@ -24,7 +26,11 @@ fn main() {
             }
         }
     }
-    let joined = dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(":");
+    let joined = dirs
+        .iter()
+        .map(|d| d.display().to_string())
+        .collect::<Vec<_>>()
+        .join(":");
     for d in &dirs {
         println!("cargo::rustc-link-arg=-Wl,-rpath,{}", d.display());
     }

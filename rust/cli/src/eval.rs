@@ -13,10 +13,10 @@ use boxpose_data::Dataset;
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::data::{self, Sample};
-use boxpose_learn::inference::CropRequest;
-use boxpose_learn::segmentation::{self, SegmenterModel};
 use boxpose_learn::evaluation::{self, InstanceEval};
+use boxpose_learn::inference::CropRequest;
 use boxpose_learn::inference::KeypointModel;
+use boxpose_learn::segmentation::{self, SegmenterModel};
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::fit_table::{self, FitRow};
@@ -56,7 +56,10 @@ pub struct Args {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let model = KeypointModel::load(&args.model, args.backend.device()?)?;
     let segmenter = match args.crops {
-        Crops::Predicted => Some(SegmenterModel::load(&args.segmenter, args.backend.device()?)?),
+        Crops::Predicted => Some(SegmenterModel::load(
+            &args.segmenter,
+            args.backend.device()?,
+        )?),
         Crops::Gt => None,
     };
     let dataset = Dataset::open(&args.dataset)?;
@@ -66,8 +69,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let mut all_detections = Vec::new();
     let total: usize = frames.iter().map(|f| f.instances.len()).sum();
-    let bar = ProgressBar::new(total as u64)
-        .with_style(ProgressStyle::with_template("evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]")?);
+    let bar = ProgressBar::new(total as u64).with_style(ProgressStyle::with_template(
+        "evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
+    )?);
     let mut fit_rows = Vec::new();
     let mut evals = Vec::new();
     for frame in &frames {
@@ -80,7 +84,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let samples: Vec<Option<Sample>> = match &segmenter {
             None => chosen
                 .iter()
-                .map(|instance| data::instance_sample(&model.config, frame, instance, None).map(Some))
+                .map(|instance| {
+                    data::instance_sample(&model.config, frame, instance, None).map(Some)
+                })
                 .collect::<Result<_, _>>()
                 .with_context(|| format!("scene {} frame {}", frame.scene_id, frame.frame_id))?,
             Some(segmenter) => {
@@ -89,11 +95,31 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 let samples = chosen
                     .iter()
                     .map(|instance| {
-                        let index = frame.instances.iter().position(|i| i.object_id == instance.object_id).expect("an instance of this frame");
-                        let Some(d) = found[index] else { return Ok(None) };
+                        let index = frame
+                            .instances
+                            .iter()
+                            .position(|i| i.object_id == instance.object_id)
+                            .expect("an instance of this frame");
+                        let Some(d) = found[index] else {
+                            return Ok(None);
+                        };
                         let detection = &detections[d];
-                        let Some(crop) = CropRequest::around(frame, &model.config, detection.bbox, |i| detection.mask[i]) else { return Ok(None) };
-                        data::sample_at(&model.config, frame, &crop.window, crop.z_ref, &instance.corners_camera, None).map(Some)
+                        let Some(crop) =
+                            CropRequest::around(frame, &model.config, detection.bbox, |i| {
+                                detection.mask[i]
+                            })
+                        else {
+                            return Ok(None);
+                        };
+                        data::sample_at(
+                            &model.config,
+                            frame,
+                            &crop.window,
+                            crop.z_ref,
+                            &instance.corners_camera,
+                            None,
+                        )
+                        .map(Some)
                     })
                     .collect::<Result<Vec<_>, boxpose_learn::LearnError>>()?;
                 all_detections.push(detections);
@@ -106,7 +132,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let eval = match sample {
                 Some(sample) => {
                     let heatmap = heatmaps.next().expect("one heatmap per found instance");
-                    evaluation::evaluate_instance(&model.config, instance, &heatmap, &sample.target, &sample.grid)?
+                    evaluation::evaluate_instance(
+                        &model.config,
+                        instance,
+                        &heatmap,
+                        &sample.target,
+                        &sample.grid,
+                    )?
                 }
                 None => evaluation::missed_instance(instance)?,
             };
@@ -125,21 +157,42 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         bar.inc(frame.instances.len() as u64);
     }
     bar.finish_and_clear();
-    anyhow::ensure!(!evals.is_empty(), "{}: no instance is visible enough to evaluate", args.dataset.display());
+    anyhow::ensure!(
+        !evals.is_empty(),
+        "{}: no instance is visible enough to evaluate",
+        args.dataset.display()
+    );
 
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     write_rows(&args.out.join("eval.parquet"), &fit_rows, &evals)?;
     let summary = evaluation::summarize(&evals);
     let summary_path = args.out.join("summary.json");
-    std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)?).with_context(|| summary_path.display().to_string())?;
+    std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)?)
+        .with_context(|| summary_path.display().to_string())?;
     let errors = |method: Method| -> Vec<f64> {
-        fit_rows.iter().filter(|r| r.method == method).filter_map(|r| r.outcome.as_ref().ok().map(|s| s.paper_error)).collect()
+        fit_rows
+            .iter()
+            .filter(|r| r.method == method)
+            .filter_map(|r| r.outcome.as_ref().ok().map(|s| s.paper_error))
+            .collect()
     };
-    let series = [("paper's search", errors(Method::PaperExact)), ("robust fit", errors(Method::Robust)), ("size + pose fit", errors(Method::SizeAndPose))];
+    let series = [
+        ("paper's search", errors(Method::PaperExact)),
+        ("robust fit", errors(Method::Robust)),
+        ("size + pose fit", errors(Method::SizeAndPose)),
+    ];
     let histogram = args.out.join("paper_error_hist.png");
     let plotted = series.iter().any(|(_, e)| e.iter().any(|v| *v > 0.0));
     if plotted {
-        let title = format!("paper's error on {} ({} instances)", args.dataset.file_name().unwrap_or_default().to_string_lossy(), evals.len());
+        let title = format!(
+            "paper's error on {} ({} instances)",
+            args.dataset
+                .file_name()
+                .unwrap_or_default()
+                .to_string_lossy(),
+            evals.len()
+        );
         plots::error_histogram(&histogram, &title, &series)?;
     }
 
@@ -147,17 +200,30 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         Crops::Gt => "ground-truth crops",
         Crops::Predicted => "the segmenter's crops",
     };
-    println!("keypoint network {} on {} ({} instances, {crops})", args.model.display(), args.dataset.display(), evals.len());
+    println!(
+        "keypoint network {} on {} ({} instances, {crops})",
+        args.model.display(),
+        args.dataset.display(),
+        evals.len()
+    );
     if segmenter.is_some() {
         let frame_refs: Vec<_> = frames.iter().collect();
         let s = segmentation::score_detections(&frame_refs, &all_detections);
         println!(
             "segmenter {}: mask AP {:.3} (AP50 {:.3}), bbox AP {:.3} (AP50 {:.3}); {} detections for {} visible boxes; {} of {} evaluated boxes found",
-            args.segmenter.display(), s.mask_ap, s.mask_ap50, s.bbox_ap, s.bbox_ap50, s.detections, s.true_instances,
-            evals.iter().filter(|e| !e.missed).count(), evals.len()
+            args.segmenter.display(),
+            s.mask_ap,
+            s.mask_ap50,
+            s.bbox_ap,
+            s.bbox_ap50,
+            s.detections,
+            s.true_instances,
+            evals.iter().filter(|e| !e.missed).count(),
+            evals.len()
         );
         let path = args.out.join("segmentation.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&s)?).with_context(|| path.display().to_string())?;
+        std::fs::write(&path, serde_json::to_string_pretty(&s)?)
+            .with_context(|| path.display().to_string())?;
     }
     println!(
         "corner recall (peak within {:.0} mm): {:.1}%   heatmap MSE {:.3e}",
@@ -166,7 +232,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         summary.heatmap_mse
     );
     fit_table::print(&fit_rows);
-    println!("per-instance metrics: {}", args.out.join("eval.parquet").display());
+    println!(
+        "per-instance metrics: {}",
+        args.out.join("eval.parquet").display()
+    );
     if plotted {
         println!("error histogram (paper Fig. 6): {}", histogram.display());
     } else {
@@ -183,9 +252,21 @@ fn write_rows(path: &Path, rows: &[FitRow], evals: &[InstanceEval]) -> anyhow::R
     fields.push(Field::new("corners_found", DataType::Int32, false));
     let mut columns = fit_table::columns(rows);
     let repeat = |i: usize| &evals[i / per_instance];
-    columns.push(Arc::new((0..rows.len()).map(|i| Some(repeat(i).heatmap_mse).filter(|_| !repeat(i).missed)).collect::<Float64Array>()) as ArrayRef);
-    columns.push(Arc::new((0..rows.len()).map(|i| repeat(i).corners_found as i32).collect::<Int32Array>()) as ArrayRef);
+    columns.push(Arc::new(
+        (0..rows.len())
+            .map(|i| Some(repeat(i).heatmap_mse).filter(|_| !repeat(i).missed))
+            .collect::<Float64Array>(),
+    ) as ArrayRef);
+    columns.push(Arc::new(
+        (0..rows.len())
+            .map(|i| repeat(i).corners_found as i32)
+            .collect::<Int32Array>(),
+    ) as ArrayRef);
     let schema = Arc::new(Schema::new(fields));
-    boxpose_data::write_parquet(path, schema.clone(), &[RecordBatch::try_new(schema, columns)?])?;
+    boxpose_data::write_parquet(
+        path,
+        schema.clone(),
+        &[RecordBatch::try_new(schema, columns)?],
+    )?;
     Ok(())
 }

@@ -13,10 +13,11 @@ use anyhow::Context;
 use arrow::datatypes::Schema;
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Instance, Intrinsics};
-use boxpose_geometry::heatmap::{
-    self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord, VoxelGrid,
-};
 use boxpose_geometry::BoxModel;
+use boxpose_geometry::heatmap::{
+    self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord,
+    VoxelGrid,
+};
 use boxpose_geometry::pipeline;
 
 use crate::fit_table::{self, FitRow};
@@ -58,7 +59,11 @@ pub struct Args {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    anyhow::ensure!(args.resolution >= 8, "--resolution {} is too coarse (use at least 8)", args.resolution);
+    anyhow::ensure!(
+        args.resolution >= 8,
+        "--resolution {} is too coarse (use at least 8)",
+        args.resolution
+    );
     let dataset = Dataset::open(&args.dataset)?;
     let frames: Vec<_> = dataset.frames()?.collect::<Result<_, _>>()?;
     let total: usize = frames.iter().map(|f| f.instances.len()).sum();
@@ -73,15 +78,28 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             if instance.visible_fraction < args.min_visible_fraction {
                 continue;
             }
-            let scored = evaluate(args, &frame.intrinsics, instance, &mut rng)
-                .with_context(|| format!("scene {} frame {} object {}", instance.scene_id, instance.frame_id, instance.object_id))?;
+            let scored =
+                evaluate(args, &frame.intrinsics, instance, &mut rng).with_context(|| {
+                    format!(
+                        "scene {} frame {} object {}",
+                        instance.scene_id, instance.frame_id, instance.object_id
+                    )
+                })?;
             rows.extend(scored);
         }
     }
     bar.finish_and_clear();
-    anyhow::ensure!(!rows.is_empty(), "{}: no instance is visible enough to evaluate", args.dataset.display());
+    anyhow::ensure!(
+        !rows.is_empty(),
+        "{}: no instance is visible enough to evaluate",
+        args.dataset.display()
+    );
     let schema = Arc::new(Schema::new(fit_table::fields()));
-    boxpose_data::write_parquet(&args.out, schema.clone(), &[RecordBatch::try_new(schema, fit_table::columns(&rows))?])?;
+    boxpose_data::write_parquet(
+        &args.out,
+        schema.clone(),
+        &[RecordBatch::try_new(schema, fit_table::columns(&rows))?],
+    )?;
     print_summary(args, &rows);
     println!("per-instance metrics: {}", args.out.display());
     Ok(())
@@ -101,19 +119,49 @@ fn voxel_grid(k: &Intrinsics, instance: &Instance, diameter: f64, resolution: us
     let scale = 2.0 * half / resolution as f64;
     let depth_half = diameter / 2.0 * CROP_MARGIN;
     VoxelGrid {
-        intrinsics: PinholeIntrinsics { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy },
-        crop: CropTransform { x0: (lo[0] + hi[0]) / 2.0 - half + 0.5, y0: (lo[1] + hi[1]) / 2.0 - half + 0.5, sx: scale, sy: scale },
-        depth: DepthBins { z_ref: instance.camera_box.translation[2], z_min: -depth_half, bin_size: 2.0 * depth_half / resolution as f64 },
+        intrinsics: PinholeIntrinsics {
+            fx: k.fx,
+            fy: k.fy,
+            cx: k.cx,
+            cy: k.cy,
+        },
+        crop: CropTransform {
+            x0: (lo[0] + hi[0]) / 2.0 - half + 0.5,
+            y0: (lo[1] + hi[1]) / 2.0 - half + 0.5,
+            sx: scale,
+            sy: scale,
+        },
+        depth: DepthBins {
+            z_ref: instance.camera_box.translation[2],
+            z_min: -depth_half,
+            bin_size: 2.0 * depth_half / resolution as f64,
+        },
     }
 }
 
-fn evaluate(args: &Args, k: &Intrinsics, instance: &Instance, rng: &mut ChaCha8Rng) -> anyhow::Result<Vec<FitRow>> {
+fn evaluate(
+    args: &Args,
+    k: &Intrinsics,
+    instance: &Instance,
+    rng: &mut ChaCha8Rng,
+) -> anyhow::Result<Vec<FitRow>> {
     let model = BoxModel::new(Vector3::from(instance.size))?;
-    let truth = pipeline::isometry(instance.camera_box.quat_wxyz, instance.camera_box.translation);
-    let truth_corners: Vec<Point3<f64>> = instance.corners_camera.iter().map(|c| Point3::from(*c)).collect();
+    let truth = pipeline::isometry(
+        instance.camera_box.quat_wxyz,
+        instance.camera_box.translation,
+    );
+    let truth_corners: Vec<Point3<f64>> = instance
+        .corners_camera
+        .iter()
+        .map(|c| Point3::from(*c))
+        .collect();
     let grid = voxel_grid(k, instance, model.diameter(), args.resolution);
     let n = args.resolution;
-    let dims = HeatmapDims { depth: n, height: n, width: n };
+    let dims = HeatmapDims {
+        depth: n,
+        height: n,
+        width: n,
+    };
 
     let noise = Normal::new(0.0, args.noise_m.max(0.0))?;
     let corners = truth_corners
@@ -121,17 +169,35 @@ fn evaluate(args: &Args, k: &Intrinsics, instance: &Instance, rng: &mut ChaCha8R
         .map(|c| grid.project(&(c + Vector3::from_fn(|_, _| noise.sample(rng)))))
         .collect::<Result<Vec<_>, _>>()?;
     let outliers: Vec<VoxelCoord> = (0..args.outliers)
-        .map(|_| VoxelCoord { z_bin: rng.random_range(0.0..n as f64), v: rng.random_range(0.0..n as f64), u: rng.random_range(0.0..n as f64) })
+        .map(|_| VoxelCoord {
+            z_bin: rng.random_range(0.0..n as f64),
+            v: rng.random_range(0.0..n as f64),
+            u: rng.random_range(0.0..n as f64),
+        })
         .collect();
     let mut volume = heatmap::render_target_heatmap(dims, &corners, PEAK_SIGMA_VOXELS)?;
     volume.iter_mut().for_each(|v| *v *= CORNER_PEAK_SCORE);
     if !outliers.is_empty() {
         let spurious = heatmap::render_target_heatmap(dims, &outliers, PEAK_SIGMA_VOXELS)?;
-        volume.iter_mut().zip(spurious).for_each(|(v, s)| *v = v.max(s));
+        volume
+            .iter_mut()
+            .zip(spurious)
+            .for_each(|(v, s)| *v = v.max(s));
     }
 
-    let peaks = heatmap::non_maximum_suppression(&volume, dims, &NmsParams { count: 8, sigma: PEAK_SIGMA_VOXELS, refine_radius: 1 })?;
-    let points = peaks.iter().map(|p| grid.back_project(&p.coord)).collect::<Result<Vec<_>, _>>()?;
+    let peaks = heatmap::non_maximum_suppression(
+        &volume,
+        dims,
+        &NmsParams {
+            count: 8,
+            sigma: PEAK_SIGMA_VOXELS,
+            refine_radius: 1,
+        },
+    )?;
+    let points = peaks
+        .iter()
+        .map(|p| grid.back_project(&p.coord))
+        .collect::<Result<Vec<_>, _>>()?;
     let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
 
     Ok(pipeline::fit_and_score(&model, &truth, &points, &scores)

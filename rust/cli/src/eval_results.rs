@@ -16,7 +16,9 @@ use boxpose_data::{Dataset, Instance};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::align::nearest_rotation;
 use boxpose_geometry::metrics;
-use nalgebra::{Isometry3, Matrix3, Point3, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Matrix3, Point3, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
 use serde_json::json;
 
 use crate::export;
@@ -81,16 +83,27 @@ struct Estimate {
 fn parse_line(text: &str) -> Result<(i64, i32, u32, f64, Isometry3<f64>), String> {
     let cols: Vec<&str> = text.split(',').map(str::trim).collect();
     if cols.len() != 7 {
-        return Err(format!("expected 7 comma-separated columns (scene_id,im_id,obj_id,score,R,t,time), got {}", cols.len()));
+        return Err(format!(
+            "expected 7 comma-separated columns (scene_id,im_id,obj_id,score,R,t,time), got {}",
+            cols.len()
+        ));
     }
-    let int = |name: &str, s: &str| s.parse::<i64>().map_err(|_| format!("{name} {s:?} is not an integer"));
+    let int = |name: &str, s: &str| {
+        s.parse::<i64>()
+            .map_err(|_| format!("{name} {s:?} is not an integer"))
+    };
     let scene_id = int("scene_id", cols[0])?;
-    let im_id = i32::try_from(int("im_id", cols[1])?).map_err(|_| format!("im_id {} is out of range", cols[1]))?;
-    let obj_id = u32::try_from(int("obj_id", cols[2])?).map_err(|_| format!("obj_id {} is out of range", cols[2]))?;
+    let im_id = i32::try_from(int("im_id", cols[1])?)
+        .map_err(|_| format!("im_id {} is out of range", cols[1]))?;
+    let obj_id = u32::try_from(int("obj_id", cols[2])?)
+        .map_err(|_| format!("obj_id {} is out of range", cols[2]))?;
     let floats = |name: &str, s: &str, n: usize| -> Result<Vec<f64>, String> {
         let v: Vec<f64> = s
             .split_whitespace()
-            .map(|x| x.parse::<f64>().map_err(|_| format!("{name}: {x:?} is not a number")))
+            .map(|x| {
+                x.parse::<f64>()
+                    .map_err(|_| format!("{name}: {x:?} is not a number"))
+            })
             .collect::<Result<_, _>>()?;
         if v.len() != n {
             return Err(format!("{name} has {} values, expected {n}", v.len()));
@@ -113,11 +126,19 @@ fn parse_line(text: &str) -> Result<(i64, i32, u32, f64, Isometry3<f64>), String
         .into_inner();
     let off = (m - nearest).abs().max();
     if off > ROTATION_TOLERANCE {
-        return Err(format!("R is not a rotation: it differs from the nearest rotation by {off:.3e} (> {ROTATION_TOLERANCE})"));
+        return Err(format!(
+            "R is not a rotation: it differs from the nearest rotation by {off:.3e} (> {ROTATION_TOLERANCE})"
+        ));
     }
     let rotation = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(nearest));
     let translation = Translation3::new(t[0] / 1000.0, t[1] / 1000.0, t[2] / 1000.0);
-    Ok((scene_id, im_id, obj_id, score, Isometry3::from_parts(translation, rotation)))
+    Ok((
+        scene_id,
+        im_id,
+        obj_id,
+        score,
+        Isometry3::from_parts(translation, rotation),
+    ))
 }
 
 /// A ground-truth instance with its BOP obj_id.
@@ -140,7 +161,12 @@ struct Scores {
 }
 
 fn score(truth: &Truth, estimate: &Isometry3<f64>) -> anyhow::Result<Scores> {
-    let corners: Vec<Point3<f64>> = truth.instance.corners_camera.iter().map(|c| Point3::from(*c)).collect();
+    let corners: Vec<Point3<f64>> = truth
+        .instance
+        .corners_camera
+        .iter()
+        .map(|c| Point3::from(*c))
+        .collect();
     let paper_error = metrics::paper_error(&truth.model, estimate, &corners)?;
     let d = truth.model.diameter();
     Ok(Scores {
@@ -179,34 +205,58 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
                 UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3])),
             );
             list.push(truths.len());
-            truths.push(Truth { instance, obj_id, model, pose });
+            truths.push(Truth {
+                instance,
+                obj_id,
+                model,
+                pose,
+            });
         }
     }
 
     // Results.
-    let text = fs::read_to_string(&args.results).with_context(|| format!("cannot read {}", args.results.display()))?;
+    let text = fs::read_to_string(&args.results)
+        .with_context(|| format!("cannot read {}", args.results.display()))?;
     let name = args.results.display();
     let mut estimates: Vec<Estimate> = Vec::new();
     let mut malformed: Vec<String> = Vec::new();
     for (i, line) in text.lines().enumerate() {
         let number = i + 1;
         let trimmed = line.trim();
-        if trimmed.is_empty() || (estimates.is_empty() && malformed.is_empty() && trimmed.starts_with("scene_id")) {
+        if trimmed.is_empty()
+            || (estimates.is_empty() && malformed.is_empty() && trimmed.starts_with("scene_id"))
+        {
             continue;
         }
         let parsed = parse_line(trimmed).and_then(|(scene_id, im_id, obj_id, score, pose)| {
             if !frames.contains_key(&(scene_id, im_id)) {
-                return Err(format!("scene_id {scene_id} im_id {im_id} is no frame of the dataset"));
+                return Err(format!(
+                    "scene_id {scene_id} im_id {im_id} is no frame of the dataset"
+                ));
             }
             if !known_obj.contains(&obj_id) {
-                return Err(format!("obj_id {obj_id} is unknown (the dataset has obj_ids 1..={})", known_obj.len()));
+                return Err(format!(
+                    "obj_id {obj_id} is unknown (the dataset has obj_ids 1..={})",
+                    known_obj.len()
+                ));
             }
-            Ok(Estimate { line: number, scene_id, im_id, obj_id, score, pose })
+            Ok(Estimate {
+                line: number,
+                scene_id,
+                im_id,
+                obj_id,
+                score,
+                pose,
+            })
         });
         match parsed {
             Ok(e) => estimates.push(e),
-            Err(reason) if args.skip_malformed => malformed.push(format!("{name} line {number}: {reason}")),
-            Err(reason) => bail!("{name} line {number}: {reason} (pass --skip-malformed to count and skip such lines)"),
+            Err(reason) if args.skip_malformed => {
+                malformed.push(format!("{name} line {number}: {reason}"))
+            }
+            Err(reason) => bail!(
+                "{name} line {number}: {reason} (pass --skip-malformed to count and skip such lines)"
+            ),
         }
     }
 
@@ -214,16 +264,24 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
     // instance with the smallest MSSD (bop_toolkit's per-object greedy matching, no threshold).
     let mut groups: BTreeMap<(i64, i32, u32), Vec<Estimate>> = BTreeMap::new();
     for e in &estimates {
-        groups.entry((e.scene_id, e.im_id, e.obj_id)).or_default().push(e.clone());
+        groups
+            .entry((e.scene_id, e.im_id, e.obj_id))
+            .or_default()
+            .push(e.clone());
     }
     let mut assigned: HashMap<usize, (Estimate, Scores)> = HashMap::new();
     for ((scene_id, im_id, obj_id), mut group) in groups {
         group.sort_by(|a, b| b.score.total_cmp(&a.score).then(a.line.cmp(&b.line)));
-        let candidates: Vec<usize> = frames[&(scene_id, im_id)].iter().copied().filter(|&g| truths[g].obj_id == obj_id).collect();
+        let candidates: Vec<usize> = frames[&(scene_id, im_id)]
+            .iter()
+            .copied()
+            .filter(|&g| truths[g].obj_id == obj_id)
+            .collect();
         for e in group {
             let mut best: Option<(usize, Scores)> = None;
             for &g in candidates.iter().filter(|g| !assigned.contains_key(g)) {
-                let s = score(&truths[g], &e.pose).with_context(|| format!("{name} line {}", e.line))?;
+                let s = score(&truths[g], &e.pose)
+                    .with_context(|| format!("{name} line {}", e.line))?;
                 if best.as_ref().is_none_or(|(_, b)| s.mssd < b.mssd) {
                     best = Some((g, s));
                 }
@@ -233,23 +291,42 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
             }
         }
     }
-    let rows: Vec<Row> = (0..truths.len()).map(|g| Row { gt: g, matched: assigned.remove(&g) }).collect();
+    let rows: Vec<Row> = (0..truths.len())
+        .map(|g| Row {
+            gt: g,
+            matched: assigned.remove(&g),
+        })
+        .collect();
 
-    fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     write_rows(&args.out.join("eval_results.parquet"), &rows, &truths)?;
 
     // Summary.
     let n = rows.len();
-    let matched: Vec<&(Estimate, Scores)> = rows.iter().filter_map(|r| r.matched.as_ref()).collect();
+    let matched: Vec<&(Estimate, Scores)> =
+        rows.iter().filter_map(|r| r.matched.as_ref()).collect();
     let recall = |rows: &[&Row], k: f64| {
         let hits = rows
             .iter()
-            .filter(|r| r.matched.as_ref().is_some_and(|(_, s)| s.mssd < k * truths[r.gt].model.diameter()))
+            .filter(|r| {
+                r.matched
+                    .as_ref()
+                    .is_some_and(|(_, s)| s.mssd < k * truths[r.gt].model.diameter())
+            })
             .count();
-        if rows.is_empty() { f64::NAN } else { hits as f64 / rows.len() as f64 }
+        if rows.is_empty() {
+            f64::NAN
+        } else {
+            hits as f64 / rows.len() as f64
+        }
     };
     let mean = |f: fn(&Scores) -> f64| {
-        if matched.is_empty() { None } else { Some(matched.iter().map(|(_, s)| f(s)).sum::<f64>() / matched.len() as f64) }
+        if matched.is_empty() {
+            None
+        } else {
+            Some(matched.iter().map(|(_, s)| f(s)).sum::<f64>() / matched.len() as f64)
+        }
     };
     let all: Vec<&Row> = rows.iter().collect();
     let summary = json!({
@@ -276,7 +353,10 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
         },
     });
     let summary_text = serde_json::to_string_pretty(&summary)? + "\n";
-    fs::write(args.out.join("summary.json"), summary_text.replace("NaN", "null"))?;
+    fs::write(
+        args.out.join("summary.json"),
+        summary_text.replace("NaN", "null"),
+    )?;
 
     // Table: one row per obj_id and the total.
     println!(
@@ -292,19 +372,35 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
     for m in &malformed {
         println!("  skipped {m}");
     }
-    println!("{:>8} {:>9} {:>8} {:>12} {:>11} {:>13} {:>9}", "obj_id", "instances", "matched", "rec@0.05d", "rec@0.1d", "MSSD mm", "e_R deg");
+    println!(
+        "{:>8} {:>9} {:>8} {:>12} {:>11} {:>13} {:>9}",
+        "obj_id", "instances", "matched", "rec@0.05d", "rec@0.1d", "MSSD mm", "e_R deg"
+    );
     let mut per_obj: BTreeMap<Option<u32>, Vec<&Row>> = BTreeMap::new();
     for r in &rows {
-        per_obj.entry(Some(truths[r.gt].obj_id)).or_default().push(r);
+        per_obj
+            .entry(Some(truths[r.gt].obj_id))
+            .or_default()
+            .push(r);
         per_obj.entry(None).or_default().push(r);
     }
     let mut order: Vec<_> = per_obj.keys().copied().filter(Option::is_some).collect();
     order.push(None);
     for key in order {
         let group = &per_obj[&key];
-        let hits: Vec<&Scores> = group.iter().filter_map(|r| r.matched.as_ref().map(|(_, s)| s)).collect();
+        let hits: Vec<&Scores> = group
+            .iter()
+            .filter_map(|r| r.matched.as_ref().map(|(_, s)| s))
+            .collect();
         let avg = |f: fn(&Scores) -> f64| {
-            if hits.is_empty() { "-".to_string() } else { format!("{:.2}", hits.iter().map(|s| f(s)).sum::<f64>() / hits.len() as f64) }
+            if hits.is_empty() {
+                "-".to_string()
+            } else {
+                format!(
+                    "{:.2}",
+                    hits.iter().map(|s| f(s)).sum::<f64>() / hits.len() as f64
+                )
+            }
         };
         println!(
             "{:>8} {:>9} {:>8} {:>12.3} {:>11.3} {:>13} {:>9}",
@@ -317,7 +413,10 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
             avg(|s| s.rotation_error_deg)
         );
     }
-    println!("per-instance metrics: {}", args.out.join("eval_results.parquet").display());
+    println!(
+        "per-instance metrics: {}",
+        args.out.join("eval_results.parquet").display()
+    );
     Ok(())
 }
 
@@ -353,18 +452,60 @@ fn write_rows(path: &Path, rows: &[Row], truths: &[Truth]) -> anyhow::Result<()>
             *n - 1
         })
         .collect();
-    let metric = |f: fn(&Scores) -> f64| Arc::new(rows.iter().map(|r| r.matched.as_ref().map(|(_, s)| f(s))).collect::<Float64Array>()) as ArrayRef;
+    let metric = |f: fn(&Scores) -> f64| {
+        Arc::new(
+            rows.iter()
+                .map(|r| r.matched.as_ref().map(|(_, s)| f(s)))
+                .collect::<Float64Array>(),
+        ) as ArrayRef
+    };
     let columns: Vec<ArrayRef> = vec![
-        Arc::new(rows.iter().map(|r| truth(r).instance.scene_id).collect::<Int64Array>()),
-        Arc::new(rows.iter().map(|r| truth(r).instance.frame_id).collect::<Int32Array>()),
+        Arc::new(
+            rows.iter()
+                .map(|r| truth(r).instance.scene_id)
+                .collect::<Int64Array>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| truth(r).instance.frame_id)
+                .collect::<Int32Array>(),
+        ),
         Arc::new(Int32Array::from(gt_ids)),
-        Arc::new(rows.iter().map(|r| truth(r).instance.object_id).collect::<Int32Array>()),
-        Arc::new(rows.iter().map(|r| truth(r).obj_id as i32).collect::<Int32Array>()),
-        Arc::new(rows.iter().map(|r| truth(r).instance.visible_fraction).collect::<Float32Array>()),
-        Arc::new(rows.iter().map(|r| Some(truth(r).model.diameter())).collect::<Float64Array>()),
-        Arc::new(rows.iter().map(|r| Some(r.matched.is_some())).collect::<BooleanArray>()),
-        Arc::new(rows.iter().map(|r| r.matched.as_ref().map(|(e, _)| e.line as i64)).collect::<Int64Array>()),
-        Arc::new(rows.iter().map(|r| r.matched.as_ref().map(|(e, _)| e.score)).collect::<Float64Array>()),
+        Arc::new(
+            rows.iter()
+                .map(|r| truth(r).instance.object_id)
+                .collect::<Int32Array>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| truth(r).obj_id as i32)
+                .collect::<Int32Array>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| truth(r).instance.visible_fraction)
+                .collect::<Float32Array>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| Some(truth(r).model.diameter()))
+                .collect::<Float64Array>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| Some(r.matched.is_some()))
+                .collect::<BooleanArray>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| r.matched.as_ref().map(|(e, _)| e.line as i64))
+                .collect::<Int64Array>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| r.matched.as_ref().map(|(e, _)| e.score))
+                .collect::<Float64Array>(),
+        ),
         metric(|s| s.mssd),
         metric(|s| s.add_s),
         metric(|s| s.paper_error),
@@ -372,7 +513,11 @@ fn write_rows(path: &Path, rows: &[Row], truths: &[Truth]) -> anyhow::Result<()>
         metric(|s| s.rotation_error_deg),
         metric(|s| s.translation_error),
     ];
-    boxpose_data::write_parquet(path, schema.clone(), &[RecordBatch::try_new(schema, columns)?])?;
+    boxpose_data::write_parquet(
+        path,
+        schema.clone(),
+        &[RecordBatch::try_new(schema, columns)?],
+    )?;
     Ok(())
 }
 
@@ -385,9 +530,25 @@ mod tests {
         let (s, i, o, score, pose) = parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 1,10 20 30,-1").unwrap();
         assert_eq!((s, i, o, score), (1, 2, 3, 0.5));
         assert!((pose.translation.vector - Vector3::new(0.01, 0.02, 0.03)).norm() < 1e-12);
-        assert!(parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 1,10 20 30").unwrap_err().contains("7"));
-        assert!(parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 1,10 NaN 30,-1").unwrap_err().contains("non-finite"));
-        assert!(parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 1.01,10 20 30,-1").unwrap_err().contains("not a rotation"));
-        assert!(parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 -1,10 20 30,-1").unwrap_err().contains("reflection"));
+        assert!(
+            parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 1,10 20 30")
+                .unwrap_err()
+                .contains("7")
+        );
+        assert!(
+            parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 1,10 NaN 30,-1")
+                .unwrap_err()
+                .contains("non-finite")
+        );
+        assert!(
+            parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 1.01,10 20 30,-1")
+                .unwrap_err()
+                .contains("not a rotation")
+        );
+        assert!(
+            parse_line("1,2,3,0.5,1 0 0 0 1 0 0 0 -1,10 20 30,-1")
+                .unwrap_err()
+                .contains("reflection")
+        );
     }
 }

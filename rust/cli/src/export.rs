@@ -89,10 +89,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 fn with_partial(out: &Path, write: impl FnOnce(&Path) -> anyhow::Result<()>) -> anyhow::Result<()> {
     if out.exists() {
         let empty = out.is_dir() && fs::read_dir(out)?.next().is_none();
-        ensure!(empty, "{} exists and is not an empty folder: choose a new output folder", out.display());
+        ensure!(
+            empty,
+            "{} exists and is not an empty folder: choose a new output folder",
+            out.display()
+        );
         fs::remove_dir(out)?;
     }
-    let name = out.file_name().with_context(|| format!("{} has no folder name", out.display()))?;
+    let name = out
+        .file_name()
+        .with_context(|| format!("{} has no folder name", out.display()))?;
     let tmp = out.with_file_name(format!("{}.partial", name.to_string_lossy()));
     if tmp.exists() {
         fs::remove_dir_all(&tmp).with_context(|| format!("cannot clear {}", tmp.display()))?;
@@ -102,7 +108,8 @@ fn with_partial(out: &Path, write: impl FnOnce(&Path) -> anyhow::Result<()>) -> 
         let _ = fs::remove_dir_all(&tmp);
         return Err(e);
     }
-    fs::rename(&tmp, out).with_context(|| format!("cannot rename {} to {}", tmp.display(), out.display()))?;
+    fs::rename(&tmp, out)
+        .with_context(|| format!("cannot rename {} to {}", tmp.display(), out.display()))?;
     println!("wrote {}", out.display());
     Ok(())
 }
@@ -124,7 +131,11 @@ fn key_mm(key: SizeKey) -> [f64; 3] {
 /// obj_id (1-based) of every distinct box size of the dataset's `objects`, in increasing
 /// (dx, dy, dz) order: the same dataset always gets the same ids.
 pub(crate) fn object_ids(dataset: &Dataset) -> anyhow::Result<BTreeMap<SizeKey, u32>> {
-    let mut keys: Vec<SizeKey> = dataset.objects()?.iter().map(|o| size_key(o.size)).collect();
+    let mut keys: Vec<SizeKey> = dataset
+        .objects()?
+        .iter()
+        .map(|o| size_key(o.size))
+        .collect();
     keys.sort();
     keys.dedup();
     Ok(keys.into_iter().zip(1..).collect())
@@ -143,7 +154,14 @@ pub(crate) fn obj_id(ids: &BTreeMap<SizeKey, u32>, instance: &Instance) -> anyho
 /// (BOP's `symmetries_discrete` leaves it out): the signed permutation matrices of determinant +1
 /// that permute only equal sides. 3 for three distinct sides, 7 with two equal, 23 for a cube.
 fn box_symmetries(key: SizeKey) -> Vec<[[f64; 3]; 3]> {
-    const PERMS: [[usize; 3]; 6] = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+    const PERMS: [[usize; 3]; 6] = [
+        [0, 1, 2],
+        [0, 2, 1],
+        [1, 0, 2],
+        [1, 2, 0],
+        [2, 0, 1],
+        [2, 1, 0],
+    ];
     const PARITY: [f64; 6] = [1.0, -1.0, -1.0, 1.0, 1.0, -1.0];
     let mut out = Vec::new();
     for (perm, parity) in PERMS.iter().zip(PARITY) {
@@ -196,7 +214,11 @@ fn box_ply(size_mm: [f64; 3]) -> String {
          element vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
          property float nx\nproperty float ny\nproperty float nz\n\
          element face {}\nproperty list uchar int vertex_indices\nend_header\n",
-        size_mm[0], size_mm[1], size_mm[2], vertices.len(), faces.len()
+        size_mm[0],
+        size_mm[1],
+        size_mm[2],
+        vertices.len(),
+        faces.len()
     );
     for (p, n) in &vertices {
         writeln!(ply, "{} {} {} {} {} {}", p[0], p[1], p[2], n[0], n[1], n[2]).unwrap();
@@ -236,9 +258,21 @@ fn rotation(q: [f64; 4]) -> [[f64; 3]; 3] {
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
     let [w, x, y, z] = q.map(|v| v / n);
     [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
     ]
 }
 
@@ -295,7 +329,9 @@ fn silhouette_hull(k: &Intrinsics, corners: &[[f64; 3]; 8]) -> Vec<[f64; 2]> {
     if pts.len() <= 2 {
         return Vec::new();
     }
-    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0]);
+    let cross = |o: [f64; 2], a: [f64; 2], b: [f64; 2]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
     let mut lower: Vec<[f64; 2]> = Vec::new();
     for &p in &pts {
         while lower.len() >= 2 && cross(lower[lower.len() - 2], lower[lower.len() - 1], p) <= 0.0 {
@@ -329,16 +365,34 @@ struct Silhouette {
 
 fn silhouette(frame: &Frame, instance: &Instance) -> Silhouette {
     let (w, h) = (frame.width as i64, frame.height as i64);
-    let mut out = Silhouette { mask: vec![false; frame.width * frame.height], count: 0, bbox: [-1; 4] };
+    let mut out = Silhouette {
+        mask: vec![false; frame.width * frame.height],
+        count: 0,
+        bbox: [-1; 4],
+    };
     let hull = silhouette_hull(&frame.intrinsics, &instance.corners_camera);
     if hull.is_empty() {
         return out;
     }
-    let (min_u, max_u) = hull.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p[0]), b.max(p[0])));
-    let (min_v, max_v) = hull.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| (a.min(p[1]), b.max(p[1])));
+    let (min_u, max_u) = hull
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p[0]), b.max(p[0]))
+        });
+    let (min_v, max_v) = hull
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p[1]), b.max(p[1]))
+        });
     let clamp = |v: f64, lo: i64, hi: i64| (v.clamp(lo as f64, hi as f64)) as i64;
-    let (x0, x1) = (clamp(min_u.floor(), -w, 2 * w), clamp(max_u.ceil() + 1.0, -w, 2 * w));
-    let (y0, y1) = (clamp(min_v.floor(), -h, 2 * h), clamp(max_v.ceil() + 1.0, -h, 2 * h));
+    let (x0, x1) = (
+        clamp(min_u.floor(), -w, 2 * w),
+        clamp(max_u.ceil() + 1.0, -w, 2 * w),
+    );
+    let (y0, y1) = (
+        clamp(min_v.floor(), -h, 2 * h),
+        clamp(max_v.ceil() + 1.0, -h, 2 * h),
+    );
     let (mut bx0, mut by0, mut bx1, mut by1) = (i64::MAX, i64::MAX, i64::MIN, i64::MIN);
     for y in y0..y1 {
         for x in x0..x1 {
@@ -365,7 +419,14 @@ fn silhouette(frame: &Frame, instance: &Instance) -> Silhouette {
 
 /// [x, y, w, h] of a visible_bbox (x_min, y_min, x_max, y_max; max exclusive), or [-1; 4].
 fn xywh(bbox: Option<[i32; 4]>) -> [i64; 4] {
-    bbox.map_or([-1; 4], |b| [b[0] as i64, b[1] as i64, (b[2] - b[0]) as i64, (b[3] - b[1]) as i64])
+    bbox.map_or([-1; 4], |b| {
+        [
+            b[0] as i64,
+            b[1] as i64,
+            (b[2] - b[0]) as i64,
+            (b[3] - b[1]) as i64,
+        ]
+    })
 }
 
 /// [x, y, w, h] of the set pixels of a row-major mask, or [-1; 4] when none is set.
@@ -375,30 +436,63 @@ fn mask_bbox(mask: &[bool], width: usize) -> [i64; 4] {
         let (x, y) = (i % width, i / width);
         (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
     }
-    if x0 == usize::MAX { [-1; 4] } else { [x0 as i64, y0 as i64, (x1 - x0 + 1) as i64, (y1 - y0 + 1) as i64] }
+    if x0 == usize::MAX {
+        [-1; 4]
+    } else {
+        [
+            x0 as i64,
+            y0 as i64,
+            (x1 - x0 + 1) as i64,
+            (y1 - y0 + 1) as i64,
+        ]
+    }
 }
 
 // ---------------------------------------------------------------------------------------------
 // Files
 
-fn write_png(path: &Path, data: &[u8], width: usize, height: usize, color: png::ColorType, depth: png::BitDepth) -> anyhow::Result<()> {
-    let file = fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
+fn write_png(
+    path: &Path,
+    data: &[u8],
+    width: usize,
+    height: usize,
+    color: png::ColorType,
+    depth: png::BitDepth,
+) -> anyhow::Result<()> {
+    let file =
+        fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
     let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width as u32, height as u32);
     encoder.set_color(color);
     encoder.set_depth(depth);
     let mut writer = encoder.write_header()?;
-    writer.write_image_data(data).with_context(|| format!("cannot write {}", path.display()))?;
+    writer
+        .write_image_data(data)
+        .with_context(|| format!("cannot write {}", path.display()))?;
     writer.finish()?;
     Ok(())
 }
 
 fn write_rgb(path: &Path, frame: &Frame) -> anyhow::Result<()> {
-    write_png(path, &frame.rgb, frame.width, frame.height, png::ColorType::Rgb, png::BitDepth::Eight)
+    write_png(
+        path,
+        &frame.rgb,
+        frame.width,
+        frame.height,
+        png::ColorType::Rgb,
+        png::BitDepth::Eight,
+    )
 }
 
 fn write_mask(path: &Path, mask: impl Iterator<Item = bool>, frame: &Frame) -> anyhow::Result<()> {
     let data: Vec<u8> = mask.map(|m| if m { 255 } else { 0 }).collect();
-    write_png(path, &data, frame.width, frame.height, png::ColorType::Grayscale, png::BitDepth::Eight)
+    write_png(
+        path,
+        &data,
+        frame.width,
+        frame.height,
+        png::ColorType::Grayscale,
+        png::BitDepth::Eight,
+    )
 }
 
 /// Writes the depth as uint16 PNG (value × depth_scale = mm) with the finest of 0.1, 1 and 10 mm
@@ -408,13 +502,25 @@ fn write_depth(path: &Path, frame: &Frame) -> anyhow::Result<f64> {
     let scale = [0.1, 1.0, 10.0]
         .into_iter()
         .find(|s| (max_mm / s).round() <= u16::MAX as f64)
-        .with_context(|| format!("scene {} frame {}: depth {max_mm} mm is too far for a uint16 PNG", frame.scene_id, frame.frame_id))?;
+        .with_context(|| {
+            format!(
+                "scene {} frame {}: depth {max_mm} mm is too far for a uint16 PNG",
+                frame.scene_id, frame.frame_id
+            )
+        })?;
     let mut data = Vec::with_capacity(frame.depth.len() * 2);
     for &d in &frame.depth {
         let v = (d as f64 * 1000.0 / scale).round() as u16;
         data.extend_from_slice(&v.to_be_bytes());
     }
-    write_png(path, &data, frame.width, frame.height, png::ColorType::Grayscale, png::BitDepth::Sixteen)?;
+    write_png(
+        path,
+        &data,
+        frame.width,
+        frame.height,
+        png::ColorType::Grayscale,
+        png::BitDepth::Sixteen,
+    )?;
     Ok(scale)
 }
 
@@ -424,19 +530,26 @@ fn write_keyed(path: &Path, entries: &BTreeMap<i64, Value>) -> anyhow::Result<()
         .iter()
         .map(|(k, v)| Ok(format!("  \"{k}\": {}", serde_json::to_string(v)?)))
         .collect::<anyhow::Result<_>>()?;
-    let text = if body.is_empty() { "{}\n".to_string() } else { format!("{{\n{}\n}}\n", body.join(",\n")) };
+    let text = if body.is_empty() {
+        "{}\n".to_string()
+    } else {
+        format!("{{\n{}\n}}\n", body.join(",\n"))
+    };
     fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
 fn write_json(path: &Path, value: &Value) -> anyhow::Result<()> {
-    fs::write(path, serde_json::to_string_pretty(value)? + "\n").with_context(|| format!("cannot write {}", path.display()))
+    fs::write(path, serde_json::to_string_pretty(value)? + "\n")
+        .with_context(|| format!("cannot write {}", path.display()))
 }
 
 fn progress(dataset: &Dataset, what: &str) -> anyhow::Result<ProgressBar> {
     let frames = dataset.count(&FRAMES)?;
-    Ok(ProgressBar::new(frames as u64).with_style(ProgressStyle::with_template(&format!(
-        "{what} {{bar:30}} {{pos}}/{{len}} frames [{{elapsed_precise}}<{{eta_precise}}]"
-    ))?))
+    Ok(
+        ProgressBar::new(frames as u64).with_style(ProgressStyle::with_template(&format!(
+            "{what} {{bar:30}} {{pos}}/{{len}} frames [{{elapsed_precise}}<{{eta_precise}}]"
+        ))?),
+    )
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -451,7 +564,9 @@ struct BopScene {
 
 fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
     ensure!(
-        !args.split.is_empty() && !args.split.contains(['/', '\\']) && !["models", "models_eval"].contains(&args.split.as_str()),
+        !args.split.is_empty()
+            && !args.split.contains(['/', '\\'])
+            && !["models", "models_eval"].contains(&args.split.as_str()),
         "--split {:?} must be a plain folder name other than models",
         args.split
     );
@@ -510,11 +625,29 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
             let sil = silhouette(&frame, instance);
             let label = instance.mask_label();
             let own = frame.instance_mask.iter().map(|&m| m == label);
-            write_mask(&dir.join("mask_visib").join(format!("{im_id:06}_{gt_id:06}.png")), own, &frame)?;
-            write_mask(&dir.join("mask").join(format!("{im_id:06}_{gt_id:06}.png")), sil.mask.iter().copied(), &frame)?;
-            let valid = sil.mask.iter().zip(&frame.depth).filter(|&(&m, &d)| m && d > 0.0).count();
+            write_mask(
+                &dir.join("mask_visib")
+                    .join(format!("{im_id:06}_{gt_id:06}.png")),
+                own,
+                &frame,
+            )?;
+            write_mask(
+                &dir.join("mask").join(format!("{im_id:06}_{gt_id:06}.png")),
+                sil.mask.iter().copied(),
+                &frame,
+            )?;
+            let valid = sil
+                .mask
+                .iter()
+                .zip(&frame.depth)
+                .filter(|&(&m, &d)| m && d > 0.0)
+                .count();
             let visib = instance.visible_pixels as u64;
-            let visib_fract = if sil.count > 0 { (visib as f64 / sil.count as f64).min(1.0) } else { 0.0 };
+            let visib_fract = if sil.count > 0 {
+                (visib as f64 / sil.count as f64).min(1.0)
+            } else {
+                0.0
+            };
             gt_info.push(json!({
                 "bbox_obj": sil.bbox,
                 "bbox_visib": xywh(instance.visible_bbox),
@@ -549,14 +682,30 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
     }
     let targets_text = format!(
         "[\n{}\n]\n",
-        targets.iter().map(|t| format!("  {t}")).collect::<Vec<_>>().join(",\n")
+        targets
+            .iter()
+            .map(|t| format!("  {t}"))
+            .collect::<Vec<_>>()
+            .join(",\n")
     );
-    fs::write(out.join("test_targets_bop19.json"), if targets.is_empty() { "[]\n".to_string() } else { targets_text })?;
+    fs::write(
+        out.join("test_targets_bop19.json"),
+        if targets.is_empty() {
+            "[]\n".to_string()
+        } else {
+            targets_text
+        },
+    )?;
 
     let source = fs::canonicalize(&args.dataset).unwrap_or_else(|_| args.dataset.clone());
     let objects: BTreeMap<String, Value> = ids
         .iter()
-        .map(|(&key, &id)| (id.to_string(), json!({"size_mm": key_mm(key), "size_m": key.map(|k| k as f64 / 1e4)})))
+        .map(|(&key, &id)| {
+            (
+                id.to_string(),
+                json!({"size_mm": key_mm(key), "size_m": key.map(|k| k as f64 / 1e4)}),
+            )
+        })
         .collect();
     write_json(
         &out.join("dataset_info.json"),
@@ -578,14 +727,30 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
          - mask_visib/ is the exact instance mask; mask/ is the projected box silhouette (no occluders).\n\
          - test_targets_bop19.json lists the instances with visib_fract >= {}.\n\n\
          | obj_id | size_x (mm) | size_y (mm) | size_z (mm) | discrete symmetries |\n|---|---|---|---|---|\n",
-        source.display(), scenes.len(), images, annotations, args.split, args.min_visib_fract
+        source.display(),
+        scenes.len(),
+        images,
+        annotations,
+        args.split,
+        args.min_visib_fract
     );
     for (&key, &id) in &ids {
         let s = key_mm(key);
-        writeln!(md, "| {id} | {} | {} | {} | {} |", s[0], s[1], s[2], box_symmetries(key).len())?;
+        writeln!(
+            md,
+            "| {id} | {} | {} | {} | {} |",
+            s[0],
+            s[1],
+            s[2],
+            box_symmetries(key).len()
+        )?;
     }
     fs::write(out.join("dataset_info.md"), md)?;
-    println!("{} scenes, {images} images, {annotations} instances, {} models", scenes.len(), ids.len());
+    println!(
+        "{} scenes, {images} images, {annotations} instances, {} models",
+        scenes.len(),
+        ids.len()
+    );
     Ok(())
 }
 
@@ -685,7 +850,8 @@ mod tests {
         assert_eq!(box_symmetries([2, 3, 2]).len(), 7);
         assert_eq!(box_symmetries([4, 4, 4]).len(), 23);
         for r in box_symmetries([4, 4, 4]) {
-            let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+            let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
+                - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
                 + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
             assert_eq!(det, 1.0);
         }
@@ -702,7 +868,12 @@ mod tests {
 
     #[test]
     fn hull_of_a_box_in_front_is_convex_and_ccw() {
-        let k = Intrinsics { fx: 100.0, fy: 100.0, cx: 50.0, cy: 50.0 };
+        let k = Intrinsics {
+            fx: 100.0,
+            fy: 100.0,
+            cx: 50.0,
+            cy: 50.0,
+        };
         let corners: [[f64; 3]; 8] = std::array::from_fn(|i| {
             let s = |b: usize| if i >> b & 1 == 1 { 0.1 } else { -0.1 };
             [s(0), s(1), 1.0 + s(2)]
@@ -710,6 +881,9 @@ mod tests {
         let hull = silhouette_hull(&k, &corners);
         assert_eq!(hull.len(), 4);
         let near = 50.0 - 100.0 * 0.1 / 0.9;
-        assert!((hull[0][0] - near).abs() < 1e-9 && (hull[0][1] - near).abs() < 1e-9, "{hull:?}");
+        assert!(
+            (hull[0][0] - near).abs() < 1e-9 && (hull[0][1] - near).abs() < 1e-9,
+            "{hull:?}"
+        );
     }
 }

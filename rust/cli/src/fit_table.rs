@@ -46,13 +46,21 @@ pub fn fields() -> Vec<Field> {
 /// The columns of [`fields`], in order.
 pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
     let metric = |get: fn(&Scores) -> f64| -> ArrayRef {
-        Arc::new(rows.iter().map(|r| r.outcome.as_ref().ok().map(get)).collect::<Float64Array>())
+        Arc::new(
+            rows.iter()
+                .map(|r| r.outcome.as_ref().ok().map(get))
+                .collect::<Float64Array>(),
+        )
     };
     vec![
         Arc::new(rows.iter().map(|r| r.scene_id).collect::<Int64Array>()),
         Arc::new(rows.iter().map(|r| r.frame_id).collect::<Int32Array>()),
         Arc::new(rows.iter().map(|r| r.object_id).collect::<Int32Array>()),
-        Arc::new(rows.iter().map(|r| Some(r.method.name())).collect::<StringArray>()),
+        Arc::new(
+            rows.iter()
+                .map(|r| Some(r.method.name()))
+                .collect::<StringArray>(),
+        ),
         Arc::new(rows.iter().map(|r| r.diameter_m).collect::<Float64Array>()),
         metric(|s| s.paper_error),
         metric(|s| s.mssd_m),
@@ -63,9 +71,21 @@ pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
         metric(|s| s.confidence),
         metric(|s| s.margin_nats),
         metric(|s| s.noise_scale_m),
-        Arc::new(rows.iter().map(|r| r.outcome.as_ref().ok().map(|s| s.inliers as i32)).collect::<Int32Array>()),
-        Arc::new(rows.iter().map(|r| r.outcome.as_ref().ok().map(|s| s.mirror_ambiguous)).collect::<BooleanArray>()),
-        Arc::new(rows.iter().map(|r| r.outcome.as_ref().err().map(String::as_str)).collect::<StringArray>()),
+        Arc::new(
+            rows.iter()
+                .map(|r| r.outcome.as_ref().ok().map(|s| s.inliers as i32))
+                .collect::<Int32Array>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| r.outcome.as_ref().ok().map(|s| s.mirror_ambiguous))
+                .collect::<BooleanArray>(),
+        ),
+        Arc::new(
+            rows.iter()
+                .map(|r| r.outcome.as_ref().err().map(String::as_str))
+                .collect::<StringArray>(),
+        ),
     ]
 }
 
@@ -74,25 +94,50 @@ pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
 /// confidence as a predictor of failure (MSSD ≥ 0.1 × diameter) over the fits that returned a
 /// pose ("—" when they are all right or all wrong).
 pub fn print(rows: &[FitRow]) {
-    let width = Method::ALL.iter().map(|m| m.name().len()).max().unwrap_or(0).max("method".len());
+    let width = Method::ALL
+        .iter()
+        .map(|m| m.name().len())
+        .max()
+        .unwrap_or(0)
+        .max("method".len());
     println!(
         "{:<width$} {:>9} {:>11} {:>11} {:>13} {:>13} {:>12} {:>10} {:>10}",
-        "method", "instances", "MSSD<0.05d", "MSSD<0.1d", "median MSSD", "mean error", "mean time", "mean conf", "conf AUROC"
+        "method",
+        "instances",
+        "MSSD<0.05d",
+        "MSSD<0.1d",
+        "median MSSD",
+        "mean error",
+        "mean time",
+        "mean conf",
+        "conf AUROC"
     );
     for method in Method::ALL {
         let of_method: Vec<&FitRow> = rows.iter().filter(|r| r.method == method).collect();
-        let scored: Vec<(&Scores, f64)> = of_method.iter().filter_map(|r| r.outcome.as_ref().ok().map(|s| (s, r.diameter_m))).collect();
+        let scored: Vec<(&Scores, f64)> = of_method
+            .iter()
+            .filter_map(|r| r.outcome.as_ref().ok().map(|s| (s, r.diameter_m)))
+            .collect();
         let name = method.name();
         if scored.is_empty() {
             println!("{name:<width$} {:>9} every fit failed", of_method.len());
             continue;
         }
         let total = of_method.len() as f64;
-        let recall = |fraction: f64| scored.iter().filter(|(s, d)| s.mssd_m < fraction * d).count() as f64 / total;
+        let recall = |fraction: f64| {
+            scored
+                .iter()
+                .filter(|(s, d)| s.mssd_m < fraction * d)
+                .count() as f64
+                / total
+        };
         let mut mssd: Vec<f64> = scored.iter().map(|(s, _)| s.mssd_m).collect();
         mssd.sort_by(f64::total_cmp);
         let n = scored.len() as f64;
-        let judged: Vec<(f64, bool)> = scored.iter().map(|(s, d)| (s.confidence, s.mssd_m >= 0.1 * d)).collect();
+        let judged: Vec<(f64, bool)> = scored
+            .iter()
+            .map(|(s, d)| (s.confidence, s.mssd_m >= 0.1 * d))
+            .collect();
         let auroc = failure_auroc(&judged).map_or("—".to_string(), |a| format!("{a:.3}"));
         println!(
             "{name:<width$} {:>9} {:>10.1}% {:>10.1}% {:>11.4} m {:>13.6} {:>9.0} µs {:>10.3} {:>10}",
@@ -142,12 +187,21 @@ mod tests {
     #[test]
     fn auroc_of_confidence_as_a_failure_predictor() {
         // every failure less confident than every right fit: 1; the reverse: 0
-        assert_eq!(failure_auroc(&[(0.1, true), (0.2, true), (0.8, false), (0.9, false)]), Some(1.0));
+        assert_eq!(
+            failure_auroc(&[(0.1, true), (0.2, true), (0.8, false), (0.9, false)]),
+            Some(1.0)
+        );
         assert_eq!(failure_auroc(&[(0.9, true), (0.1, false)]), Some(0.0));
         // all tied: chance
-        assert_eq!(failure_auroc(&[(0.5, true), (0.5, false), (0.5, false)]), Some(0.5));
+        assert_eq!(
+            failure_auroc(&[(0.5, true), (0.5, false), (0.5, false)]),
+            Some(0.5)
+        );
         // one of the two failures below the right fit, one tied with it: (1 + ½) / 2
-        assert_eq!(failure_auroc(&[(0.2, true), (0.7, true), (0.7, false)]), Some(0.75));
+        assert_eq!(
+            failure_auroc(&[(0.2, true), (0.7, true), (0.7, false)]),
+            Some(0.75)
+        );
         assert_eq!(failure_auroc(&[(0.2, false), (0.7, false)]), None);
     }
 }

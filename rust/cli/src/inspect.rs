@@ -23,7 +23,11 @@ pub fn run(path: &Path) -> anyhow::Result<()> {
         instances += frame.instances.len();
         for instance in &frame.instances {
             corners += 8;
-            visible += instance.visibility.iter().filter(|&&v| v == Visibility::Visible).count();
+            visible += instance
+                .visibility
+                .iter()
+                .filter(|&&v| v == Visibility::Visible)
+                .count();
         }
         bar.inc(1);
     }
@@ -35,6 +39,8 @@ pub fn run(path: &Path) -> anyhow::Result<()> {
         path.join("instances").display(),
         declared - instances
     );
-    println!("{frames} frames, {instances} instances, {visible}/{corners} corners visible — all shards valid");
+    println!(
+        "{frames} frames, {instances} instances, {visible}/{corners} corners visible — all shards valid"
+    );
     Ok(())
 }

@@ -6,9 +6,9 @@ mod eval_geometry;
 mod eval_results;
 mod export;
 mod fit_table;
+mod inspect;
 mod plots;
 mod predict;
-mod inspect;
 mod render;
 mod search;
 mod search_report;
@@ -20,7 +20,11 @@ use std::path::PathBuf;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "boxpose", version, about = "Synthetic box datasets, 3D-keypoint pose recovery and failure search.")]
+#[command(
+    name = "boxpose",
+    version,
+    about = "Synthetic box datasets, 3D-keypoint pose recovery and failure search."
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -81,7 +85,10 @@ fn main() -> anyhow::Result<()> {
     match Cli::parse().command {
         Command::Schema { markdown: true } => print!("{}", boxpose_data::schema::to_markdown()),
         Command::Schema { markdown: false } => {
-            println!("{}", serde_json::to_string_pretty(&boxpose_data::schema::to_json())?)
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&boxpose_data::schema::to_json())?
+            )
         }
         Command::Inspect { dataset } => inspect::run(&dataset)?,
         Command::Dump { dataset } => dump::run(&dataset)?,

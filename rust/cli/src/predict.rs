@@ -17,7 +17,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, bail};
-use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, StringArray};
+use arrow::array::{
+    ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, StringArray,
+};
 use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, Int32Type, Schema};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Frame, Intrinsics, Pose};
@@ -126,18 +128,38 @@ impl Fit {
 /// but keeps no confidence: the fit (deterministic, well under a millisecond) is run again here.
 fn fit_box(points: &[Point3<f64>], method: SizeFit) -> Result<Fit, String> {
     let rms = |residuals: &[f64], inliers: &[bool]| {
-        let squares: Vec<f64> = residuals.iter().zip(inliers).filter(|(_, i)| **i).map(|(r, _)| r * r).collect();
+        let squares: Vec<f64> = residuals
+            .iter()
+            .zip(inliers)
+            .filter(|(_, i)| **i)
+            .map(|(r, _)| r * r)
+            .collect();
         (squares.iter().sum::<f64>() / squares.len().max(1) as f64).sqrt()
     };
     match method {
         SizeFit::Robust => {
-            let f = size_fit::robust_size_fit(points, &size_fit::RobustSizeParams::default()).map_err(|e| e.to_string())?;
-            Ok(Fit { inlier_rms: rms(&f.residuals, &f.inliers), model: f.model, pose: f.pose, inliers: f.inliers, confidence: f.confidence })
+            let f = size_fit::robust_size_fit(points, &size_fit::RobustSizeParams::default())
+                .map_err(|e| e.to_string())?;
+            Ok(Fit {
+                inlier_rms: rms(&f.residuals, &f.inliers),
+                model: f.model,
+                pose: f.pose,
+                inliers: f.inliers,
+                confidence: f.confidence,
+            })
         }
         SizeFit::LeastSquares => {
-            let f = size_fit::fit_pose_and_size(points, &size_fit::SizeFitParams::default()).map_err(|e| e.to_string())?;
-            let confidence = size_fit::assess_sized_box(points, &f.model, &f.pose).map_err(|e| e.to_string())?;
-            Ok(Fit { model: f.model, pose: f.pose, inliers: f.inliers, inlier_rms: f.inlier_rms, confidence })
+            let f = size_fit::fit_pose_and_size(points, &size_fit::SizeFitParams::default())
+                .map_err(|e| e.to_string())?;
+            let confidence =
+                size_fit::assess_sized_box(points, &f.model, &f.pose).map_err(|e| e.to_string())?;
+            Ok(Fit {
+                model: f.model,
+                pose: f.pose,
+                inliers: f.inliers,
+                inlier_rms: f.inlier_rms,
+                confidence,
+            })
         }
     }
 }
@@ -157,14 +179,30 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let frame = find_frame(dataset, scene, args.frame)?;
             let targets = match args.crops {
                 Crops::Gt => gt_targets(&frame, &model),
-                Crops::Predicted => predicted_targets(&frame, &model, &args.segmenter, args.backend)?,
+                Crops::Predicted => {
+                    predicted_targets(&frame, &model, &args.segmenter, args.backend)?
+                }
             };
             (frame, targets)
         }
         (None, Some(rgb)) => {
-            anyhow::ensure!(args.intrinsics.as_ref().is_none_or(|k| k.len() == 4), "--intrinsics takes 4 values: fx,fy,cx,cy");
-            anyhow::ensure!(args.bbox.len() % 4 == 0, "each --bbox takes 4 values: x_min,y_min,x_max,y_max");
-            let frame = frame_from_files(rgb, args.depth.as_deref().context("--depth is required with --rgb")?, args.intrinsics.as_deref().context("--intrinsics is required with --rgb")?)?;
+            anyhow::ensure!(
+                args.intrinsics.as_ref().is_none_or(|k| k.len() == 4),
+                "--intrinsics takes 4 values: fx,fy,cx,cy"
+            );
+            anyhow::ensure!(
+                args.bbox.len() % 4 == 0,
+                "each --bbox takes 4 values: x_min,y_min,x_max,y_max"
+            );
+            let frame = frame_from_files(
+                rgb,
+                args.depth
+                    .as_deref()
+                    .context("--depth is required with --rgb")?,
+                args.intrinsics
+                    .as_deref()
+                    .context("--intrinsics is required with --rgb")?,
+            )?;
             if args.bbox.is_empty() {
                 let targets = predicted_targets(&frame, &model, &args.segmenter, args.backend)?;
                 return finish(args, &model, frame, targets);
@@ -181,67 +219,140 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                         (bbox[0]..bbox[2]).contains(&x) && (bbox[1]..bbox[3]).contains(&y)
                     };
                     let crop = CropRequest::around(&frame, &model.config, bbox, inside)
-                        .with_context(|| format!("--bbox {bbox:?} has no depth measurement inside"))?;
-                    Ok(Target { object_id: None, bbox, crop })
+                        .with_context(|| {
+                            format!("--bbox {bbox:?} has no depth measurement inside")
+                        })?;
+                    Ok(Target {
+                        object_id: None,
+                        bbox,
+                        crop,
+                    })
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
             (frame, targets)
         }
-        _ => bail!("give a dataset folder with --scene (and --frame), or --rgb, --depth and --intrinsics"),
+        _ => bail!(
+            "give a dataset folder with --scene (and --frame), or --rgb, --depth and --intrinsics"
+        ),
     };
     finish(args, &model, frame, targets)
 }
 
 /// Predicts the targets' poses and writes every output.
-fn finish(args: &Args, model: &KeypointModel, frame: Frame, targets: Vec<Target>) -> anyhow::Result<()> {
+fn finish(
+    args: &Args,
+    model: &KeypointModel,
+    frame: Frame,
+    targets: Vec<Target>,
+) -> anyhow::Result<()> {
     anyhow::ensure!(!targets.is_empty(), "no box to predict in this frame");
     let crops: Vec<CropRequest> = targets.iter().map(|t| t.crop).collect();
     let predictions = inference::predict(model, &frame, &crops, 16)?;
-    let fits: Vec<Result<Fit, String>> = predictions.iter().map(|p| fit_box(&p.points, args.size_fit)).collect();
+    let fits: Vec<Result<Fit, String>> = predictions
+        .iter()
+        .map(|p| fit_box(&p.points, args.size_fit))
+        .collect();
 
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
-    write_parquet(&args.out.join("predictions.parquet"), &frame, &targets, &predictions, &fits, args.size_fit)?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    write_parquet(
+        &args.out.join("predictions.parquet"),
+        &frame,
+        &targets,
+        &predictions,
+        &fits,
+        args.size_fit,
+    )?;
     let json_path = args.out.join("predictions.json");
-    std::fs::write(&json_path, serde_json::to_string_pretty(&to_json(&frame, &targets, &predictions, &fits, args.size_fit))?)
-        .with_context(|| format!("cannot write {}", json_path.display()))?;
+    std::fs::write(
+        &json_path,
+        serde_json::to_string_pretty(&to_json(
+            &frame,
+            &targets,
+            &predictions,
+            &fits,
+            args.size_fit,
+        ))?,
+    )
+    .with_context(|| format!("cannot write {}", json_path.display()))?;
     let overlay_boxes: Vec<OverlayBox> = targets
         .iter()
         .zip(predictions.iter().zip(&fits))
         .map(|(t, (p, fit))| OverlayBox {
-            truth: t.object_id.and_then(|id| frame.instances.iter().find(|i| i.object_id == id)).map(|i| i.corners_camera.map(Point3::from)),
+            truth: t
+                .object_id
+                .and_then(|id| frame.instances.iter().find(|i| i.object_id == id))
+                .map(|i| i.corners_camera.map(Point3::from)),
             peaks: p.points.clone(),
             fitted: fit.as_ref().ok().map(Fit::corners),
         })
         .collect();
     let overlay = args.out.join("overlay.png");
-    plots::overlay(&overlay, &frame.rgb, frame.width, frame.height, &frame.intrinsics, &overlay_boxes)?;
+    plots::overlay(
+        &overlay,
+        &frame.rgb,
+        frame.width,
+        frame.height,
+        &frame.intrinsics,
+        &overlay_boxes,
+    )?;
 
     println!("pose-and-size fit: {}", args.size_fit.name());
     for (t, (p, fit)) in targets.iter().zip(predictions.iter().zip(&fits)) {
-        let who = t.object_id.map_or(format!("bbox {:?}", t.bbox), |id| format!("object {id}"));
+        let who = t
+            .object_id
+            .map_or(format!("bbox {:?}", t.bbox), |id| format!("object {id}"));
         match fit {
             Ok(fit) => {
                 let size = fit.model.size();
                 let at = fit.pose.translation.vector;
-                let truth = t.object_id.and_then(|id| frame.instances.iter().find(|i| i.object_id == id));
-                let error = truth.map_or(String::new(), |i| format!(", {:.1} mm from the true centre", 1000.0 * (at - true_pose(i).translation.vector).norm()));
+                let truth = t
+                    .object_id
+                    .and_then(|id| frame.instances.iter().find(|i| i.object_id == id));
+                let error = truth.map_or(String::new(), |i| {
+                    format!(
+                        ", {:.1} mm from the true centre",
+                        1000.0 * (at - true_pose(i).translation.vector).norm()
+                    )
+                });
                 let c = &fit.confidence;
                 println!(
                     "{who}: size {:.3}×{:.3}×{:.3} m at ({:.3}, {:.3}, {:.3}) m, {} of {} peaks inliers, residual {:.1} mm{error}",
-                    size.x, size.y, size.z, at.x, at.y, at.z,
-                    fit.inlier_count(), p.points.len(), 1000.0 * fit.inlier_rms
+                    size.x,
+                    size.y,
+                    size.z,
+                    at.x,
+                    at.y,
+                    at.z,
+                    fit.inlier_count(),
+                    p.points.len(),
+                    1000.0 * fit.inlier_rms
                 );
                 println!(
                     "    confidence {:.2} (margin {:.1} nats, {} inliers, noise {:.1} mm{})",
-                    c.confidence, c.margin_nats, c.inliers, 1000.0 * c.noise_scale_m,
-                    if c.mirror_ambiguous { ", mirror-ambiguous" } else { "" }
+                    c.confidence,
+                    c.margin_nats,
+                    c.inliers,
+                    1000.0 * c.noise_scale_m,
+                    if c.mirror_ambiguous {
+                        ", mirror-ambiguous"
+                    } else {
+                        ""
+                    }
                 );
             }
             Err(e) => println!("{who}: no pose ({e})"),
         }
     }
-    println!("predictions: {} and {}", args.out.join("predictions.parquet").display(), json_path.display());
-    println!("overlay (true white, NMS peaks black, fitted grey): {}", overlay.display());
+    println!(
+        "predictions: {} and {}",
+        args.out.join("predictions.parquet").display(),
+        json_path.display()
+    );
+    println!(
+        "overlay (true white, NMS peaks black, fitted grey): {}",
+        overlay.display()
+    );
     Ok(())
 }
 
@@ -252,7 +363,10 @@ fn find_frame(dataset: &Path, scene: i64, frame_id: i32) -> anyhow::Result<Frame
             return Ok(frame);
         }
     }
-    bail!("{}: no frame {frame_id} of scene {scene} (`boxpose inspect` lists them)", dataset.display())
+    bail!(
+        "{}: no frame {frame_id} of scene {scene} (`boxpose inspect` lists them)",
+        dataset.display()
+    )
 }
 
 fn gt_targets(frame: &Frame, model: &KeypointModel) -> Vec<Target> {
@@ -262,15 +376,26 @@ fn gt_targets(frame: &Frame, model: &KeypointModel) -> Vec<Target> {
         .filter_map(|instance| {
             let bbox = instance.visible_bbox?;
             let label = instance.mask_label();
-            let crop = CropRequest::around(frame, &model.config, bbox, |i| frame.instance_mask[i] == label)?;
-            Some(Target { object_id: Some(instance.object_id), bbox, crop })
+            let crop = CropRequest::around(frame, &model.config, bbox, |i| {
+                frame.instance_mask[i] == label
+            })?;
+            Some(Target {
+                object_id: Some(instance.object_id),
+                bbox,
+                crop,
+            })
         })
         .collect()
 }
 
 /// The boxes the segmenter finds; each is matched to a true instance (mask IoU ≥ 0.5) when the
 /// frame has ground truth, for the overlay and the printed error.
-fn predicted_targets(frame: &Frame, model: &KeypointModel, segmenter: &Path, backend: BackendKind) -> anyhow::Result<Vec<Target>> {
+fn predicted_targets(
+    frame: &Frame,
+    model: &KeypointModel,
+    segmenter: &Path,
+    backend: BackendKind,
+) -> anyhow::Result<Vec<Target>> {
     let segmenter = SegmenterModel::load(segmenter, backend.device()?)?;
     let detections = segmenter.segment(&[frame])?.remove(0);
     let found = segmentation::match_detections(frame, &detections, 0.5);
@@ -278,9 +403,17 @@ fn predicted_targets(frame: &Frame, model: &KeypointModel, segmenter: &Path, bac
         .iter()
         .enumerate()
         .filter_map(|(d, detection)| {
-            let crop = CropRequest::around(frame, &model.config, detection.bbox, |i| detection.mask[i])?;
-            let object_id = found.iter().position(|f| *f == Some(d)).map(|i| frame.instances[i].object_id);
-            Some(Target { object_id, bbox: detection.bbox, crop })
+            let crop =
+                CropRequest::around(frame, &model.config, detection.bbox, |i| detection.mask[i])?;
+            let object_id = found
+                .iter()
+                .position(|f| *f == Some(d))
+                .map(|i| frame.instances[i].object_id);
+            Some(Target {
+                object_id,
+                bbox: detection.bbox,
+                crop,
+            })
         })
         .collect())
 }
@@ -288,12 +421,17 @@ fn predicted_targets(frame: &Frame, model: &KeypointModel, segmenter: &Path, bac
 /// A frame from an RGB PNG and a 16-bit depth PNG in millimetres.
 fn frame_from_files(rgb_path: &Path, depth_path: &Path, k: &[f64]) -> anyhow::Result<Frame> {
     let read = |path: &Path| -> anyhow::Result<(png::OutputInfo, Vec<u8>)> {
-        let file = std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
+        let file =
+            std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
         let mut decoder = png::Decoder::new(std::io::BufReader::new(file));
         decoder.set_transformations(png::Transformations::EXPAND);
-        let mut reader = decoder.read_info().with_context(|| format!("{}: not a PNG", path.display()))?;
+        let mut reader = decoder
+            .read_info()
+            .with_context(|| format!("{}: not a PNG", path.display()))?;
         let mut buffer = vec![0; reader.output_buffer_size().context("image too large")?];
-        let info = reader.next_frame(&mut buffer).with_context(|| format!("{}: corrupt PNG", path.display()))?;
+        let info = reader
+            .next_frame(&mut buffer)
+            .with_context(|| format!("{}: corrupt PNG", path.display()))?;
         buffer.truncate(info.buffer_size());
         Ok((info, buffer))
     };
@@ -314,17 +452,33 @@ fn frame_from_files(rgb_path: &Path, depth_path: &Path, k: &[f64]) -> anyhow::Re
     anyhow::ensure!(
         (dinfo.width, dinfo.height) == (info.width, info.height),
         "{} is {}×{} but {} is {}×{}",
-        depth_path.display(), dinfo.width, dinfo.height, rgb_path.display(), info.width, info.height
+        depth_path.display(),
+        dinfo.width,
+        dinfo.height,
+        rgb_path.display(),
+        info.width,
+        info.height
     );
-    let depth = depth_bytes.chunks(2).map(|b| u16::from_be_bytes([b[0], b[1]]) as f32 / 1000.0).collect();
+    let depth = depth_bytes
+        .chunks(2)
+        .map(|b| u16::from_be_bytes([b[0], b[1]]) as f32 / 1000.0)
+        .collect();
     let (width, height) = (info.width as usize, info.height as usize);
     Ok(Frame {
         scene_id: -1,
         frame_id: 0,
         width,
         height,
-        intrinsics: Intrinsics { fx: k[0], fy: k[1], cx: k[2], cy: k[3] },
-        world_camera: Pose { quat_wxyz: [1.0, 0.0, 0.0, 0.0], translation: [0.0; 3] },
+        intrinsics: Intrinsics {
+            fx: k[0],
+            fy: k[1],
+            cx: k[2],
+            cy: k[3],
+        },
+        world_camera: Pose {
+            quat_wxyz: [1.0, 0.0, 0.0, 0.0],
+            translation: [0.0; 3],
+        },
         samples: 0,
         denoise: false,
         render_seed: 0,
@@ -339,7 +493,13 @@ fn frame_from_files(rgb_path: &Path, depth_path: &Path, k: &[f64]) -> anyhow::Re
 
 /// The JSON of every box. A fit's `confidence.margin_nats` is null when no other box hypothesis
 /// exists (an infinite margin).
-fn to_json(frame: &Frame, targets: &[Target], predictions: &[BoxPrediction], fits: &[Result<Fit, String>], method: SizeFit) -> serde_json::Value {
+fn to_json(
+    frame: &Frame,
+    targets: &[Target],
+    predictions: &[BoxPrediction],
+    fits: &[Result<Fit, String>],
+    method: SizeFit,
+) -> serde_json::Value {
     let boxes: Vec<_> = targets
         .iter()
         .zip(predictions.iter().zip(fits))
@@ -381,12 +541,29 @@ fn to_json(frame: &Frame, targets: &[Target], predictions: &[BoxPrediction], fit
 /// One row per box; the fit's columns are null where it failed (`fit_error` says why).
 /// `confidence_inliers` counts the peaks the noise-adaptive cost takes as inliers (for the
 /// robust fit the same as `inlier_count`; least squares counts every peak in `inlier_count`).
-fn write_parquet(path: &Path, frame: &Frame, targets: &[Target], predictions: &[BoxPrediction], outcomes: &[Result<Fit, String>], method: SizeFit) -> anyhow::Result<()> {
+fn write_parquet(
+    path: &Path,
+    frame: &Frame,
+    targets: &[Target],
+    predictions: &[BoxPrediction],
+    outcomes: &[Result<Fit, String>],
+    method: SizeFit,
+) -> anyhow::Result<()> {
     let fits: Vec<Option<&Fit>> = outcomes.iter().map(|f| f.as_ref().ok()).collect();
     let f64_list = |values: Vec<Option<Vec<f64>>>| -> ArrayRef {
-        Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(values.into_iter().map(|v| v.map(|v| v.into_iter().map(Some).collect::<Vec<_>>()))))
+        Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(
+            values
+                .into_iter()
+                .map(|v| v.map(|v| v.into_iter().map(Some).collect::<Vec<_>>())),
+        ))
     };
-    let list = |name: &str, item: DataType, nullable: bool| Field::new(name, DataType::List(Arc::new(Field::new("item", item, true))), nullable);
+    let list = |name: &str, item: DataType, nullable: bool| {
+        Field::new(
+            name,
+            DataType::List(Arc::new(Field::new("item", item, true))),
+            nullable,
+        )
+    };
     let schema = Arc::new(Schema::new(vec![
         Field::new("scene_id", DataType::Int64, false),
         Field::new("frame_id", DataType::Int32, false),
@@ -413,24 +590,98 @@ fn write_parquet(path: &Path, frame: &Frame, targets: &[Target], predictions: &[
         Arc::new(Int64Array::from(vec![frame.scene_id; targets.len()])),
         Arc::new(Int32Array::from(vec![frame.frame_id; targets.len()])),
         Arc::new(targets.iter().map(|t| t.object_id).collect::<Int32Array>()),
-        Arc::new(ListArray::from_iter_primitive::<Int32Type, _, _>(targets.iter().map(|t| Some(t.bbox.map(Some))))),
-        Arc::new(targets.iter().map(|t| t.crop.z_ref).collect::<Float64Array>()),
-        f64_list(fits.iter().map(|f| f.map(|f| { let q = f.pose.rotation.quaternion(); vec![q.w, q.i, q.j, q.k] })).collect()),
-        f64_list(fits.iter().map(|f| f.map(|f| f.pose.translation.vector.as_slice().to_vec())).collect()),
-        f64_list(fits.iter().map(|f| f.map(|f| f.model.size().as_slice().to_vec())).collect()),
-        f64_list(fits.iter().map(|f| f.map(|f| f.corners().iter().flat_map(|c| [c.x, c.y, c.z]).collect())).collect()),
-        f64_list(predictions.iter().map(|p| Some(p.points.iter().flat_map(|c| [c.x, c.y, c.z]).collect())).collect()),
-        Arc::new(ListArray::from_iter_primitive::<Float32Type, _, _>(predictions.iter().map(|p| Some(p.peaks.iter().map(|k| Some(k.score)).collect::<Vec<_>>())))),
-        Arc::new(fits.iter().map(|f| f.map(|f| f.inlier_count() as i32)).collect::<Int32Array>()),
-        Arc::new(fits.iter().map(|f| f.map(|f| f.inlier_rms)).collect::<Float64Array>()),
+        Arc::new(ListArray::from_iter_primitive::<Int32Type, _, _>(
+            targets.iter().map(|t| Some(t.bbox.map(Some))),
+        )),
+        Arc::new(
+            targets
+                .iter()
+                .map(|t| t.crop.z_ref)
+                .collect::<Float64Array>(),
+        ),
+        f64_list(
+            fits.iter()
+                .map(|f| {
+                    f.map(|f| {
+                        let q = f.pose.rotation.quaternion();
+                        vec![q.w, q.i, q.j, q.k]
+                    })
+                })
+                .collect(),
+        ),
+        f64_list(
+            fits.iter()
+                .map(|f| f.map(|f| f.pose.translation.vector.as_slice().to_vec()))
+                .collect(),
+        ),
+        f64_list(
+            fits.iter()
+                .map(|f| f.map(|f| f.model.size().as_slice().to_vec()))
+                .collect(),
+        ),
+        f64_list(
+            fits.iter()
+                .map(|f| f.map(|f| f.corners().iter().flat_map(|c| [c.x, c.y, c.z]).collect()))
+                .collect(),
+        ),
+        f64_list(
+            predictions
+                .iter()
+                .map(|p| Some(p.points.iter().flat_map(|c| [c.x, c.y, c.z]).collect()))
+                .collect(),
+        ),
+        Arc::new(ListArray::from_iter_primitive::<Float32Type, _, _>(
+            predictions
+                .iter()
+                .map(|p| Some(p.peaks.iter().map(|k| Some(k.score)).collect::<Vec<_>>())),
+        )),
+        Arc::new(
+            fits.iter()
+                .map(|f| f.map(|f| f.inlier_count() as i32))
+                .collect::<Int32Array>(),
+        ),
+        Arc::new(
+            fits.iter()
+                .map(|f| f.map(|f| f.inlier_rms))
+                .collect::<Float64Array>(),
+        ),
         Arc::new(StringArray::from(vec![method.name(); targets.len()])),
-        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.confidence)).collect::<Float64Array>()),
-        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.margin_nats)).collect::<Float64Array>()),
-        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.inliers as i32)).collect::<Int32Array>()),
-        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.noise_scale_m)).collect::<Float64Array>()),
-        Arc::new(fits.iter().map(|f| f.map(|f| f.confidence.mirror_ambiguous)).collect::<BooleanArray>()),
-        Arc::new(outcomes.iter().map(|f| f.as_ref().err().cloned()).collect::<StringArray>()),
+        Arc::new(
+            fits.iter()
+                .map(|f| f.map(|f| f.confidence.confidence))
+                .collect::<Float64Array>(),
+        ),
+        Arc::new(
+            fits.iter()
+                .map(|f| f.map(|f| f.confidence.margin_nats))
+                .collect::<Float64Array>(),
+        ),
+        Arc::new(
+            fits.iter()
+                .map(|f| f.map(|f| f.confidence.inliers as i32))
+                .collect::<Int32Array>(),
+        ),
+        Arc::new(
+            fits.iter()
+                .map(|f| f.map(|f| f.confidence.noise_scale_m))
+                .collect::<Float64Array>(),
+        ),
+        Arc::new(
+            fits.iter()
+                .map(|f| f.map(|f| f.confidence.mirror_ambiguous))
+                .collect::<BooleanArray>(),
+        ),
+        Arc::new(
+            outcomes
+                .iter()
+                .map(|f| f.as_ref().err().cloned())
+                .collect::<StringArray>(),
+        ),
     ];
-    boxpose_data::write_parquet(path, schema.clone(), &[RecordBatch::try_new(schema, columns)?])?;
+    boxpose_data::write_parquet(
+        path,
+        schema.clone(),
+        &[RecordBatch::try_new(schema, columns)?],
+    )?;
     Ok(())
 }

@@ -124,8 +124,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         // the renderer's rows pass the same validation as a dataset shard before anything is read
         let source = Path::new("<embedded Blender render>");
         let decoded = boxpose_data::decode_frames(source, f, &out.instances)?;
-        let frame = decoded.first().context("the renderer returned no frame row")?;
-        let (width, height, samples, fx) = (frame.width, frame.height, frame.samples, frame.intrinsics.fx);
+        let frame = decoded
+            .first()
+            .context("the renderer returned no frame row")?;
+        let (width, height, samples, fx) = (
+            frame.width,
+            frame.height,
+            frame.samples,
+            frame.intrinsics.fx,
+        );
         let stem = format!("scene-{:06}-frame-{frame_id:03}", args.scene);
         write_png(&args.out.join(format!("{stem}-rgb.png")), f, "rgb_png")?;
         write_png(
@@ -133,7 +140,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             f,
             "instance_mask_png",
         )?;
-        let seen = frame.instances.iter().filter(|i| i.visible_pixels > 0).count();
+        let seen = frame
+            .instances
+            .iter()
+            .filter(|i| i.visible_pixels > 0)
+            .count();
         println!(
             "{stem}: {width}×{height} px (fx {fx:.1}), {samples} samples, {seen}/{} boxes visible, {seconds:.2} s → {}",
             out.instances.num_rows(),

@@ -58,8 +58,16 @@ struct Row {
 
 fn load_recipe(recipe: &str) -> anyhow::Result<RecipePhysics> {
     let path = Path::new(recipe);
-    let path = if path.exists() { path.to_path_buf() } else { Path::new("datasets/recipes").join(format!("{recipe}.toml")) };
-    anyhow::ensure!(path.is_file(), "--recipe {recipe}: neither a TOML file nor a recipe name ({} does not exist)", path.display());
+    let path = if path.exists() {
+        path.to_path_buf()
+    } else {
+        Path::new("datasets/recipes").join(format!("{recipe}.toml"))
+    };
+    anyhow::ensure!(
+        path.is_file(),
+        "--recipe {recipe}: neither a TOML file nor a recipe name ({} does not exist)",
+        path.display()
+    );
     Ok(RecipePhysics::from_file(&path)?)
 }
 
@@ -82,7 +90,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut rows = Vec::new();
     let mut failures = 0usize;
     for scene in &scenes {
-        let result = settle_scene(scene, objects.get(&scene.scene_id).map_or(&[][..], Vec::as_slice), fixed.as_ref(), args);
+        let result = settle_scene(
+            scene,
+            objects.get(&scene.scene_id).map_or(&[][..], Vec::as_slice),
+            fixed.as_ref(),
+            args,
+        );
         match result {
             Ok((row, line)) => {
                 bar.suspend(|| println!("{line}"));
@@ -92,7 +105,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 failures += 1;
                 bar.suspend(|| {
                     if args.json {
-                        println!("{}", json!({"scene_id": scene.scene_id, "error": format!("{e:#}")}));
+                        println!(
+                            "{}",
+                            json!({"scene_id": scene.scene_id, "error": format!("{e:#}")})
+                        );
                     } else {
                         println!("scene {:>5}  error: {e:#}", scene.scene_id);
                     }
@@ -105,11 +121,20 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     if !args.json {
         print_summary(&rows, args.bench);
     }
-    anyhow::ensure!(failures == 0, "{failures} of {} scenes could not be settled", scenes.len());
+    anyhow::ensure!(
+        failures == 0,
+        "{failures} of {} scenes could not be settled",
+        scenes.len()
+    );
     Ok(())
 }
 
-fn settle_scene(scene: &Scene, objects: &[Object], fixed: Option<&RecipePhysics>, args: &Args) -> anyhow::Result<(Row, String)> {
+fn settle_scene(
+    scene: &Scene,
+    objects: &[Object],
+    fixed: Option<&RecipePhysics>,
+    args: &Args,
+) -> anyhow::Result<(Row, String)> {
     let recipe = match fixed {
         Some(r) => *r,
         None => RecipePhysics::from_toml(&scene.recipe_toml).context("the scene's recipe_toml")?,
@@ -141,7 +166,10 @@ fn settle_scene(scene: &Scene, objects: &[Object], fixed: Option<&RecipePhysics>
     let mut diffs = Vec::new();
     for (o, p) in objects.iter().zip(&outcome.poses) {
         faces_agree += usize::from(down_face(o.world_box.quat_wxyz).0 == down_face(p.quat_wxyz).0);
-        let d = (0..3).map(|k| (o.world_box.translation[k] - p.translation[k]).powi(2)).sum::<f64>().sqrt();
+        let d = (0..3)
+            .map(|k| (o.world_box.translation[k] - p.translation[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
         diffs.push(d);
     }
     let max_diff = diffs.iter().copied().fold(0.0, f64::max);
@@ -180,10 +208,24 @@ fn settle_scene(scene: &Scene, objects: &[Object], fixed: Option<&RecipePhysics>
             mean_diff * 1e3,
             c.settle_time_s,
             wall_s * 1e3,
-            if args.bench { format!(" (median of {})", walls.len()) } else { String::new() },
+            if args.bench {
+                format!(" (median of {})", walls.len())
+            } else {
+                String::new()
+            },
         )
     };
-    Ok((Row { boxes: n, stable: outcome.stable, drake_stable: scene.stable, faces_agree, max_position_diff_m: max_diff, wall_s }, line))
+    Ok((
+        Row {
+            boxes: n,
+            stable: outcome.stable,
+            drake_stable: scene.stable,
+            faces_agree,
+            max_position_diff_m: max_diff,
+            wall_s,
+        },
+        line,
+    ))
 }
 
 fn verdict(stable: bool, why: Option<&str>) -> String {
@@ -203,24 +245,45 @@ fn print_summary(rows: &[Row], bench: bool) {
     let both = rows.iter().filter(|r| r.stable && r.drake_stable).count();
     let singles: Vec<&Row> = rows.iter().filter(|r| r.boxes == 1).collect();
     let single_same = singles.iter().filter(|r| r.faces_agree == 1).count();
-    let (faces, boxes) = rows.iter().fold((0, 0), |(f, b), r| (f + r.faces_agree, b + r.boxes));
+    let (faces, boxes) = rows
+        .iter()
+        .fold((0, 0), |(f, b), r| (f + r.faces_agree, b + r.boxes));
     let mut diffs: Vec<f64> = rows.iter().map(|r| r.max_position_diff_m).collect();
     diffs.sort_by(f64::total_cmp);
     println!();
     println!("{n} scenes: {both} stable in both MuJoCo and the stored settle");
     if !singles.is_empty() {
-        println!("single-box scenes resting on the same face: {single_same}/{}", singles.len());
+        println!(
+            "single-box scenes resting on the same face: {single_same}/{}",
+            singles.len()
+        );
     }
     println!("boxes resting on the same face: {faces}/{boxes}");
-    println!("per-scene largest centre distance: median {:.1} mm, max {:.1} mm", diffs[n / 2] * 1e3, diffs[n - 1] * 1e3);
+    println!(
+        "per-scene largest centre distance: median {:.1} mm, max {:.1} mm",
+        diffs[n / 2] * 1e3,
+        diffs[n - 1] * 1e3
+    );
     let mut by_count: BTreeMap<usize, Vec<f64>> = BTreeMap::new();
     for r in rows {
         by_count.entry(r.boxes).or_default().push(r.wall_s);
     }
-    println!("MuJoCo wall time per settle{}:", if bench { " (median of the repeats)" } else { "" });
+    println!(
+        "MuJoCo wall time per settle{}:",
+        if bench {
+            " (median of the repeats)"
+        } else {
+            ""
+        }
+    );
     for (boxes, mut walls) in by_count {
         walls.sort_by(f64::total_cmp);
         let mean = walls.iter().sum::<f64>() / walls.len() as f64;
-        println!("  {boxes:>3} boxes: median {:.2} ms, mean {:.2} ms over {} scenes", walls[walls.len() / 2] * 1e3, mean * 1e3, walls.len());
+        println!(
+            "  {boxes:>3} boxes: median {:.2} ms, mean {:.2} ms over {} scenes",
+            walls[walls.len() / 2] * 1e3,
+            mean * 1e3,
+            walls.len()
+        );
     }
 }

@@ -66,12 +66,27 @@ impl RunArgs {
         config: &C,
         loader_threads: usize,
     ) -> anyhow::Result<()> {
-        let options = TrainOptions { device: self.backend.device()?, restart: self.restart, stop_after: self.stop_after, progress: true };
-        let report = training::train(Arc::new(task), o, config, loader_threads, &self.out, options)?;
+        let options = TrainOptions {
+            device: self.backend.device()?,
+            restart: self.restart,
+            stop_after: self.stop_after,
+            progress: true,
+        };
+        let report = training::train(
+            Arc::new(task),
+            o,
+            config,
+            loader_threads,
+            &self.out,
+            options,
+        )?;
         if let Some(step) = report.resumed_from {
             println!("resumed from the checkpoint at step {step}");
         }
-        println!("{} of {} steps done in {:.0} s of training", report.state.step, o.steps, report.state.train_seconds);
+        println!(
+            "{} of {} steps done in {:.0} s of training",
+            report.state.step, o.steps, report.state.train_seconds
+        );
         if let Some(v) = &report.state.last_validation {
             training::print_validation(v);
         }
@@ -106,18 +121,25 @@ pub struct Args {
 }
 
 fn parse_backbone(text: &str) -> Result<Backbone, String> {
-    toml::Value::String(text.into()).try_into().map_err(|_| format!("unknown backbone {text:?} (resnet18, resnet34, slim, tiny)"))
+    toml::Value::String(text.into())
+        .try_into()
+        .map_err(|_| format!("unknown backbone {text:?} (resnet18, resnet34, slim, tiny)"))
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut config = TrainConfig::load(&args.config)?;
-    args.run.override_config(&mut config.data, &mut config.optimizer);
+    args.run
+        .override_config(&mut config.data, &mut config.optimizer);
     let n = &mut config.network;
     n.backbone = args.backbone.unwrap_or(n.backbone);
     n.input_size = args.input_size.unwrap_or(n.input_size);
     n.depth_bins = args.depth_bins.unwrap_or(n.depth_bins);
-    config.data.max_val_instances = args.max_val_instances.unwrap_or(config.data.max_val_instances);
-    config.validate().with_context(|| format!("{} with the command-line overrides", args.config.display()))?;
+    config.data.max_val_instances = args
+        .max_val_instances
+        .unwrap_or(config.data.max_val_instances);
+    config
+        .validate()
+        .with_context(|| format!("{} with the command-line overrides", args.config.display()))?;
 
     let task = KeypointTask::load(config.clone())?;
     println!(
@@ -132,7 +154,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         config.optimizer.batch_size,
         args.run.backend.name(),
     );
-    args.run.train(task, &config.optimizer, &config, config.data.loader_threads)
+    args.run
+        .train(task, &config.optimizer, &config, config.data.loader_threads)
 }
 
 #[derive(clap::Args)]
@@ -146,7 +169,8 @@ pub struct SegmenterArgs {
 
 pub fn run_segmenter(args: &SegmenterArgs) -> anyhow::Result<()> {
     let mut config = SegmenterTrainConfig::load(&args.config)?;
-    args.run.override_config(&mut config.data, &mut config.optimizer);
+    args.run
+        .override_config(&mut config.data, &mut config.optimizer);
     let task = SegmenterTask::load(config.clone())?;
     println!(
         "training the {:?} segmenter at {}×{} on {} training / {} held-out frames for {} steps of {} (backend {})",
@@ -159,5 +183,6 @@ pub fn run_segmenter(args: &SegmenterArgs) -> anyhow::Result<()> {
         config.optimizer.batch_size,
         args.run.backend.name()
     );
-    args.run.train(task, &config.optimizer, &config, config.data.loader_threads)
+    args.run
+        .train(task, &config.optimizer, &config, config.data.loader_threads)
 }

@@ -173,7 +173,11 @@ impl Iterator for FrameIter {
 /// Decodes in-memory `frames` and `instances` batches (e.g. a renderer's output) into frames
 /// joined with their instances, validating both exactly as a shard is validated. `source` names
 /// where the batches came from in error messages.
-pub fn decode_frames(source: &Path, frames: &RecordBatch, instances: &RecordBatch) -> Result<Vec<Frame>> {
+pub fn decode_frames(
+    source: &Path,
+    frames: &RecordBatch,
+    instances: &RecordBatch,
+) -> Result<Vec<Frame>> {
     check_columns(source, &schema::FRAMES, &frames.schema())?;
     check_values(source, &schema::FRAMES, frames, 0)?;
     check_columns(source, &schema::INSTANCES, &instances.schema())?;
@@ -181,12 +185,17 @@ pub fn decode_frames(source: &Path, frames: &RecordBatch, instances: &RecordBatc
     let mut by_frame: HashMap<(i64, i32), Vec<Instance>> = HashMap::new();
     for row in 0..instances.num_rows() {
         let instance = Instance::from_row(source, instances, row)?;
-        by_frame.entry((instance.scene_id, instance.frame_id)).or_default().push(instance);
+        by_frame
+            .entry((instance.scene_id, instance.frame_id))
+            .or_default()
+            .push(instance);
     }
     (0..frames.num_rows())
         .map(|row| {
             let mut frame = Frame::from_row(source, frames, row)?;
-            let mut list = by_frame.remove(&(frame.scene_id, frame.frame_id)).unwrap_or_default();
+            let mut list = by_frame
+                .remove(&(frame.scene_id, frame.frame_id))
+                .unwrap_or_default();
             list.sort_by_key(|i| i.object_id);
             frame.instances = list;
             Ok(frame)

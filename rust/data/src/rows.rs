@@ -441,19 +441,27 @@ fn decode_depth(
 mod to_batch {
     use std::sync::Arc;
 
-    use arrow::array::{ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray, StringArray};
+    use arrow::array::{
+        ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray,
+        StringArray,
+    };
     use arrow::datatypes::{ArrowPrimitiveType, Float32Type, Float64Type};
     use arrow::record_batch::RecordBatch;
 
     use super::{Object, Pose, Scene};
     use crate::schema::{self, Table};
 
-    fn list<T: ArrowPrimitiveType, const N: usize>(rows: impl Iterator<Item = [T::Native; N]>) -> ArrayRef {
-        Arc::new(ListArray::from_iter_primitive::<T, _, _>(rows.map(|r| Some(r.map(Some)))))
+    fn list<T: ArrowPrimitiveType, const N: usize>(
+        rows: impl Iterator<Item = [T::Native; N]>,
+    ) -> ArrayRef {
+        Arc::new(ListArray::from_iter_primitive::<T, _, _>(
+            rows.map(|r| Some(r.map(Some))),
+        ))
     }
 
     fn batch(table: &Table, columns: Vec<ArrayRef>) -> RecordBatch {
-        RecordBatch::try_new(Arc::new(table.arrow_schema()), columns).expect("columns built in contract order and types")
+        RecordBatch::try_new(Arc::new(table.arrow_schema()), columns)
+            .expect("columns built in contract order and types")
     }
 
     fn quats<'a>(poses: impl Iterator<Item = &'a Pose>) -> ArrayRef {
@@ -467,8 +475,12 @@ mod to_batch {
     impl Scene {
         /// `rows` as one `scenes` batch with the contract schema.
         pub fn to_batch(rows: &[Scene]) -> RecordBatch {
-            let text = |f: fn(&Scene) -> &str| Arc::new(rows.iter().map(|r| Some(f(r))).collect::<StringArray>()) as ArrayRef;
-            let float = |f: fn(&Scene) -> f64| Arc::new(rows.iter().map(f).collect::<Float64Array>()) as ArrayRef;
+            let text = |f: fn(&Scene) -> &str| {
+                Arc::new(rows.iter().map(|r| Some(f(r))).collect::<StringArray>()) as ArrayRef
+            };
+            let float = |f: fn(&Scene) -> f64| {
+                Arc::new(rows.iter().map(f).collect::<Float64Array>()) as ArrayRef
+            };
             batch(
                 &schema::SCENES,
                 vec![
@@ -482,12 +494,20 @@ mod to_batch {
                     Arc::new(rows.iter().map(|r| r.num_objects).collect::<Int32Array>()),
                     text(|r| &r.solver),
                     text(|r| &r.solver_status),
-                    Arc::new(rows.iter().map(|r| r.solve_attempts).collect::<Int32Array>()),
+                    Arc::new(
+                        rows.iter()
+                            .map(|r| r.solve_attempts)
+                            .collect::<Int32Array>(),
+                    ),
                     float(|r| r.settle_time_s),
                     float(|r| r.max_linear_speed_mps),
                     float(|r| r.max_angular_speed_radps),
                     float(|r| r.min_signed_distance_m),
-                    Arc::new(rows.iter().map(|r| Some(r.stable)).collect::<BooleanArray>()),
+                    Arc::new(
+                        rows.iter()
+                            .map(|r| Some(r.stable))
+                            .collect::<BooleanArray>(),
+                    ),
                 ],
             )
         }
@@ -511,8 +531,16 @@ mod to_batch {
                     list::<Float32Type, 3>(rows.iter().map(|r| r.base_color_rgb)),
                     Arc::new(rows.iter().map(|r| r.roughness).collect::<Float32Array>()),
                     Arc::new(rows.iter().map(|r| r.texture_seed).collect::<Int64Array>()),
-                    Arc::new(rows.iter().map(|r| Some(r.has_tape)).collect::<BooleanArray>()),
-                    Arc::new(rows.iter().map(|r| Some(r.has_label)).collect::<BooleanArray>()),
+                    Arc::new(
+                        rows.iter()
+                            .map(|r| Some(r.has_tape))
+                            .collect::<BooleanArray>(),
+                    ),
+                    Arc::new(
+                        rows.iter()
+                            .map(|r| Some(r.has_label))
+                            .collect::<BooleanArray>(),
+                    ),
                 ],
             )
         }

@@ -19,7 +19,12 @@ pub fn shard_file_name(shard: usize, num_shards: usize) -> String {
 
 /// Writes `batches` as `<dataset>/<table>/<file_name>`, atomically (see [`write_parquet`]).
 /// The batches must carry the table's schema (see [`Table::arrow_schema`]).
-pub fn write_shard(dataset: &Path, table: &Table, file_name: &str, batches: &[RecordBatch]) -> Result<PathBuf> {
+pub fn write_shard(
+    dataset: &Path,
+    table: &Table,
+    file_name: &str,
+    batches: &[RecordBatch],
+) -> Result<PathBuf> {
     let path = dataset.join(table.name).join(file_name);
     write_parquet(&path, std::sync::Arc::new(table.arrow_schema()), batches)?;
     Ok(path)
@@ -30,12 +35,22 @@ pub fn write_shard(dataset: &Path, table: &Table, file_name: &str, batches: &[Re
 /// synced, so an interrupted job never leaves a half file that looks valid.
 pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) -> Result<()> {
     let tmp = temporary_beside(path)?;
-    let io = |source| DataError::Io { path: tmp.clone(), source };
-    let parquet = |source| DataError::Parquet { path: tmp.clone(), source };
+    let io = |source| DataError::Io {
+        path: tmp.clone(),
+        source,
+    };
+    let parquet = |source| DataError::Parquet {
+        path: tmp.clone(),
+        source,
+    };
 
     // The schema's metadata (schema version, table) goes into the footer's key-value pairs, where
     // every Parquet reader sees it; ArrowWriter alone keeps it only inside its encoded schema.
-    let metadata = schema.metadata().iter().map(|(k, v)| KeyValue::new(k.clone(), v.clone())).collect();
+    let metadata = schema
+        .metadata()
+        .iter()
+        .map(|(k, v)| KeyValue::new(k.clone(), v.clone()))
+        .collect();
     let props = WriterProperties::builder()
         .set_compression(Compression::ZSTD(ZstdLevel::try_new(3).map_err(parquet)?))
         .set_key_value_metadata(Some(metadata))
@@ -55,7 +70,10 @@ pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) ->
     }
     let file = writer.into_inner().map_err(parquet)?;
     file.sync_all().map_err(io)?;
-    fs::rename(&tmp, path).map_err(|source| DataError::Io { path: path.to_path_buf(), source })
+    fs::rename(&tmp, path).map_err(|source| DataError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// A temporary name beside `path`, unique to this writer (`<name>.<pid>-<n>.tmp`: two processes or
@@ -63,9 +81,16 @@ pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) ->
 fn temporary_beside(path: &Path) -> Result<PathBuf> {
     static WRITES: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
     let dir = path.parent().unwrap_or(Path::new("."));
-    fs::create_dir_all(dir).map_err(|source| DataError::Io { path: dir.to_path_buf(), source })?;
+    fs::create_dir_all(dir).map_err(|source| DataError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
     let n = WRITES.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    Ok(path.with_file_name(format!("{}.{}-{n}.tmp", path.file_name().unwrap_or_default().to_string_lossy(), std::process::id())))
+    Ok(path.with_file_name(format!(
+        "{}.{}-{n}.tmp",
+        path.file_name().unwrap_or_default().to_string_lossy(),
+        std::process::id()
+    )))
 }
 
 /// Writes `bytes` to `path` atomically, as [`write_parquet`] publishes a shard: under a temporary
@@ -73,8 +98,16 @@ fn temporary_beside(path: &Path) -> Result<PathBuf> {
 pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
     use std::io::Write;
     let tmp = temporary_beside(path)?;
-    let io = |source| DataError::Io { path: tmp.clone(), source };
+    let io = |source| DataError::Io {
+        path: tmp.clone(),
+        source,
+    };
     let mut file = fs::File::create(&tmp).map_err(io)?;
-    file.write_all(bytes).and_then(|_| file.sync_all()).map_err(io)?;
-    fs::rename(&tmp, path).map_err(|source| DataError::Io { path: path.to_path_buf(), source })
+    file.write_all(bytes)
+        .and_then(|_| file.sync_all())
+        .map_err(io)?;
+    fs::rename(&tmp, path).map_err(|source| DataError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }

@@ -2,14 +2,18 @@
 
 use std::sync::Arc;
 
-use arrow::array::{ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray};
+use arrow::array::{
+    ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray,
+};
 use arrow::datatypes::{Float32Type, Float64Type};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::schema::OBJECTS;
-use boxpose_data::{Dataset, DataError, shard_file_name, write_shard};
+use boxpose_data::{DataError, Dataset, shard_file_name, write_shard};
 
 fn list_f64(rows: &[Vec<f64>]) -> ArrayRef {
-    Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(rows.iter().map(|r| Some(r.iter().map(|&v| Some(v))))))
+    Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(
+        rows.iter().map(|r| Some(r.iter().map(|&v| Some(v)))),
+    ))
 }
 
 fn objects_batch(translation_z: f64) -> RecordBatch {
@@ -23,25 +27,41 @@ fn objects_batch(translation_z: f64) -> RecordBatch {
         list_f64(&[vec![0.1, -0.2, 0.3]]),
         Arc::new(Float64Array::from(vec![0.4])),
         Arc::new(Float64Array::from(vec![0.7])),
-        Arc::new(ListArray::from_iter_primitive::<Float32Type, _, _>([Some([Some(0.6f32), Some(0.45), Some(0.3)])])),
+        Arc::new(ListArray::from_iter_primitive::<Float32Type, _, _>([Some(
+            [Some(0.6f32), Some(0.45), Some(0.3)],
+        )])),
         Arc::new(Float32Array::from(vec![0.8])),
         Arc::new(Int64Array::from(vec![42])),
         Arc::new(BooleanArray::from(vec![true])),
         Arc::new(BooleanArray::from(vec![false])),
     ];
-    RecordBatch::try_new(Arc::new(OBJECTS.arrow_schema()), columns).expect("batch matches the schema")
+    RecordBatch::try_new(Arc::new(OBJECTS.arrow_schema()), columns)
+        .expect("batch matches the schema")
 }
 
 #[test]
 fn rust_written_shard_reads_back() {
     let dir = tempfile::tempdir().unwrap();
-    let path = write_shard(dir.path(), &OBJECTS, &shard_file_name(0, 1), &[objects_batch(0.025)]).unwrap();
-    let leftovers: Vec<_> = std::fs::read_dir(path.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).filter(|n| n.to_string_lossy().ends_with(".tmp")).collect();
+    let path = write_shard(
+        dir.path(),
+        &OBJECTS,
+        &shard_file_name(0, 1),
+        &[objects_batch(0.025)],
+    )
+    .unwrap();
+    let leftovers: Vec<_> = std::fs::read_dir(path.parent().unwrap())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .filter(|n| n.to_string_lossy().ends_with(".tmp"))
+        .collect();
     assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
     let objects = Dataset::open(dir.path()).unwrap().objects().unwrap();
     assert_eq!(objects.len(), 1);
     let object = &objects[0];
-    assert_eq!((object.scene_id, object.object_id, object.texture_seed), (3, 0, 42));
+    assert_eq!(
+        (object.scene_id, object.object_id, object.texture_seed),
+        (3, 0, 42)
+    );
     assert_eq!(object.size, [0.2, 0.1, 0.05]);
     assert_eq!(object.world_box.translation, [0.1, -0.2, 0.025]);
     assert_eq!(object.initial_world_box.quat_wxyz, [0.0, 1.0, 0.0, 0.0]);
@@ -52,9 +72,25 @@ fn rust_written_shard_reads_back() {
 #[test]
 fn nan_written_by_rust_is_caught_on_read() {
     let dir = tempfile::tempdir().unwrap();
-    write_shard(dir.path(), &OBJECTS, &shard_file_name(0, 1), &[objects_batch(f64::NAN)]).unwrap();
+    write_shard(
+        dir.path(),
+        &OBJECTS,
+        &shard_file_name(0, 1),
+        &[objects_batch(f64::NAN)],
+    )
+    .unwrap();
     let error = Dataset::open(dir.path()).unwrap().objects().unwrap_err();
-    assert!(matches!(error, DataError::BadValue { column: "world_box_translation_m", row: 0, .. }), "{error}");
+    assert!(
+        matches!(
+            error,
+            DataError::BadValue {
+                column: "world_box_translation_m",
+                row: 0,
+                ..
+            }
+        ),
+        "{error}"
+    );
 }
 
 /// `Scene::to_batch` and `Object::to_batch` write what the reader reads back, field for field.
@@ -84,8 +120,14 @@ fn typed_rows_round_trip_through_a_shard() {
         scene_id: 7,
         object_id: 0,
         size: [0.1, 0.2, 0.3],
-        world_box: Pose { quat_wxyz: [half, 0.0, half, 0.0], translation: [0.01, 0.02, 0.05] },
-        initial_world_box: Pose { quat_wxyz: [1.0, 0.0, 0.0, 0.0], translation: [0.0, 0.0, 0.3] },
+        world_box: Pose {
+            quat_wxyz: [half, 0.0, half, 0.0],
+            translation: [0.01, 0.02, 0.05],
+        },
+        initial_world_box: Pose {
+            quat_wxyz: [1.0, 0.0, 0.0, 0.0],
+            translation: [0.0, 0.0, 0.3],
+        },
         mass_kg: 1.5,
         friction: 0.7,
         base_color_rgb: [0.5, 0.4, 0.3],
@@ -95,8 +137,20 @@ fn typed_rows_round_trip_through_a_shard() {
         has_label: false,
     };
     let dir = tempfile::tempdir().unwrap();
-    boxpose_data::write_shard(dir.path(), &schema::SCENES, "part-00000-of-00001.parquet", &[Scene::to_batch(std::slice::from_ref(&scene))]).unwrap();
-    boxpose_data::write_shard(dir.path(), &schema::OBJECTS, "part-00000-of-00001.parquet", &[Object::to_batch(std::slice::from_ref(&object))]).unwrap();
+    boxpose_data::write_shard(
+        dir.path(),
+        &schema::SCENES,
+        "part-00000-of-00001.parquet",
+        &[Scene::to_batch(std::slice::from_ref(&scene))],
+    )
+    .unwrap();
+    boxpose_data::write_shard(
+        dir.path(),
+        &schema::OBJECTS,
+        "part-00000-of-00001.parquet",
+        &[Object::to_batch(std::slice::from_ref(&object))],
+    )
+    .unwrap();
     let dataset = boxpose_data::Dataset::open(dir.path()).unwrap();
     assert_eq!(dataset.scenes().unwrap(), vec![scene]);
     assert_eq!(dataset.objects().unwrap(), vec![object]);

@@ -2,7 +2,9 @@
 //! optionally weighted. The rotation is always proper (det = +1): when the best orthogonal matrix
 //! is a reflection, the smallest singular direction is flipped (Umeyama 1991).
 
-use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Similarity3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Matrix3, Point3, Rotation3, Similarity3, Translation3, UnitQuaternion, Vector3,
+};
 
 use crate::error::{GeometryError, Result, ensure_finite, ensure_finite_points, ensure_len};
 
@@ -183,12 +185,11 @@ fn weighted_fit(
     // (both its special 3×3 path and the general one) stops with U·Σ·Vᵀ 4e-4 away from the matrix
     // when two singular values nearly coincide — the corners of a square-faced box — and fitted a
     // half turn of a 0.15 × 0.25 × 0.25 m box 0.4 mrad wrong at 10 µm of noise.
-    let rotation = match QuaternionFit::new(&covariance, source_variance, target_scatter.trace())
-        .rotation()
-    {
-        Some(rotation) => rotation.to_rotation_matrix().into_inner(),
-        None => svd_rotation(&covariance),
-    };
+    let rotation =
+        match QuaternionFit::new(&covariance, source_variance, target_scatter.trace()).rotation() {
+            Some(rotation) => rotation.to_rotation_matrix().into_inner(),
+            None => svd_rotation(&covariance),
+        };
     // tr(Rᵀ·C) = Σ σ_k, the last negated when a reflection was avoided (Umeyama's tr(D·S)).
     let signed_singular_sum = (rotation.transpose() * covariance).trace();
     Ok(WeightedFit {
@@ -430,7 +431,9 @@ mod tests {
         let target: Vec<_> = corners
             .iter()
             .enumerate()
-            .map(|(i, p)| truth * p + Vector3::new(1.0, -0.7, 0.4) * (1e-5 * (i as f64 - 3.5) / 3.5))
+            .map(|(i, p)| {
+                truth * p + Vector3::new(1.0, -0.7, 0.4) * (1e-5 * (i as f64 - 3.5) / 3.5)
+            })
             .collect();
         let fit = kabsch(&corners, &target).unwrap();
         // First-order optimality: with centred sets, Rᵀ·Σ t sᵀ is symmetric at the optimum.

@@ -268,7 +268,9 @@ pub fn fit_and_score_one(
     points: &[Point3<f64>],
     scores: &[f64],
 ) -> Result<Scores, String> {
-    fit_and_score_methods(&[method], model, truth, points, scores).remove(0).1
+    fit_and_score_methods(&[method], model, truth, points, scores)
+        .remove(0)
+        .1
 }
 
 /// A box fitted without knowing its size has no preferred axis labels: the size fit may call the

@@ -45,7 +45,11 @@ fn corner_set_distance(model: &BoxModel, a: &Isometry3<f64>, b: &Isometry3<f64>)
     let (a, b) = (true_corners(model, a), true_corners(model, b));
     let one_way = |from: &[Point3<f64>], to: &[Point3<f64>]| {
         from.iter()
-            .map(|p| to.iter().map(|q| (p - q).norm()).fold(f64::INFINITY, f64::min))
+            .map(|p| {
+                to.iter()
+                    .map(|q| (p - q).norm())
+                    .fold(f64::INFINITY, f64::min)
+            })
             .fold(0.0, f64::max)
     };
     one_way(&a, &b).max(one_way(&b, &a))

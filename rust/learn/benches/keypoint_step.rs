@@ -18,7 +18,10 @@ fn arg<T: std::str::FromStr>(args: &[String], name: &str, default: T) -> T {
     args.iter()
         .position(|a| a == name)
         .and_then(|i| args.get(i + 1))
-        .map(|v| v.parse().unwrap_or_else(|_| panic!("bad value for {name}: {v}")))
+        .map(|v| {
+            v.parse()
+                .unwrap_or_else(|_| panic!("bad value for {name}: {v}"))
+        })
         .unwrap_or(default)
 }
 
@@ -30,8 +33,15 @@ fn median(mut values: Vec<f64>) -> f64 {
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let backbone: String = arg(&args, "--backbone", "slim".to_string());
-    let backbone: Backbone = toml::Value::String(backbone.clone()).try_into().unwrap_or_else(|_| panic!("unknown backbone {backbone}"));
-    let (batch, size, depth_bins, steps) = (arg(&args, "--batch", 8usize), arg(&args, "--size", 128usize), arg(&args, "--depth-bins", 48usize), arg(&args, "--steps", 10usize));
+    let backbone: Backbone = toml::Value::String(backbone.clone())
+        .try_into()
+        .unwrap_or_else(|_| panic!("unknown backbone {backbone}"));
+    let (batch, size, depth_bins, steps) = (
+        arg(&args, "--batch", 8usize),
+        arg(&args, "--size", 128usize),
+        arg(&args, "--depth-bins", 48usize),
+        arg(&args, "--steps", 10usize),
+    );
     let backend = match arg(&args, "--backend", "flex".to_string()).as_str() {
         "flex" => BackendKind::Flex,
         "wgpu" => BackendKind::Wgpu,
@@ -39,7 +49,14 @@ fn main() {
         "tch" => BackendKind::Tch,
         other => panic!("unknown backend {other}"),
     };
-    let config = NetworkConfig { backbone, input_size: size, depth_bins, depth_range_m: [-0.12, 0.24], sigma_voxels: 1.0, crop_margin: 1.25 };
+    let config = NetworkConfig {
+        backbone,
+        input_size: size,
+        depth_bins,
+        depth_range_m: [-0.12, 0.24],
+        sigma_voxels: 1.0,
+        crop_margin: 1.25,
+    };
     let device = backend.device().expect("backend available").autodiff();
     device.seed(0);
     let mut net = KeypointNet::keypoints(&config, &device);
@@ -47,8 +64,16 @@ fn main() {
     let n = size / 4;
     let mut step_ms = Vec::new();
     for i in 0..steps + 2 {
-        let input = Tensor::<4>::random([batch, 4, size, size], Distribution::Normal(0.0, 1.0), &device);
-        let target = Tensor::<4>::random([batch, depth_bins, n, n], Distribution::Uniform(0.0, 1.0), &device);
+        let input = Tensor::<4>::random(
+            [batch, 4, size, size],
+            Distribution::Normal(0.0, 1.0),
+            &device,
+        );
+        let target = Tensor::<4>::random(
+            [batch, depth_bins, n, n],
+            Distribution::Uniform(0.0, 1.0),
+            &device,
+        );
         let start = Instant::now();
         let loss = (net.forward(input) - target).powi_scalar(2).mean();
         let _ = loss.clone().into_scalar::<f32>();
@@ -64,7 +89,11 @@ fn main() {
     let per_crop = |crops: usize, repeats: usize| -> f64 {
         let mut times = Vec::new();
         for i in 0..repeats + 1 {
-            let input = Tensor::<4>::random([crops, 4, size, size], Distribution::Normal(0.0, 1.0), &plain);
+            let input = Tensor::<4>::random(
+                [crops, 4, size, size],
+                Distribution::Normal(0.0, 1.0),
+                &plain,
+            );
             let start = Instant::now();
             let _ = inference.forward(input).into_data();
             if i >= 1 {

@@ -9,9 +9,13 @@ use serde::{Deserialize, Serialize};
 use crate::LearnError;
 
 /// Reads a training config file and checks it with `validate`; errors name the file.
-pub(crate) fn read_config<C: DeserializeOwned>(path: &Path, validate: impl FnOnce(&C) -> Result<(), LearnError>) -> Result<C, LearnError> {
+pub(crate) fn read_config<C: DeserializeOwned>(
+    path: &Path,
+    validate: impl FnOnce(&C) -> Result<(), LearnError>,
+) -> Result<C, LearnError> {
     let text = std::fs::read_to_string(path).map_err(|e| LearnError::Io(path.to_path_buf(), e))?;
-    let config: C = toml::from_str(&text).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
+    let config: C = toml::from_str(&text)
+        .map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
     validate(&config).map_err(|e| LearnError::Config(format!("{}: {e}", path.display())))?;
     Ok(config)
 }
@@ -37,10 +41,26 @@ pub struct Layout {
 impl Backbone {
     pub fn layout(self) -> Layout {
         match self {
-            Backbone::Resnet18 => Layout { widths: [64, 128, 256, 512], blocks: [2, 2, 2, 2], head_channels: 256 },
-            Backbone::Resnet34 => Layout { widths: [64, 128, 256, 512], blocks: [3, 4, 6, 3], head_channels: 256 },
-            Backbone::Slim => Layout { widths: [32, 64, 128, 256], blocks: [2, 2, 2, 2], head_channels: 128 },
-            Backbone::Tiny => Layout { widths: [8, 8, 16, 16], blocks: [1, 1, 1, 1], head_channels: 8 },
+            Backbone::Resnet18 => Layout {
+                widths: [64, 128, 256, 512],
+                blocks: [2, 2, 2, 2],
+                head_channels: 256,
+            },
+            Backbone::Resnet34 => Layout {
+                widths: [64, 128, 256, 512],
+                blocks: [3, 4, 6, 3],
+                head_channels: 256,
+            },
+            Backbone::Slim => Layout {
+                widths: [32, 64, 128, 256],
+                blocks: [2, 2, 2, 2],
+                head_channels: 128,
+            },
+            Backbone::Tiny => Layout {
+                widths: [8, 8, 16, 16],
+                blocks: [1, 1, 1, 1],
+                head_channels: 8,
+            },
         }
     }
 }
@@ -73,17 +93,26 @@ impl NetworkConfig {
     pub fn validate(&self) -> Result<(), LearnError> {
         let bad = |reason: String| Err(LearnError::Config(reason));
         if self.input_size == 0 || self.input_size % 32 != 0 {
-            return bad(format!("input_size {} must be a positive multiple of 32", self.input_size));
+            return bad(format!(
+                "input_size {} must be a positive multiple of 32",
+                self.input_size
+            ));
         }
         if self.depth_bins < 2 {
             return bad(format!("depth_bins {} must be at least 2", self.depth_bins));
         }
         let [near, far] = self.depth_range_m;
         if !(near.is_finite() && far.is_finite() && near < far) {
-            return bad(format!("depth_range_m {:?} must be finite with near < far", self.depth_range_m));
+            return bad(format!(
+                "depth_range_m {:?} must be finite with near < far",
+                self.depth_range_m
+            ));
         }
         if !(self.sigma_voxels > 0.0) || !(self.crop_margin >= 1.0) {
-            return bad(format!("sigma_voxels {} must be > 0 and crop_margin {} ≥ 1", self.sigma_voxels, self.crop_margin));
+            return bad(format!(
+                "sigma_voxels {} must be > 0 and crop_margin {} ≥ 1",
+                self.sigma_voxels, self.crop_margin
+            ));
         }
         Ok(())
     }
@@ -107,9 +136,17 @@ pub struct AugmentConfig {
 
 impl AugmentConfig {
     pub fn validate(&self) -> Result<(), LearnError> {
-        let fields = [("shift", self.shift), ("scale", self.scale), ("color", self.color), ("depth_noise_m", self.depth_noise_m), ("depth_dropout", self.depth_dropout)];
+        let fields = [
+            ("shift", self.shift),
+            ("scale", self.scale),
+            ("color", self.color),
+            ("depth_noise_m", self.depth_noise_m),
+            ("depth_dropout", self.depth_dropout),
+        ];
         if let Some((name, value)) = fields.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
-            return Err(LearnError::Config(format!("[augment] {name} = {value} must be a number ≥ 0")));
+            return Err(LearnError::Config(format!(
+                "[augment] {name} = {value} must be a number ≥ 0"
+            )));
         }
         if self.scale >= 1.0 || self.color >= 1.0 || self.depth_dropout > 1.0 {
             return Err(LearnError::Config(format!(
@@ -183,10 +220,15 @@ impl TrainConfig {
 impl DataConfig {
     pub fn validate(&self) -> Result<(), LearnError> {
         if self.val_modulus < 2 {
-            return Err(LearnError::Config(format!("val_modulus {} must be at least 2", self.val_modulus)));
+            return Err(LearnError::Config(format!(
+                "val_modulus {} must be at least 2",
+                self.val_modulus
+            )));
         }
         if self.datasets.is_empty() {
-            return Err(LearnError::Config("[data] datasets is empty: name at least one dataset folder".into()));
+            return Err(LearnError::Config(
+                "[data] datasets is empty: name at least one dataset folder".into(),
+            ));
         }
         Ok(())
     }
@@ -195,7 +237,9 @@ impl DataConfig {
 impl OptimizerConfig {
     pub fn validate(&self) -> Result<(), LearnError> {
         if self.batch_size == 0 || self.steps == 0 || self.validate_every == 0 {
-            return Err(LearnError::Config("batch_size, steps and validate_every must be positive".into()));
+            return Err(LearnError::Config(
+                "batch_size, steps and validate_every must be positive".into(),
+            ));
         }
         if !(self.learning_rate > 0.0) || !(0.0..=1.0).contains(&self.final_lr_fraction) {
             return Err(LearnError::Config(format!(
@@ -204,7 +248,10 @@ impl OptimizerConfig {
             )));
         }
         if !(self.positive_weight >= 0.0) {
-            return Err(LearnError::Config(format!("positive_weight {} must be ≥ 0", self.positive_weight)));
+            return Err(LearnError::Config(format!(
+                "positive_weight {} must be ≥ 0",
+                self.positive_weight
+            )));
         }
         Ok(())
     }
@@ -216,12 +263,27 @@ mod tests {
 
     #[test]
     fn augmentation_that_would_crash_the_loader_is_refused_up_front() {
-        let fine = AugmentConfig { shift: 0.1, scale: 0.15, color: 0.2, depth_noise_m: 0.002, depth_dropout: 0.02 };
+        let fine = AugmentConfig {
+            shift: 0.1,
+            scale: 0.15,
+            color: 0.2,
+            depth_noise_m: 0.002,
+            depth_dropout: 0.02,
+        };
         fine.validate().unwrap();
         for bad in [
-            AugmentConfig { shift: -0.1, ..fine.clone() },
-            AugmentConfig { scale: 1.0, ..fine.clone() },
-            AugmentConfig { depth_dropout: f64::NAN, ..fine.clone() },
+            AugmentConfig {
+                shift: -0.1,
+                ..fine.clone()
+            },
+            AugmentConfig {
+                scale: 1.0,
+                ..fine.clone()
+            },
+            AugmentConfig {
+                depth_dropout: f64::NAN,
+                ..fine.clone()
+            },
         ] {
             let message = bad.validate().unwrap_err().to_string();
             assert!(message.starts_with("[augment]"), "{message}");

@@ -7,7 +7,9 @@ use std::sync::Arc;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 
 use boxpose_data::{Dataset, Frame, Instance, Intrinsics};
-use boxpose_geometry::heatmap::{self, CropTransform, DepthBins, HeatmapDims, PinholeIntrinsics, VoxelGrid};
+use boxpose_geometry::heatmap::{
+    self, CropTransform, DepthBins, HeatmapDims, PinholeIntrinsics, VoxelGrid,
+};
 use nalgebra::Point3;
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -16,8 +18,8 @@ use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
 
 use crate::LearnError;
-use crate::training::Task;
 use crate::config::{AugmentConfig, DataConfig, NetworkConfig};
+use crate::training::Task;
 
 /// RGB is normalized as (x/255 − mean)/std with these (a neutral grey; boxes are not ImageNet).
 const RGB_MEAN: f32 = 0.5;
@@ -42,40 +44,85 @@ impl CropWindow {
         let [x_min, y_min, x_max, y_max] = bbox.map(f64::from);
         let side = (x_max - x_min).max(y_max - y_min).max(1.0) * margin;
         let (cx, cy) = ((x_min + x_max) / 2.0, (y_min + y_max) / 2.0);
-        Self { x0: cx - side / 2.0, y0: cy - side / 2.0, side }
+        Self {
+            x0: cx - side / 2.0,
+            y0: cy - side / 2.0,
+            side,
+        }
     }
 
     /// Training jitter: shift the centre by up to `shift`·side, scale the side by 1 ± `scale`.
     fn jittered(self, augment: &AugmentConfig, rng: &mut ChaCha8Rng) -> Self {
         let side = self.side * (1.0 + rng.random_range(-augment.scale..=augment.scale));
-        let cx = self.x0 + self.side / 2.0 + self.side * rng.random_range(-augment.shift..=augment.shift);
-        let cy = self.y0 + self.side / 2.0 + self.side * rng.random_range(-augment.shift..=augment.shift);
-        Self { x0: cx - side / 2.0, y0: cy - side / 2.0, side }
+        let cx = self.x0
+            + self.side / 2.0
+            + self.side * rng.random_range(-augment.shift..=augment.shift);
+        let cy = self.y0
+            + self.side / 2.0
+            + self.side * rng.random_range(-augment.shift..=augment.shift);
+        Self {
+            x0: cx - side / 2.0,
+            y0: cy - side / 2.0,
+            side,
+        }
     }
 }
 
 /// What ties a crop's heatmap to the camera: the voxel grid of a window at reference depth z_ref.
-pub fn voxel_grid(config: &NetworkConfig, intrinsics: &Intrinsics, window: &CropWindow, z_ref: f64) -> VoxelGrid {
+pub fn voxel_grid(
+    config: &NetworkConfig,
+    intrinsics: &Intrinsics,
+    window: &CropWindow,
+    z_ref: f64,
+) -> VoxelGrid {
     let scale = window.side / config.heatmap_size() as f64;
     let [near, far] = config.depth_range_m;
     VoxelGrid {
-        intrinsics: PinholeIntrinsics { fx: intrinsics.fx, fy: intrinsics.fy, cx: intrinsics.cx, cy: intrinsics.cy },
-        crop: CropTransform { x0: window.x0, y0: window.y0, sx: scale, sy: scale },
-        depth: DepthBins { z_ref, z_min: near, bin_size: (far - near) / config.depth_bins as f64 },
+        intrinsics: PinholeIntrinsics {
+            fx: intrinsics.fx,
+            fy: intrinsics.fy,
+            cx: intrinsics.cx,
+            cy: intrinsics.cy,
+        },
+        crop: CropTransform {
+            x0: window.x0,
+            y0: window.y0,
+            sx: scale,
+            sy: scale,
+        },
+        depth: DepthBins {
+            z_ref,
+            z_min: near,
+            bin_size: (far - near) / config.depth_bins as f64,
+        },
     }
 }
 
 pub fn heatmap_dims(config: &NetworkConfig) -> HeatmapDims {
     let n = config.heatmap_size();
-    HeatmapDims { depth: config.depth_bins, height: n, width: n }
+    HeatmapDims {
+        depth: config.depth_bins,
+        height: n,
+        width: n,
+    }
 }
 
 /// The crop's reference depth: the median depth of the pixels inside the window that `belongs`
 /// to the box (its mask, ground truth or predicted), or of all valid pixels of the window when
 /// none does. `None` when the window has no depth at all.
-pub fn reference_depth(frame: &Frame, window: &CropWindow, belongs: impl Fn(usize) -> bool) -> Option<f64> {
-    let (x_lo, x_hi) = (window.x0.floor().max(0.0) as usize, ((window.x0 + window.side).ceil() as usize).min(frame.width));
-    let (y_lo, y_hi) = (window.y0.floor().max(0.0) as usize, ((window.y0 + window.side).ceil() as usize).min(frame.height));
+pub fn reference_depth(
+    frame: &Frame,
+    window: &CropWindow,
+    belongs: impl Fn(usize) -> bool,
+) -> Option<f64> {
+    let (x_lo, x_hi) = (
+        window.x0.floor().max(0.0) as usize,
+        ((window.x0 + window.side).ceil() as usize).min(frame.width),
+    );
+    let (y_lo, y_hi) = (
+        window.y0.floor().max(0.0) as usize,
+        ((window.y0 + window.side).ceil() as usize).min(frame.height),
+    );
     let mut own = Vec::new();
     let mut any = Vec::new();
     for y in y_lo..y_hi {
@@ -99,9 +146,22 @@ pub fn reference_depth(frame: &Frame, window: &CropWindow, belongs: impl Fn(usiz
 }
 
 /// The network input `[4, S, S]` (R, G, B, depth) of a square window.
-pub fn crop_input(frame: &Frame, window: &CropWindow, z_ref: f64, size: usize, augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>) -> Vec<f32> {
+pub fn crop_input(
+    frame: &Frame,
+    window: &CropWindow,
+    z_ref: f64,
+    size: usize,
+    augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
+) -> Vec<f32> {
     let step = window.side / size as f64;
-    resample_input(frame, [window.x0, window.y0], [step, step], [size, size], z_ref, augment)
+    resample_input(
+        frame,
+        [window.x0, window.y0],
+        [step, step],
+        [size, size],
+        z_ref,
+        augment,
+    )
 }
 
 /// The network input `[4, height, width]` (R, G, B, depth) of the image region that starts at
@@ -140,7 +200,8 @@ pub fn resample_input(
             }
             let (xn, yn) = (x.round() as isize, y.round() as isize);
             if xn >= 0 && yn >= 0 && xn < w && yn < h {
-                input[3 * plane + row * width + col] = frame.depth[yn as usize * frame.width + xn as usize];
+                input[3 * plane + row * width + col] =
+                    frame.depth[yn as usize * frame.width + xn as usize];
             }
         }
     }
@@ -171,7 +232,8 @@ fn augment_input(input: &mut [f32], plane: usize, augment: &AugmentConfig, rng: 
             }
         }
     }
-    let noise = Normal::new(0.0, augment.depth_noise_m.max(0.0) as f32).expect("a non-negative standard deviation");
+    let noise = Normal::new(0.0, augment.depth_noise_m.max(0.0) as f32)
+        .expect("a non-negative standard deviation");
     for z in &mut input[3 * plane..] {
         if *z > 0.0 {
             if rng.random_bool(augment.depth_dropout.clamp(0.0, 1.0)) {
@@ -185,9 +247,20 @@ fn augment_input(input: &mut [f32], plane: usize, augment: &AugmentConfig, rng: 
 
 /// The training target: a Gaussian of `sigma_voxels` at each of the 8 ground-truth corners
 /// (occluded ones too: the network is asked for the box, not its visible surface).
-pub fn target_heatmap(config: &NetworkConfig, grid: &VoxelGrid, corners_camera: &[[f64; 3]; 8]) -> Result<Vec<f32>, LearnError> {
-    let centres = corners_camera.iter().map(|c| grid.project(&Point3::from(*c))).collect::<Result<Vec<_>, _>>()?;
-    Ok(heatmap::render_target_heatmap(heatmap_dims(config), &centres, config.sigma_voxels)?)
+pub fn target_heatmap(
+    config: &NetworkConfig,
+    grid: &VoxelGrid,
+    corners_camera: &[[f64; 3]; 8],
+) -> Result<Vec<f32>, LearnError> {
+    let centres = corners_camera
+        .iter()
+        .map(|c| grid.project(&Point3::from(*c)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(heatmap::render_target_heatmap(
+        heatmap_dims(config),
+        &centres,
+        config.sigma_voxels,
+    )?)
 }
 
 /// One instance ready for the network, with what scoring it needs.
@@ -205,21 +278,37 @@ pub fn instance_sample(
     instance: &Instance,
     augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
 ) -> Result<Sample, LearnError> {
-    let bbox = instance.visible_bbox.ok_or_else(|| LearnError::Data(format!(
-        "scene {} frame {} object {}: no visible pixel, nothing to crop",
-        instance.scene_id, instance.frame_id, instance.object_id
-    )))?;
+    let bbox = instance.visible_bbox.ok_or_else(|| {
+        LearnError::Data(format!(
+            "scene {} frame {} object {}: no visible pixel, nothing to crop",
+            instance.scene_id, instance.frame_id, instance.object_id
+        ))
+    })?;
     let mut window = CropWindow::around(bbox, config.crop_margin);
     let label = instance.mask_label();
     match augment {
         Some((augment, rng)) => {
             window = window.jittered(augment, rng);
             let z_ref = gt_reference_depth(frame, &window, label)?;
-            sample_at(config, frame, &window, z_ref, &instance.corners_camera, Some((augment, rng)))
+            sample_at(
+                config,
+                frame,
+                &window,
+                z_ref,
+                &instance.corners_camera,
+                Some((augment, rng)),
+            )
         }
         None => {
             let z_ref = gt_reference_depth(frame, &window, label)?;
-            sample_at(config, frame, &window, z_ref, &instance.corners_camera, None)
+            sample_at(
+                config,
+                frame,
+                &window,
+                z_ref,
+                &instance.corners_camera,
+                None,
+            )
         }
     }
 }
@@ -235,14 +324,26 @@ pub fn sample_at(
 ) -> Result<Sample, LearnError> {
     let input = crop_input(frame, window, z_ref, config.input_size, augment);
     let grid = voxel_grid(config, &frame.intrinsics, window, z_ref);
-    let target = target_heatmap(config, &grid, corners_camera)
-        .map_err(|e| LearnError::Data(format!("scene {} frame {}: a box's target heatmap: {e}", frame.scene_id, frame.frame_id)))?;
-    Ok(Sample { input, target, grid })
+    let target = target_heatmap(config, &grid, corners_camera).map_err(|e| {
+        LearnError::Data(format!(
+            "scene {} frame {}: a box's target heatmap: {e}",
+            frame.scene_id, frame.frame_id
+        ))
+    })?;
+    Ok(Sample {
+        input,
+        target,
+        grid,
+    })
 }
 
 fn gt_reference_depth(frame: &Frame, window: &CropWindow, label: u16) -> Result<f64, LearnError> {
-    reference_depth(frame, window, |i| frame.instance_mask[i] == label)
-        .ok_or_else(|| LearnError::Data(format!("scene {} frame {}: crop has no depth", frame.scene_id, frame.frame_id)))
+    reference_depth(frame, window, |i| frame.instance_mask[i] == label).ok_or_else(|| {
+        LearnError::Data(format!(
+            "scene {} frame {}: crop has no depth",
+            frame.scene_id, frame.frame_id
+        ))
+    })
 }
 
 /// Every decoded frame of some datasets, and the instances to learn from, split by scene into
@@ -277,15 +378,31 @@ impl InstanceSet {
         let (mut train_frames, mut val_frames) = (Vec::new(), Vec::new());
         for (f, frame) in frames.iter().enumerate() {
             let held_out = is_held_out(frame.scene_id, val_modulus);
-            if held_out { val_frames.push(f) } else { train_frames.push(f) }
+            if held_out {
+                val_frames.push(f)
+            } else {
+                train_frames.push(f)
+            }
             for (i, instance) in frame.instances.iter().enumerate() {
-                if instance.visible_fraction < min_visible_fraction || instance.visible_bbox.is_none() {
+                if instance.visible_fraction < min_visible_fraction
+                    || instance.visible_bbox.is_none()
+                {
                     continue;
                 }
-                if held_out { val.push((f, i)) } else { train.push((f, i)) }
+                if held_out {
+                    val.push((f, i))
+                } else {
+                    train.push((f, i))
+                }
             }
         }
-        Ok(Self { frames, train, val, train_frames, val_frames })
+        Ok(Self {
+            frames,
+            train,
+            val,
+            train_frames,
+            val_frames,
+        })
     }
 
     pub fn instance(&self, (f, i): (usize, usize)) -> (&Frame, &Instance) {
@@ -303,11 +420,18 @@ pub struct Batch {
 
 /// Which training example fills slot `slot` of step `step`: epochs are seeded shuffles of the
 /// training set, so the sequence depends only on the seed, and a resumed run continues it.
-fn sampled_item(order_cache: &mut (u64, Vec<usize>), n: usize, seed: u64, position: usize) -> usize {
+fn sampled_item(
+    order_cache: &mut (u64, Vec<usize>),
+    n: usize,
+    seed: u64,
+    position: usize,
+) -> usize {
     let epoch = (position / n) as u64;
     if order_cache.0 != epoch || order_cache.1.len() != n {
         let mut order: Vec<usize> = (0..n).collect();
-        order.shuffle(&mut ChaCha8Rng::seed_from_u64(seed ^ epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+        order.shuffle(&mut ChaCha8Rng::seed_from_u64(
+            seed ^ epoch.wrapping_mul(0x9E37_79B9_7F4A_7C15),
+        ));
         *order_cache = (epoch, order);
     }
     order_cache.1[position % n]
@@ -326,7 +450,9 @@ pub fn spawn_loader<T: Task>(
 ) -> Result<Receiver<Result<Batch, LearnError>>, LearnError> {
     let items = task.train_items();
     if items == 0 {
-        return Err(LearnError::Data("nothing to train on (is every scene held out, or every box hidden?)".into()));
+        return Err(LearnError::Data(
+            "nothing to train on (is every scene held out, or every box hidden?)".into(),
+        ));
     }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
@@ -337,13 +463,18 @@ pub fn spawn_loader<T: Task>(
     std::thread::spawn(move || {
         let mut order = (u64::MAX, Vec::new());
         for step in start_step..end_step {
-            let picks: Vec<usize> = (0..batch_size).map(|slot| sampled_item(&mut order, items, seed, step * batch_size + slot)).collect();
+            let picks: Vec<usize> = (0..batch_size)
+                .map(|slot| sampled_item(&mut order, items, seed, step * batch_size + slot))
+                .collect();
             let examples: Result<Vec<(Vec<f32>, Vec<f32>)>, LearnError> = pool.install(|| {
                 picks
                     .par_iter()
                     .enumerate()
                     .map(|(slot, &pick)| {
-                        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ ((step * batch_size + slot) as u64).wrapping_mul(0xD1B5_4A32_D192_ED03));
+                        let mut rng = ChaCha8Rng::seed_from_u64(
+                            seed ^ ((step * batch_size + slot) as u64)
+                                .wrapping_mul(0xD1B5_4A32_D192_ED03),
+                        );
                         task.training_example(pick, &mut rng)
                     })
                     .collect()
@@ -351,8 +482,14 @@ pub fn spawn_loader<T: Task>(
             let batch = examples.map(|examples| Batch {
                 step,
                 size: examples.len(),
-                inputs: examples.iter().flat_map(|(input, _)| input.iter().copied()).collect(),
-                targets: examples.iter().flat_map(|(_, target)| target.iter().copied()).collect(),
+                inputs: examples
+                    .iter()
+                    .flat_map(|(input, _)| input.iter().copied())
+                    .collect(),
+                targets: examples
+                    .iter()
+                    .flat_map(|(_, target)| target.iter().copied())
+                    .collect(),
             });
             if sender.send(batch).is_err() {
                 return; // the trainer stopped

@@ -28,7 +28,10 @@ pub struct InstanceEval {
 
 /// The box's true pose in the camera frame.
 pub fn true_pose(instance: &Instance) -> Isometry3<f64> {
-    pipeline::isometry(instance.camera_box.quat_wxyz, instance.camera_box.translation)
+    pipeline::isometry(
+        instance.camera_box.quat_wxyz,
+        instance.camera_box.translation,
+    )
 }
 
 /// Scores one heatmap (from the crop `grid`) against its instance's truth and `target`.
@@ -40,16 +43,31 @@ pub fn evaluate_instance(
     grid: &VoxelGrid,
 ) -> Result<InstanceEval, LearnError> {
     let model = BoxModel::new(Vector3::from(instance.size))?;
-    let heatmap_mse = heatmap.iter().zip(target).map(|(p, t)| ((p - t) as f64).powi(2)).sum::<f64>() / heatmap.len() as f64;
+    let heatmap_mse = heatmap
+        .iter()
+        .zip(target)
+        .map(|(p, t)| ((p - t) as f64).powi(2))
+        .sum::<f64>()
+        / heatmap.len() as f64;
     let (peaks, points) = inference::decode(config, heatmap, grid)?;
     let corners_found = instance
         .corners_camera
         .iter()
-        .filter(|c| points.iter().any(|p| (p - Point3::from(**c)).norm() < CORNER_RECALL_RADIUS_M))
+        .filter(|c| {
+            points
+                .iter()
+                .any(|p| (p - Point3::from(**c)).norm() < CORNER_RECALL_RADIUS_M)
+        })
         .count();
     let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
     let fits = pipeline::fit_and_score(&model, &true_pose(instance), &points, &scores);
-    Ok(InstanceEval { diameter_m: model.diameter(), missed: false, heatmap_mse, corners_found, fits })
+    Ok(InstanceEval {
+        diameter_m: model.diameter(),
+        missed: false,
+        heatmap_mse,
+        corners_found,
+        fits,
+    })
 }
 
 /// An instance the segmenter missed: no corner found, every fit a failure.
@@ -60,7 +78,10 @@ pub fn missed_instance(instance: &Instance) -> Result<InstanceEval, LearnError> 
         missed: true,
         heatmap_mse: f64::NAN,
         corners_found: 0,
-        fits: Method::ALL.into_iter().map(|m| (m, Err("not found by the segmenter".to_string()))).collect(),
+        fits: Method::ALL
+            .into_iter()
+            .map(|m| (m, Err("not found by the segmenter".to_string())))
+            .collect(),
     })
 }
 
@@ -105,7 +126,11 @@ impl Summary {
 fn mssd_recall(evals: &[InstanceEval], method: Method, fraction: f64) -> f64 {
     let hits = evals
         .iter()
-        .filter(|e| e.fits.iter().any(|(m, s)| *m == method && s.as_ref().is_ok_and(|s| s.mssd_m < fraction * e.diameter_m)))
+        .filter(|e| {
+            e.fits.iter().any(|(m, s)| {
+                *m == method && s.as_ref().is_ok_and(|s| s.mssd_m < fraction * e.diameter_m)
+            })
+        })
         .count();
     hits as f64 / evals.len().max(1) as f64
 }
@@ -113,24 +138,41 @@ fn mssd_recall(evals: &[InstanceEval], method: Method, fraction: f64) -> f64 {
 /// The mean, or NaN for no values (every box missed has no heatmap to score).
 fn mean(values: impl Iterator<Item = f64>) -> f64 {
     let (sum, count) = values.fold((0.0, 0usize), |(sum, count), v| (sum + v, count + 1));
-    if count == 0 { f64::NAN } else { sum / count as f64 }
+    if count == 0 {
+        f64::NAN
+    } else {
+        sum / count as f64
+    }
 }
 
 pub fn summarize(evals: &[InstanceEval]) -> Summary {
     let n = evals.len().max(1) as f64;
     let mut paper_errors: Vec<f64> = evals
         .iter()
-        .filter_map(|e| e.fits.iter().find(|(m, _)| *m == Method::PaperExact).and_then(|(_, s)| s.as_ref().ok()).map(|s| s.paper_error))
+        .filter_map(|e| {
+            e.fits
+                .iter()
+                .find(|(m, _)| *m == Method::PaperExact)
+                .and_then(|(_, s)| s.as_ref().ok())
+                .map(|s| s.paper_error)
+        })
         .collect();
     paper_errors.sort_by(f64::total_cmp);
     Summary {
         instances: evals.len(),
         heatmap_mse: mean(evals.iter().filter(|e| !e.missed).map(|e| e.heatmap_mse)),
-        corner_recall: evals.iter().map(|e| e.corners_found as f64 / 8.0).sum::<f64>() / n,
+        corner_recall: evals
+            .iter()
+            .map(|e| e.corners_found as f64 / 8.0)
+            .sum::<f64>()
+            / n,
         robust_mssd_recall_005: mssd_recall(evals, Method::Robust, 0.05),
         robust_mssd_recall_010: mssd_recall(evals, Method::Robust, 0.1),
         size_mssd_recall_005: mssd_recall(evals, Method::SizeAndPose, 0.05),
         size_mssd_recall_010: mssd_recall(evals, Method::SizeAndPose, 0.1),
-        paper_error_median: paper_errors.get(paper_errors.len() / 2).copied().unwrap_or(f64::NAN),
+        paper_error_median: paper_errors
+            .get(paper_errors.len() / 2)
+            .copied()
+            .unwrap_or(f64::NAN),
     }
 }

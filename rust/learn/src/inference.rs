@@ -32,27 +32,47 @@ pub(crate) fn load_model_dir<C: DeserializeOwned>(
     build: impl FnOnce(&C) -> ResNetDeconv,
 ) -> Result<(C, ResNetDeconv), LearnError> {
     let config_path = dir.join(config_file);
-    let text = std::fs::read_to_string(&config_path).map_err(|e| LearnError::Io(config_path.clone(), e))?;
-    let config: C = toml::from_str(&text).map_err(|e| LearnError::Checkpoint(config_path.clone(), e.to_string()))?;
+    let text = std::fs::read_to_string(&config_path)
+        .map_err(|e| LearnError::Io(config_path.clone(), e))?;
+    let config: C = toml::from_str(&text)
+        .map_err(|e| LearnError::Checkpoint(config_path.clone(), e.to_string()))?;
     validate(&config).map_err(|e| LearnError::Checkpoint(config_path, e.to_string()))?;
     let weights = dir.join(WEIGHTS_FILE);
     if !weights.is_file() {
-        return Err(LearnError::Checkpoint(weights, "missing: is this a model folder written by `boxpose train` or `train-segmenter`?".into()));
+        return Err(LearnError::Checkpoint(
+            weights,
+            "missing: is this a model folder written by `boxpose train` or `train-segmenter`?"
+                .into(),
+        ));
     }
-    let net = build(&config)
-        .try_load_file(&weights)
-        .map_err(|e| LearnError::Checkpoint(weights.clone(), format!("cannot load the weights ({e}); were they trained with this {config_file}?")))?;
+    let net = build(&config).try_load_file(&weights).map_err(|e| {
+        LearnError::Checkpoint(
+            weights.clone(),
+            format!("cannot load the weights ({e}); were they trained with this {config_file}?"),
+        )
+    })?;
     Ok((config, net.valid()))
 }
 
 /// Writes a trained network's folder (`config_file` and `model.bpk`) atomically: into `dir.tmp`,
 /// then renamed.
-pub(crate) fn save_model_dir<C: Serialize>(dir: &Path, config_file: &str, config: &C, net: &ResNetDeconv) -> Result<(), LearnError> {
+pub(crate) fn save_model_dir<C: Serialize>(
+    dir: &Path,
+    config_file: &str,
+    config: &C,
+    net: &ResNetDeconv,
+) -> Result<(), LearnError> {
     write_dir_atomically(dir, |tmp| {
         let path = tmp.join(config_file);
-        std::fs::write(&path, toml::to_string_pretty(config).expect("a network config serializes")).map_err(|e| LearnError::Io(path, e))?;
+        std::fs::write(
+            &path,
+            toml::to_string_pretty(config).expect("a network config serializes"),
+        )
+        .map_err(|e| LearnError::Io(path, e))?;
         let path = tmp.join(WEIGHTS_FILE);
-        net.clone().save_file(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))
+        net.clone()
+            .save_file(&path)
+            .map_err(|e| LearnError::Checkpoint(path, e.to_string()))
     })
 }
 
@@ -66,8 +86,17 @@ pub struct KeypointModel {
 impl KeypointModel {
     /// Loads `dir/network.toml` and `dir/model.bpk`.
     pub fn load(dir: &Path, device: Device) -> Result<Self, LearnError> {
-        let (config, net) = load_model_dir(dir, NETWORK_FILE, NetworkConfig::validate, |c: &NetworkConfig| KeypointNet::keypoints(c, &device))?;
-        Ok(Self { config, net, device })
+        let (config, net) = load_model_dir(
+            dir,
+            NETWORK_FILE,
+            NetworkConfig::validate,
+            |c: &NetworkConfig| KeypointNet::keypoints(c, &device),
+        )?;
+        Ok(Self {
+            config,
+            net,
+            device,
+        })
     }
 
     /// Writes the model folder (network.toml, model.bpk) atomically: into `dir.tmp`, then renamed.
@@ -76,19 +105,29 @@ impl KeypointModel {
     }
 
     /// Heatmaps `[D·H·W]` of prepared inputs `[4·S·S]` each, in batches of `batch_size`.
-    pub fn heatmaps(&self, inputs: &[Vec<f32>], batch_size: usize) -> Result<Vec<Vec<f32>>, LearnError> {
+    pub fn heatmaps(
+        &self,
+        inputs: &[Vec<f32>],
+        batch_size: usize,
+    ) -> Result<Vec<Vec<f32>>, LearnError> {
         let s = self.config.input_size;
         let mut out = Vec::with_capacity(inputs.len());
         for chunk in inputs.chunks(batch_size.max(1)) {
             let flat: Vec<f32> = chunk.iter().flatten().copied().collect();
-            let input = Tensor::<4>::from_data(TensorData::new(flat, [chunk.len(), 4, s, s]), &self.device);
+            let input =
+                Tensor::<4>::from_data(TensorData::new(flat, [chunk.len(), 4, s, s]), &self.device);
             let output = self.net.forward(input);
             let [_, d, h, w] = output.dims();
-            let values: Vec<f32> = output.into_data().try_to_vec::<f32>().map_err(|e| LearnError::Backend(format!("{e:?}")))?;
+            let values: Vec<f32> = output
+                .into_data()
+                .try_to_vec::<f32>()
+                .map_err(|e| LearnError::Backend(format!("{e:?}")))?;
             out.extend(values.chunks(d * h * w).map(<[f32]>::to_vec));
         }
         if let Some(bad) = out.iter().flatten().find(|v| !v.is_finite()) {
-            return Err(LearnError::Backend(format!("the network output a non-finite value ({bad}): corrupt weights?")));
+            return Err(LearnError::Backend(format!(
+                "the network output a non-finite value ({bad}): corrupt weights?"
+            )));
         }
         Ok(out)
     }
@@ -104,7 +143,12 @@ pub struct CropRequest {
 impl CropRequest {
     /// The crop around a bounding box, at the median depth of the pixels `belongs` marks as the
     /// box's (its mask); `None` when the window has no depth.
-    pub fn around(frame: &Frame, config: &NetworkConfig, bbox: [i32; 4], belongs: impl Fn(usize) -> bool) -> Option<Self> {
+    pub fn around(
+        frame: &Frame,
+        config: &NetworkConfig,
+        bbox: [i32; 4],
+        belongs: impl Fn(usize) -> bool,
+    ) -> Option<Self> {
         let window = CropWindow::around(bbox, config.crop_margin);
         data::reference_depth(frame, &window, belongs).map(|z_ref| Self { window, z_ref })
     }
@@ -122,20 +166,39 @@ pub struct BoxPrediction {
 
 /// NMS on one heatmap, and the peaks back-projected through the crop's voxel grid. A heatmap
 /// with no positive voxel has no peak: the fits that follow fail for that box alone.
-pub fn decode(config: &NetworkConfig, heatmap: &[f32], grid: &VoxelGrid) -> Result<(Vec<Peak>, Vec<Point3<f64>>), LearnError> {
-    let params = NmsParams { count: PEAK_COUNT, sigma: config.sigma_voxels, refine_radius: 1 };
-    let peaks = match heatmap::non_maximum_suppression(heatmap, data::heatmap_dims(config), &params) {
+pub fn decode(
+    config: &NetworkConfig,
+    heatmap: &[f32],
+    grid: &VoxelGrid,
+) -> Result<(Vec<Peak>, Vec<Point3<f64>>), LearnError> {
+    let params = NmsParams {
+        count: PEAK_COUNT,
+        sigma: config.sigma_voxels,
+        refine_radius: 1,
+    };
+    let peaks = match heatmap::non_maximum_suppression(heatmap, data::heatmap_dims(config), &params)
+    {
         Err(GeometryError::EmptyHeatmap) => Vec::new(),
         peaks => peaks?,
     };
-    let points = peaks.iter().map(|p| grid.back_project(&p.coord)).collect::<Result<Vec<_>, _>>()?;
+    let points = peaks
+        .iter()
+        .map(|p| grid.back_project(&p.coord))
+        .collect::<Result<Vec<_>, _>>()?;
     Ok((peaks, points))
 }
 
 /// Runs the whole pipeline on crops of one frame.
-pub fn predict(model: &KeypointModel, frame: &Frame, crops: &[CropRequest], batch_size: usize) -> Result<Vec<BoxPrediction>, LearnError> {
-    let inputs: Vec<Vec<f32>> =
-        crops.iter().map(|c| data::crop_input(frame, &c.window, c.z_ref, model.config.input_size, None)).collect();
+pub fn predict(
+    model: &KeypointModel,
+    frame: &Frame,
+    crops: &[CropRequest],
+    batch_size: usize,
+) -> Result<Vec<BoxPrediction>, LearnError> {
+    let inputs: Vec<Vec<f32>> = crops
+        .iter()
+        .map(|c| data::crop_input(frame, &c.window, c.z_ref, model.config.input_size, None))
+        .collect();
     let heatmaps = model.heatmaps(&inputs, batch_size)?;
     crops
         .iter()
@@ -147,9 +210,17 @@ pub fn predict(model: &KeypointModel, frame: &Frame, crops: &[CropRequest], batc
             // its plain sum of squared residuals, as `fit_pose_and_size`'s default would give.
             let fit = size_fit::robust_size_fit(&points, &size_fit::RobustSizeParams::default())
                 .map(|f| {
-                    let inlier_squares: Vec<f64> = f.residuals.iter().zip(&f.inliers).filter(|(_, i)| **i).map(|(r, _)| r * r).collect();
+                    let inlier_squares: Vec<f64> = f
+                        .residuals
+                        .iter()
+                        .zip(&f.inliers)
+                        .filter(|(_, i)| **i)
+                        .map(|(r, _)| r * r)
+                        .collect();
                     SizedBoxFit {
-                        inlier_rms: (inlier_squares.iter().sum::<f64>() / inlier_squares.len().max(1) as f64).sqrt(),
+                        inlier_rms: (inlier_squares.iter().sum::<f64>()
+                            / inlier_squares.len().max(1) as f64)
+                            .sqrt(),
                         cost: f.residuals.iter().map(|r| r * r).sum(),
                         model: f.model,
                         pose: f.pose,
@@ -166,7 +237,10 @@ pub fn predict(model: &KeypointModel, frame: &Frame, crops: &[CropRequest], batc
 
 /// Writes a folder by filling `dir.tmp` and renaming it over `dir`, so a reader never sees a
 /// half-written one (an interrupted write leaves the previous folder intact).
-pub fn write_dir_atomically(dir: &Path, fill: impl FnOnce(&Path) -> Result<(), LearnError>) -> Result<(), LearnError> {
+pub fn write_dir_atomically(
+    dir: &Path,
+    fill: impl FnOnce(&Path) -> Result<(), LearnError>,
+) -> Result<(), LearnError> {
     let with_suffix = |suffix: &str| -> PathBuf {
         let mut name = dir.file_name().unwrap_or_default().to_os_string();
         name.push(suffix);

@@ -34,7 +34,10 @@ fn conv(channels: [usize; 2], kernel: usize, stride: usize, device: &Device) -> 
 impl BasicBlock {
     fn new(in_channels: usize, out_channels: usize, stride: usize, device: &Device) -> Self {
         let downsample = (stride != 1 || in_channels != out_channels).then(|| {
-            (conv([in_channels, out_channels], 1, stride, device), BatchNormConfig::new(out_channels).init(device))
+            (
+                conv([in_channels, out_channels], 1, stride, device),
+                BatchNormConfig::new(out_channels).init(device),
+            )
         });
         Self {
             conv1: conv([in_channels, out_channels], 3, stride, device),
@@ -134,7 +137,9 @@ impl ResNetDeconv {
     }
 
     pub fn forward(&self, input: Tensor<4>) -> Tensor<4> {
-        let mut x = self.stem_pool.forward(relu(self.stem_bn.forward(self.stem_conv.forward(input))));
+        let mut x = self
+            .stem_pool
+            .forward(relu(self.stem_bn.forward(self.stem_conv.forward(input))));
         for block in &self.stages {
             x = block.forward(x);
         }

@@ -53,20 +53,31 @@ impl SegmenterConfig {
     }
 
     pub fn validate(&self) -> Result<(), LearnError> {
-        if self.input_width == 0 || self.input_width % 32 != 0 || self.input_height == 0 || self.input_height % 32 != 0 {
-            return Err(LearnError::Config(format!("input {}×{} must be positive multiples of 32", self.input_width, self.input_height)));
+        if self.input_width == 0
+            || self.input_width % 32 != 0
+            || self.input_height == 0
+            || self.input_height % 32 != 0
+        {
+            return Err(LearnError::Config(format!(
+                "input {}×{} must be positive multiples of 32",
+                self.input_width, self.input_height
+            )));
         }
         if !(self.centre_sigma > 0.0) {
             return Err(LearnError::Config("centre_sigma must be positive".into()));
         }
-        if !((0.0..=1.0).contains(&self.foreground_threshold) && (0.0..=1.0).contains(&self.centre_threshold)) {
+        if !((0.0..=1.0).contains(&self.foreground_threshold)
+            && (0.0..=1.0).contains(&self.centre_threshold))
+        {
             return Err(LearnError::Config(format!(
                 "foreground_threshold {} and centre_threshold {} must lie in [0, 1]",
                 self.foreground_threshold, self.centre_threshold
             )));
         }
         if self.min_pixels == 0 {
-            return Err(LearnError::Config("min_pixels must be at least 1: an instance needs a pixel".into()));
+            return Err(LearnError::Config(
+                "min_pixels must be at least 1: an instance needs a pixel".into(),
+            ));
         }
         Ok(())
     }
@@ -106,14 +117,32 @@ pub struct Detection {
 
 /// Image pixels per input pixel, for a frame resized to the segmenter's input.
 fn input_step(config: &SegmenterConfig, frame: &Frame) -> [f64; 2] {
-    [frame.width as f64 / config.input_width as f64, frame.height as f64 / config.input_height as f64]
+    [
+        frame.width as f64 / config.input_width as f64,
+        frame.height as f64 / config.input_height as f64,
+    ]
 }
 
 /// The frame resized to the input, depth relative to the frame's median depth.
-pub fn frame_input(config: &SegmenterConfig, frame: &Frame, augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>) -> Vec<f32> {
-    let whole = data::CropWindow { x0: 0.0, y0: 0.0, side: frame.width.max(frame.height) as f64 };
+pub fn frame_input(
+    config: &SegmenterConfig,
+    frame: &Frame,
+    augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
+) -> Vec<f32> {
+    let whole = data::CropWindow {
+        x0: 0.0,
+        y0: 0.0,
+        side: frame.width.max(frame.height) as f64,
+    };
     let z_ref = data::reference_depth(frame, &whole, |_| false).unwrap_or(1.0);
-    data::resample_input(frame, [0.0, 0.0], input_step(config, frame), [config.input_width, config.input_height], z_ref, augment)
+    data::resample_input(
+        frame,
+        [0.0, 0.0],
+        input_step(config, frame),
+        [config.input_width, config.input_height],
+        z_ref,
+        augment,
+    )
 }
 
 /// Object label (object_id + 1, 0 = none) at the centre of each output pixel.
@@ -147,7 +176,10 @@ pub fn frame_targets(config: &SegmenterConfig, frame: &Frame) -> Vec<f32> {
             s.2 += 1;
         }
     }
-    let centroids: Vec<Option<(f64, f64)>> = sums.iter().map(|&(x, y, n)| (n > 0).then(|| (x / n as f64, y / n as f64))).collect();
+    let centroids: Vec<Option<(f64, f64)>> = sums
+        .iter()
+        .map(|&(x, y, n)| (n > 0).then(|| (x / n as f64, y / n as f64)))
+        .collect();
     let mut target = vec![0.0f32; TARGETS * plane];
     let two_sigma_sq = 2.0 * config.centre_sigma * config.centre_sigma;
     for (i, &label) in labels.iter().enumerate() {
@@ -157,7 +189,12 @@ pub fn frame_targets(config: &SegmenterConfig, frame: &Frame) -> Vec<f32> {
             centre = centre.max((-((u - cx).powi(2) + (v - cy).powi(2)) / two_sigma_sq).exp());
         }
         target[plane + i] = centre as f32;
-        if let Some((cx, cy)) = centroids.get(label as usize).copied().flatten().filter(|_| label > 0) {
+        if let Some((cx, cy)) = centroids
+            .get(label as usize)
+            .copied()
+            .flatten()
+            .filter(|_| label > 0)
+        {
             target[i] = 1.0;
             target[2 * plane + i] = (cx - u) as f32;
             target[3 * plane + i] = (cy - v) as f32;
@@ -180,8 +217,9 @@ pub fn decode(config: &SegmenterConfig, frame: &Frame, output: &[f32]) -> Vec<De
             if value < config.centre_threshold {
                 continue;
             }
-            let is_peak = (v.saturating_sub(1)..(v + 2).min(h))
-                .all(|vv| (u.saturating_sub(1)..(u + 2).min(w)).all(|uu| centre[vv * w + uu] <= value));
+            let is_peak = (v.saturating_sub(1)..(v + 2).min(h)).all(|vv| {
+                (u.saturating_sub(1)..(u + 2).min(w)).all(|uu| centre[vv * w + uu] <= value)
+            });
             if is_peak {
                 centres.push((u as f64, v as f64, value));
             }
@@ -194,7 +232,10 @@ pub fn decode(config: &SegmenterConfig, frame: &Frame, output: &[f32]) -> Vec<De
         if centres.is_empty() || sigmoid(output[i]) < config.foreground_threshold {
             continue;
         }
-        let (x, y) = ((i % w) as f64 + output[2 * plane + i] as f64, (i / w) as f64 + output[3 * plane + i] as f64);
+        let (x, y) = (
+            (i % w) as f64 + output[2 * plane + i] as f64,
+            (i / w) as f64 + output[3 * plane + i] as f64,
+        );
         let nearest = (0..centres.len())
             .min_by(|&a, &b| {
                 let d = |k: usize| (centres[k].0 - x).powi(2) + (centres[k].1 - y).powi(2);
@@ -215,10 +256,16 @@ pub fn decode(config: &SegmenterConfig, frame: &Frame, output: &[f32]) -> Vec<De
         for y in 0..frame.height {
             let v = (((y as f64 + 0.5) / (4.0 * sy) - 0.5).round().max(0.0) as usize).min(h - 1);
             for x in 0..frame.width {
-                let u = (((x as f64 + 0.5) / (4.0 * sx) - 0.5).round().max(0.0) as usize).min(w - 1);
+                let u =
+                    (((x as f64 + 0.5) / (4.0 * sx) - 0.5).round().max(0.0) as usize).min(w - 1);
                 if owner[v * w + u] == k {
                     mask[y * frame.width + x] = true;
-                    bbox = [bbox[0].min(x as i32), bbox[1].min(y as i32), bbox[2].max(x as i32 + 1), bbox[3].max(y as i32 + 1)];
+                    bbox = [
+                        bbox[0].min(x as i32),
+                        bbox[1].min(y as i32),
+                        bbox[2].max(x as i32 + 1),
+                        bbox[3].max(y as i32 + 1),
+                    ];
                 }
             }
         }
@@ -238,14 +285,25 @@ pub struct SegmenterModel {
 impl SegmenterModel {
     /// Loads `dir/segmenter.toml` and `dir/model.bpk`.
     pub fn load(dir: &Path, device: Device) -> Result<Self, LearnError> {
-        let (config, net) = load_model_dir(dir, SEGMENTER_FILE, SegmenterConfig::validate, |c: &SegmenterConfig| {
-            ResNetDeconv::new(c.backbone, OUTPUTS, &device)
-        })?;
-        Ok(Self { config, net, device })
+        let (config, net) = load_model_dir(
+            dir,
+            SEGMENTER_FILE,
+            SegmenterConfig::validate,
+            |c: &SegmenterConfig| ResNetDeconv::new(c.backbone, OUTPUTS, &device),
+        )?;
+        Ok(Self {
+            config,
+            net,
+            device,
+        })
     }
 
     /// Writes the model folder (segmenter.toml, model.bpk) atomically.
-    pub fn save(config: &SegmenterConfig, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
+    pub fn save(
+        config: &SegmenterConfig,
+        net: &ResNetDeconv,
+        dir: &Path,
+    ) -> Result<(), LearnError> {
         save_model_dir(dir, SEGMENTER_FILE, config, net)
     }
 
@@ -254,14 +312,30 @@ impl SegmenterModel {
         let (w, h) = (self.config.input_width, self.config.input_height);
         let mut out = Vec::with_capacity(frames.len());
         for chunk in frames.chunks(4) {
-            let flat: Vec<f32> = chunk.iter().flat_map(|f| frame_input(&self.config, f, None)).collect();
-            let output = self.net.forward(Tensor::<4>::from_data(TensorData::new(flat, [chunk.len(), 4, h, w]), &self.device));
-            let values: Vec<f32> = output.into_data().try_to_vec::<f32>().map_err(|e| LearnError::Backend(format!("{e:?}")))?;
+            let flat: Vec<f32> = chunk
+                .iter()
+                .flat_map(|f| frame_input(&self.config, f, None))
+                .collect();
+            let output = self.net.forward(Tensor::<4>::from_data(
+                TensorData::new(flat, [chunk.len(), 4, h, w]),
+                &self.device,
+            ));
+            let values: Vec<f32> = output
+                .into_data()
+                .try_to_vec::<f32>()
+                .map_err(|e| LearnError::Backend(format!("{e:?}")))?;
             if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
-                return Err(LearnError::Backend(format!("the segmenter output a non-finite value ({bad}): corrupt weights?")));
+                return Err(LearnError::Backend(format!(
+                    "the segmenter output a non-finite value ({bad}): corrupt weights?"
+                )));
             }
             let per_frame = values.len() / chunk.len();
-            out.extend(chunk.iter().zip(values.chunks(per_frame)).map(|(frame, output)| decode(&self.config, frame, output)));
+            out.extend(
+                chunk
+                    .iter()
+                    .zip(values.chunks(per_frame))
+                    .map(|(frame, output)| decode(&self.config, frame, output)),
+            );
         }
         Ok(out)
     }
@@ -274,7 +348,11 @@ pub fn mask_iou(a: &[bool], b: &[bool]) -> f64 {
         inter += (x && y) as usize;
         union += (x || y) as usize;
     }
-    if union == 0 { 0.0 } else { inter as f64 / union as f64 }
+    if union == 0 {
+        0.0
+    } else {
+        inter as f64 / union as f64
+    }
 }
 
 /// Intersection over union of two boxes (x_min, y_min, x_max, y_max), max exclusive.
@@ -283,25 +361,44 @@ pub fn bbox_iou(a: &[i32; 4], b: &[i32; 4]) -> f64 {
     let h = (a[3].min(b[3]) - a[1].max(b[1])).max(0) as f64;
     let area = |r: &[i32; 4]| ((r[2] - r[0]) * (r[3] - r[1])) as f64;
     let inter = w * h;
-    if inter == 0.0 { 0.0 } else { inter / (area(a) + area(b) - inter) }
+    if inter == 0.0 {
+        0.0
+    } else {
+        inter / (area(a) + area(b) - inter)
+    }
 }
 
 /// COCO-style average precision at one IoU threshold: detections of every frame ranked by score,
 /// each greedily matched to the unmatched true instance of its frame it overlaps most (at least
 /// `threshold`); precision interpolated at 101 recall points. `ious[f][d][g]` is the IoU of frame
 /// f's detection d with its true instance g, `scores[f][d]` the detection's score.
-pub fn average_precision(ious: &[Vec<Vec<f64>>], scores: &[Vec<f32>], true_count: usize, threshold: f64) -> f64 {
+pub fn average_precision(
+    ious: &[Vec<Vec<f64>>],
+    scores: &[Vec<f32>],
+    true_count: usize,
+    threshold: f64,
+) -> f64 {
     if true_count == 0 {
         return f64::NAN;
     }
-    let mut ranked: Vec<(f32, usize, usize)> =
-        scores.iter().enumerate().flat_map(|(f, s)| s.iter().enumerate().map(move |(d, &score)| (score, f, d))).collect();
+    let mut ranked: Vec<(f32, usize, usize)> = scores
+        .iter()
+        .enumerate()
+        .flat_map(|(f, s)| s.iter().enumerate().map(move |(d, &score)| (score, f, d)))
+        .collect();
     ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let mut taken: Vec<Vec<bool>> = ious.iter().map(|frame| vec![false; frame.first().map_or(0, Vec::len)]).collect();
+    let mut taken: Vec<Vec<bool>> = ious
+        .iter()
+        .map(|frame| vec![false; frame.first().map_or(0, Vec::len)])
+        .collect();
     let (mut tp, mut fp) = (0usize, 0usize);
     let mut curve = Vec::with_capacity(ranked.len());
     for (_, f, d) in ranked {
-        let best = ious[f][d].iter().enumerate().filter(|(g, iou)| !taken[f][*g] && **iou >= threshold).max_by(|a, b| a.1.total_cmp(b.1));
+        let best = ious[f][d]
+            .iter()
+            .enumerate()
+            .filter(|(g, iou)| !taken[f][*g] && **iou >= threshold)
+            .max_by(|a, b| a.1.total_cmp(b.1));
         match best {
             Some((g, _)) => {
                 taken[f][g] = true;
@@ -314,7 +411,11 @@ pub fn average_precision(ious: &[Vec<Vec<f64>>], scores: &[Vec<f32>], true_count
     (0..=100)
         .map(|r| {
             let recall = r as f64 / 100.0;
-            curve.iter().filter(|(rec, _)| *rec >= recall).map(|(_, p)| *p).fold(0.0, f64::max)
+            curve
+                .iter()
+                .filter(|(rec, _)| *rec >= recall)
+                .map(|(_, p)| *p)
+                .fold(0.0, f64::max)
         })
         .sum::<f64>()
         / 101.0
@@ -340,7 +441,11 @@ pub fn true_masks(frame: &Frame) -> Vec<(i32, Vec<bool>, [i32; 4])> {
         .filter_map(|i| {
             let bbox = i.visible_bbox?;
             let label = i.mask_label();
-            Some((i.object_id, frame.instance_mask.iter().map(|&m| m == label).collect(), bbox))
+            Some((
+                i.object_id,
+                frame.instance_mask.iter().map(|&m| m == label).collect(),
+                bbox,
+            ))
         })
         .collect()
 }
@@ -348,13 +453,30 @@ pub fn true_masks(frame: &Frame) -> Vec<(i32, Vec<bool>, [i32; 4])> {
 pub fn score_detections(frames: &[&Frame], detections: &[Vec<Detection>]) -> SegmentationScores {
     let truths: Vec<_> = frames.iter().map(|f| true_masks(f)).collect();
     let true_count = truths.iter().map(Vec::len).sum();
-    let scores: Vec<Vec<f32>> = detections.iter().map(|d| d.iter().map(|d| d.score).collect()).collect();
-    let ious = |overlap: &dyn Fn(&Detection, &(i32, Vec<bool>, [i32; 4])) -> f64| -> Vec<Vec<Vec<f64>>> {
-        detections.iter().zip(&truths).map(|(dets, gts)| dets.iter().map(|d| gts.iter().map(|g| overlap(d, g)).collect()).collect()).collect()
-    };
+    let scores: Vec<Vec<f32>> = detections
+        .iter()
+        .map(|d| d.iter().map(|d| d.score).collect())
+        .collect();
+    let ious =
+        |overlap: &dyn Fn(&Detection, &(i32, Vec<bool>, [i32; 4])) -> f64| -> Vec<Vec<Vec<f64>>> {
+            detections
+                .iter()
+                .zip(&truths)
+                .map(|(dets, gts)| {
+                    dets.iter()
+                        .map(|d| gts.iter().map(|g| overlap(d, g)).collect())
+                        .collect()
+                })
+                .collect()
+        };
     let mask_ious = ious(&|d, g| mask_iou(&d.mask, &g.1));
     let bbox_ious = ious(&|d, g| bbox_iou(&d.bbox, &g.2));
-    let coco = |ious: &[Vec<Vec<f64>>]| (0..10).map(|k| average_precision(ious, &scores, true_count, 0.5 + 0.05 * k as f64)).sum::<f64>() / 10.0;
+    let coco = |ious: &[Vec<Vec<f64>>]| {
+        (0..10)
+            .map(|k| average_precision(ious, &scores, true_count, 0.5 + 0.05 * k as f64))
+            .sum::<f64>()
+            / 10.0
+    };
     SegmentationScores {
         mask_ap50: average_precision(&mask_ious, &scores, true_count, 0.5),
         mask_ap: coco(&mask_ious),
@@ -385,7 +507,11 @@ impl Task for SegmenterTask {
     }
 
     fn input_shape(&self) -> [usize; 3] {
-        [4, self.config.segmenter.input_height, self.config.segmenter.input_width]
+        [
+            4,
+            self.config.segmenter.input_height,
+            self.config.segmenter.input_width,
+        ]
     }
 
     fn target_shape(&self) -> [usize; 3] {
@@ -393,9 +519,17 @@ impl Task for SegmenterTask {
         [TARGETS, h, w]
     }
 
-    fn training_example(&self, item: usize, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
+    fn training_example(
+        &self,
+        item: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
         let frame = &self.set.frames[self.set.train_frames[item]];
-        let input = frame_input(&self.config.segmenter, frame, Some((&self.config.augment, rng)));
+        let input = frame_input(
+            &self.config.segmenter,
+            frame,
+            Some((&self.config.augment, rng)),
+        );
         Ok((input, frame_targets(&self.config.segmenter, frame)))
     }
 
@@ -409,8 +543,13 @@ impl Task for SegmenterTask {
         let c = &self.config.segmenter;
         let channel = |t: &Tensor<4>, k: usize| t.clone().narrow(1, k, 1);
         let (logit, fg) = (channel(&output, 0), channel(&target, 0));
-        let bce = (fg.clone() * log_sigmoid(logit.clone()) + (fg.neg() + 1.0) * log_sigmoid(logit.neg())).neg().mean();
-        let centre = (channel(&output, 1) - channel(&target, 1)).powi_scalar(2).mean();
+        let bce = (fg.clone() * log_sigmoid(logit.clone())
+            + (fg.neg() + 1.0) * log_sigmoid(logit.neg()))
+        .neg()
+        .mean();
+        let centre = (channel(&output, 1) - channel(&target, 1))
+            .powi_scalar(2)
+            .mean();
         let weight = channel(&target, 4);
         let offset_error = (output.narrow(1, 2, 2) - target.narrow(1, 2, 2)).abs() * weight.clone();
         let offset = offset_error.sum() / (weight.sum() * 2.0 + 1.0);
@@ -419,10 +558,22 @@ impl Task for SegmenterTask {
 
     fn validate(&self, net: &ResNetDeconv) -> Result<Vec<(String, f64)>, LearnError> {
         let device = net.devices().into_iter().next().unwrap_or_default();
-        let model = SegmenterModel { config: self.config.segmenter.clone(), net: net.clone(), device };
-        let frames: Vec<&Frame> = self.set.val_frames.iter().map(|&f| &self.set.frames[f]).collect();
+        let model = SegmenterModel {
+            config: self.config.segmenter.clone(),
+            net: net.clone(),
+            device,
+        };
+        let frames: Vec<&Frame> = self
+            .set
+            .val_frames
+            .iter()
+            .map(|&f| &self.set.frames[f])
+            .collect();
         if frames.is_empty() {
-            return Err(LearnError::Data(format!("no held-out frame: no scene has scene_id % {} == 0", self.config.data.val_modulus)));
+            return Err(LearnError::Data(format!(
+                "no held-out frame: no scene has scene_id % {} == 0",
+                self.config.data.val_modulus
+            )));
         }
         let detections = model.segment(&frames)?;
         let s = score_detections(&frames, &detections);
@@ -431,7 +582,10 @@ impl Task for SegmenterTask {
             ("mask_ap".into(), s.mask_ap),
             ("bbox_ap50".into(), s.bbox_ap50),
             ("bbox_ap".into(), s.bbox_ap),
-            ("detections_per_true".into(), s.detections as f64 / s.true_instances.max(1) as f64),
+            (
+                "detections_per_true".into(),
+                s.detections as f64 / s.true_instances.max(1) as f64,
+            ),
         ])
     }
 
@@ -443,8 +597,22 @@ impl Task for SegmenterTask {
 /// For each of the frame's instances, the detection (index into `detections`, sorted by score)
 /// that found it: detections in score order each take the unmatched instance they overlap most,
 /// if its mask IoU is at least `threshold`.
-pub fn match_detections(frame: &Frame, detections: &[Detection], threshold: f64) -> Vec<Option<usize>> {
-    let masks: Vec<Vec<bool>> = frame.instances.iter().map(|i| frame.instance_mask.iter().map(|&m| m == i.mask_label()).collect()).collect();
+pub fn match_detections(
+    frame: &Frame,
+    detections: &[Detection],
+    threshold: f64,
+) -> Vec<Option<usize>> {
+    let masks: Vec<Vec<bool>> = frame
+        .instances
+        .iter()
+        .map(|i| {
+            frame
+                .instance_mask
+                .iter()
+                .map(|&m| m == i.mask_label())
+                .collect()
+        })
+        .collect();
     let mut found = vec![None; frame.instances.len()];
     for (d, detection) in detections.iter().enumerate() {
         let best = masks

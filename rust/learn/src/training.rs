@@ -41,7 +41,11 @@ pub trait Task: Send + Sync + 'static {
     fn input_shape(&self) -> [usize; 3];
     fn target_shape(&self) -> [usize; 3];
     /// One augmented training example (input, target), flat in those shapes.
-    fn training_example(&self, item: usize, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>), LearnError>;
+    fn training_example(
+        &self,
+        item: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(Vec<f32>, Vec<f32>), LearnError>;
     fn network(&self, device: &Device) -> ResNetDeconv;
     /// The scalar loss of a batch's output against its targets.
     fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1>;
@@ -97,7 +101,8 @@ pub fn learning_rate(o: &OptimizerConfig, step: usize) -> f64 {
     }
     let progress = (step - warmup) as f64 / (o.steps - warmup).max(1) as f64;
     let floor = o.learning_rate * o.final_lr_fraction;
-    floor + (o.learning_rate - floor) * 0.5 * (1.0 + (std::f64::consts::PI * progress.min(1.0)).cos())
+    floor
+        + (o.learning_rate - floor) * 0.5 * (1.0 + (std::f64::consts::PI * progress.min(1.0)).cos())
 }
 
 /// Holds an exclusive lock on `run_dir/.lock` for as long as the returned file lives: two
@@ -134,14 +139,22 @@ pub fn train<T: Task, C: RunConfig>(
     std::fs::create_dir_all(run_dir).map_err(|e| LearnError::Io(run_dir.to_path_buf(), e))?;
     let _lock = lock_run_dir(run_dir)?;
     let checkpoint_dir = run_dir.join(CHECKPOINT_DIR);
-    inference::restore_interrupted(&checkpoint_dir, &run_dir.join(format!("{CHECKPOINT_DIR}.old")))?;
+    inference::restore_interrupted(
+        &checkpoint_dir,
+        &run_dir.join(format!("{CHECKPOINT_DIR}.old")),
+    )?;
     let config_path = run_dir.join(CONFIG_FILE);
     if options.restart {
-        for stale in [checkpoint_dir.clone(), run_dir.join(MODEL_DIR), run_dir.join(HISTORY_FILE)] {
+        for stale in [
+            checkpoint_dir.clone(),
+            run_dir.join(MODEL_DIR),
+            run_dir.join(HISTORY_FILE),
+        ] {
             remove_if_present(&stale)?;
         }
     } else if checkpoint_dir.exists() {
-        let saved = std::fs::read_to_string(&config_path).map_err(|e| LearnError::Io(config_path.clone(), e))?;
+        let saved = std::fs::read_to_string(&config_path)
+            .map_err(|e| LearnError::Io(config_path.clone(), e))?;
         if toml::from_str::<C>(&saved).ok().as_ref() != Some(config) {
             return Err(LearnError::Config(format!(
                 "{} holds a checkpoint of a run with another configuration ({}); pass --restart to discard it or choose another run folder",
@@ -151,13 +164,20 @@ pub fn train<T: Task, C: RunConfig>(
         }
     }
     let config_toml = toml::to_string_pretty(config).expect("a training config always serializes");
-    std::fs::write(&config_path, config_toml).map_err(|e| LearnError::Io(config_path.clone(), e))?;
+    std::fs::write(&config_path, config_toml)
+        .map_err(|e| LearnError::Io(config_path.clone(), e))?;
 
     let device = options.device.clone().autodiff();
     device.seed(o.seed);
     let mut model = task.network(&device);
-    let mut optimizer = AdamConfig::new().with_weight_decay(Some(WeightDecayConfig::new(o.weight_decay as f32))).init();
-    let mut state = TrainState { step: 0, train_seconds: 0.0, last_validation: None };
+    let mut optimizer = AdamConfig::new()
+        .with_weight_decay(Some(WeightDecayConfig::new(o.weight_decay as f32)))
+        .init();
+    let mut state = TrainState {
+        step: 0,
+        train_seconds: 0.0,
+        last_validation: None,
+    };
     let mut resumed_from = None;
     if checkpoint_dir.exists() {
         (model, optimizer, state) = load_checkpoint(&checkpoint_dir, model, optimizer)?;
@@ -172,23 +192,44 @@ pub fn train<T: Task, C: RunConfig>(
         Some(n) => (state.step + n).min(o.steps),
         None => o.steps,
     };
-    let batches = data::spawn_loader(task.clone(), o.batch_size, o.seed, state.step, last_step, loader_threads)?;
+    let batches = data::spawn_loader(
+        task.clone(),
+        o.batch_size,
+        o.seed,
+        state.step,
+        last_step,
+        loader_threads,
+    )?;
     let bar = progress_bar(options.progress, o.steps, state.step);
     let (input_shape, target_shape) = (task.input_shape(), task.target_shape());
     let (mut loss_sum, mut loss_count) = (0.0, 0usize);
     let mut session_start = Instant::now();
     while state.step < last_step {
-        let batch = batches.recv().map_err(|_| LearnError::Data("the batch loader stopped".into()))??;
+        let batch = batches
+            .recv()
+            .map_err(|_| LearnError::Data("the batch loader stopped".into()))??;
         // workers build batches in parallel; the trainer must still see them in step order
-        assert_eq!(batch.step, state.step, "the batch loader delivered a batch out of order");
+        assert_eq!(
+            batch.step, state.step,
+            "the batch loader delivered a batch out of order"
+        );
         let [c, h, w] = input_shape;
-        let inputs = Tensor::<4>::from_data(TensorData::new(batch.inputs, [batch.size, c, h, w]), &device);
+        let inputs = Tensor::<4>::from_data(
+            TensorData::new(batch.inputs, [batch.size, c, h, w]),
+            &device,
+        );
         let [c, h, w] = target_shape;
-        let targets = Tensor::<4>::from_data(TensorData::new(batch.targets, [batch.size, c, h, w]), &device);
+        let targets = Tensor::<4>::from_data(
+            TensorData::new(batch.targets, [batch.size, c, h, w]),
+            &device,
+        );
         let loss = task.loss(model.forward(inputs), targets);
         let loss_value = loss.clone().into_scalar::<f32>() as f64;
         if !loss_value.is_finite() {
-            return Err(LearnError::Diverged { step: state.step, loss: loss_value });
+            return Err(LearnError::Diverged {
+                step: state.step,
+                loss: loss_value,
+            });
         }
         let grads = GradientsParams::from_grads(loss.backward(), &model);
         model = optimizer.step(learning_rate(o, state.step), model, grads);
@@ -199,7 +240,11 @@ pub fn train<T: Task, C: RunConfig>(
         bar.set_message(format!("loss {:.3e}", loss_sum / loss_count as f64));
         if state.step % o.validate_every == 0 || state.step == last_step {
             state.train_seconds += session_start.elapsed().as_secs_f64();
-            let validation = Validation { step: state.step, train_loss: loss_sum / loss_count as f64, metrics: task.validate(&model.valid())? };
+            let validation = Validation {
+                step: state.step,
+                train_loss: loss_sum / loss_count as f64,
+                metrics: task.validate(&model.valid())?,
+            };
             if options.progress {
                 bar.suspend(|| print_validation(&validation));
             }
@@ -215,7 +260,12 @@ pub fn train<T: Task, C: RunConfig>(
     if finished {
         task.save_model(&model.valid(), &run_dir.join(MODEL_DIR))?;
     }
-    Ok(TrainReport { run_dir: run_dir.to_path_buf(), state, resumed_from, finished })
+    Ok(TrainReport {
+        run_dir: run_dir.to_path_buf(),
+        state,
+        resumed_from,
+        finished,
+    })
 }
 
 /// The keypoint network's task: crops of ground-truth instances, heatmap MSE.
@@ -253,7 +303,11 @@ impl KeypointTask {
             })
             .collect::<Result<Vec<_>, _>>()?;
         let device = net.devices().into_iter().next().unwrap_or_default();
-        let model = KeypointModel { config: config.network.clone(), net: net.clone(), device };
+        let model = KeypointModel {
+            config: config.network.clone(),
+            net: net.clone(),
+            device,
+        };
         let inputs: Vec<Vec<f32>> = samples.iter().map(|s| s.input.clone()).collect();
         let heatmaps = model.heatmaps(&inputs, config.optimizer.batch_size)?;
         picks
@@ -262,7 +316,13 @@ impl KeypointTask {
             .zip(&heatmaps)
             .map(|((&pick, sample), heatmap)| {
                 let (_, instance) = set.instance(pick);
-                evaluation::evaluate_instance(&config.network, instance, heatmap, &sample.target, &sample.grid)
+                evaluation::evaluate_instance(
+                    &config.network,
+                    instance,
+                    heatmap,
+                    &sample.target,
+                    &sample.grid,
+                )
             })
             .collect()
     }
@@ -283,9 +343,18 @@ impl Task for KeypointTask {
         [self.config.network.depth_bins, n, n]
     }
 
-    fn training_example(&self, item: usize, rng: &mut ChaCha8Rng) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
+    fn training_example(
+        &self,
+        item: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
         let (frame, instance) = self.set.instance(self.set.train[item]);
-        let sample = data::instance_sample(&self.config.network, frame, instance, Some((&self.config.augment, rng)))?;
+        let sample = data::instance_sample(
+            &self.config.network,
+            frame,
+            instance,
+            Some((&self.config.augment, rng)),
+        )?;
         Ok((sample.input, sample.target))
     }
 
@@ -309,34 +378,64 @@ impl Task for KeypointTask {
     }
 }
 
-fn save_checkpoint(dir: &Path, model: &ResNetDeconv, optimizer: &ModuleOptimizer, state: &TrainState) -> Result<(), LearnError> {
+fn save_checkpoint(
+    dir: &Path,
+    model: &ResNetDeconv,
+    optimizer: &ModuleOptimizer,
+    state: &TrainState,
+) -> Result<(), LearnError> {
     write_dir_atomically(dir, |tmp| {
         let path = tmp.join(inference::WEIGHTS_FILE);
-        model.clone().save_file(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))?;
+        model
+            .clone()
+            .save_file(&path)
+            .map_err(|e| LearnError::Checkpoint(path, e.to_string()))?;
         let path = tmp.join(OPTIMIZER_FILE);
-        optimizer.save(&path).map_err(|e| LearnError::Checkpoint(path, e.to_string()))?;
+        optimizer
+            .save(&path)
+            .map_err(|e| LearnError::Checkpoint(path, e.to_string()))?;
         let path = tmp.join(STATE_FILE);
-        std::fs::write(&path, toml::to_string_pretty(state).expect("a TrainState serializes")).map_err(|e| LearnError::Io(path, e))
+        std::fs::write(
+            &path,
+            toml::to_string_pretty(state).expect("a TrainState serializes"),
+        )
+        .map_err(|e| LearnError::Io(path, e))
     })
 }
 
-fn load_checkpoint(dir: &Path, model: ResNetDeconv, optimizer: ModuleOptimizer) -> Result<(ResNetDeconv, ModuleOptimizer, TrainState), LearnError> {
-    let bad = |path: PathBuf, e: String| LearnError::Checkpoint(path, format!("{e}; pass --restart to train from scratch"));
+fn load_checkpoint(
+    dir: &Path,
+    model: ResNetDeconv,
+    optimizer: ModuleOptimizer,
+) -> Result<(ResNetDeconv, ModuleOptimizer, TrainState), LearnError> {
+    let bad = |path: PathBuf, e: String| {
+        LearnError::Checkpoint(path, format!("{e}; pass --restart to train from scratch"))
+    };
     let path = dir.join(STATE_FILE);
     let text = std::fs::read_to_string(&path).map_err(|e| bad(path.clone(), e.to_string()))?;
     let state: TrainState = toml::from_str(&text).map_err(|e| bad(path.clone(), e.to_string()))?;
     let path = dir.join(inference::WEIGHTS_FILE);
-    let model = model.try_load_file(&path).map_err(|e| bad(path.clone(), e.to_string()))?;
+    let model = model
+        .try_load_file(&path)
+        .map_err(|e| bad(path.clone(), e.to_string()))?;
     let path = dir.join(OPTIMIZER_FILE);
-    let optimizer = optimizer.load(&path).map_err(|e| bad(path.clone(), e.to_string()))?;
+    let optimizer = optimizer
+        .load(&path)
+        .map_err(|e| bad(path.clone(), e.to_string()))?;
     Ok((model, optimizer, state))
 }
 
 /// Removes a file or folder; one that is not there is fine.
 fn remove_if_present(path: &Path) -> Result<(), LearnError> {
-    let removed = if path.is_dir() { std::fs::remove_dir_all(path) } else { std::fs::remove_file(path) };
+    let removed = if path.is_dir() {
+        std::fs::remove_dir_all(path)
+    } else {
+        std::fs::remove_file(path)
+    };
     match removed {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => Err(LearnError::Io(path.to_path_buf(), e)),
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(LearnError::Io(path.to_path_buf(), e))
+        }
         _ => Ok(()),
     }
 }
@@ -350,7 +449,11 @@ fn trim_history(run_dir: &Path, step: usize) -> Result<(), LearnError> {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
         Err(e) => return Err(LearnError::Io(path, e)),
     };
-    let row_step = |line: &str| line.split(',').next().and_then(|field| field.parse::<usize>().ok());
+    let row_step = |line: &str| {
+        line.split(',')
+            .next()
+            .and_then(|field| field.parse::<usize>().ok())
+    };
     let kept: String = text
         .lines()
         .filter(|line| row_step(line).is_none_or(|row| row <= step))
@@ -369,19 +472,37 @@ fn append_history(run_dir: &Path, v: &Validation) -> Result<(), LearnError> {
     let mut line = String::new();
     if !path.exists() {
         line.push_str("step,train_loss");
-        v.metrics.iter().for_each(|(name, _)| line.push_str(&format!(",{name}")));
+        v.metrics
+            .iter()
+            .for_each(|(name, _)| line.push_str(&format!(",{name}")));
         line.push('\n');
     }
     line.push_str(&format!("{},{:.6e}", v.step, v.train_loss));
-    v.metrics.iter().for_each(|(_, value)| line.push_str(&format!(",{value}")));
+    v.metrics
+        .iter()
+        .for_each(|(_, value)| line.push_str(&format!(",{value}")));
     line.push('\n');
-    let mut file = std::fs::OpenOptions::new().create(true).append(true).open(&path).map_err(|e| LearnError::Io(path.clone(), e))?;
-    file.write_all(line.as_bytes()).map_err(|e| LearnError::Io(path, e))
+    let mut file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&path)
+        .map_err(|e| LearnError::Io(path.clone(), e))?;
+    file.write_all(line.as_bytes())
+        .map_err(|e| LearnError::Io(path, e))
 }
 
 pub fn print_validation(v: &Validation) {
-    let metrics: Vec<String> = v.metrics.iter().map(|(name, value)| format!("{name} {value:.4}")).collect();
-    println!("step {:>6}  train loss {:.3e}  held out: {}", v.step, v.train_loss, metrics.join(", "));
+    let metrics: Vec<String> = v
+        .metrics
+        .iter()
+        .map(|(name, value)| format!("{name} {value:.4}"))
+        .collect();
+    println!(
+        "step {:>6}  train loss {:.3e}  held out: {}",
+        v.step,
+        v.train_loss,
+        metrics.join(", ")
+    );
 }
 
 fn progress_bar(show: bool, steps: usize, start: usize) -> indicatif::ProgressBar {
@@ -417,7 +538,10 @@ mod tests {
         let path = dir.path().join(HISTORY_FILE);
         std::fs::write(&path, "step,train_loss\n250,0.5\n500,0.4\n750,0.3\n").unwrap();
         trim_history(dir.path(), 500).unwrap();
-        assert_eq!(std::fs::read_to_string(&path).unwrap(), "step,train_loss\n250,0.5\n500,0.4\n");
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "step,train_loss\n250,0.5\n500,0.4\n"
+        );
         trim_history(dir.path(), 0).unwrap();
         assert_eq!(std::fs::read_to_string(&path).unwrap(), "step,train_loss\n");
     }

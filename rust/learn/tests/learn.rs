@@ -32,31 +32,64 @@ fn a_training_step_runs_forward_and_backward_and_lowers_the_loss() {
     let input = Tensor::<4>::random([2, 4, 64, 64], Distribution::Normal(0.0, 1.0), &device);
     let target = Tensor::<4>::random([2, 8, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
     let output = net.forward(input.clone());
-    assert_eq!(output.dims(), [2, 8, 16, 16], "one D×(S/4)×(S/4) heatmap per crop");
+    assert_eq!(
+        output.dims(),
+        [2, 8, 16, 16],
+        "one D×(S/4)×(S/4) heatmap per crop"
+    );
     let mut optimizer = AdamConfig::new().init();
     let mut losses = Vec::new();
     for _ in 0..5 {
-        let loss = (net.forward(input.clone()) - target.clone()).powi_scalar(2).mean();
+        let loss = (net.forward(input.clone()) - target.clone())
+            .powi_scalar(2)
+            .mean();
         losses.push(loss.clone().into_scalar::<f32>() as f64);
         let grads = GradientsParams::from_grads(loss.backward(), &net);
         assert!(!grads.is_empty(), "every parameter gets a gradient");
         net = optimizer.step(1e-2, net, grads);
     }
     assert!(losses.iter().all(|l| l.is_finite()));
-    assert!(losses[4] < losses[0], "five Adam steps on one batch lower its loss: {losses:?}");
+    assert!(
+        losses[4] < losses[0],
+        "five Adam steps on one batch lower its loss: {losses:?}"
+    );
 }
 
 #[test]
 fn the_target_heatmap_through_nms_and_back_projection_recovers_the_corners_within_half_a_voxel() {
-    let config = NetworkConfig { input_size: 128, depth_bins: 48, ..tiny_config() };
-    let k = Intrinsics { fx: 600.0, fy: 600.0, cx: 320.0, cy: 240.0 };
+    let config = NetworkConfig {
+        input_size: 128,
+        depth_bins: 48,
+        ..tiny_config()
+    };
+    let k = Intrinsics {
+        fx: 600.0,
+        fy: 600.0,
+        cx: 320.0,
+        cy: 240.0,
+    };
     let model = BoxModel::new(Vector3::new(0.2, 0.16, 0.12)).unwrap();
-    let pose = Isometry3::from_parts(Translation3::new(0.03, -0.02, 1.2), UnitQuaternion::from_euler_angles(0.5, -0.3, 0.8));
+    let pose = Isometry3::from_parts(
+        Translation3::new(0.03, -0.02, 1.2),
+        UnitQuaternion::from_euler_angles(0.5, -0.3, 0.8),
+    );
     let corners: [[f64; 3]; 8] = model.corners().map(|c| (pose * c).coords.into());
     let pixels: Vec<[f64; 2]> = corners.iter().map(|c| k.project(*c)).collect();
-    let lo = pixels.iter().fold([f64::MAX; 2], |a, p| [a[0].min(p[0]), a[1].min(p[1])]);
-    let hi = pixels.iter().fold([f64::MIN; 2], |a, p| [a[0].max(p[0]), a[1].max(p[1])]);
-    let window = CropWindow::around([lo[0] as i32, lo[1] as i32, hi[0] as i32 + 1, hi[1] as i32 + 1], 1.3);
+    let lo = pixels
+        .iter()
+        .fold([f64::MAX; 2], |a, p| [a[0].min(p[0]), a[1].min(p[1])]);
+    let hi = pixels
+        .iter()
+        .fold([f64::MIN; 2], |a, p| [a[0].max(p[0]), a[1].max(p[1])]);
+    let window = CropWindow::around(
+        [
+            lo[0] as i32,
+            lo[1] as i32,
+            hi[0] as i32 + 1,
+            hi[1] as i32 + 1,
+        ],
+        1.3,
+    );
     let grid = data::voxel_grid(&config, &k, &window, 1.15);
     let target = data::target_heatmap(&config, &grid, &corners).unwrap();
     let (peaks, points) = inference::decode(&config, &target, &grid).unwrap();
@@ -67,12 +100,23 @@ fn the_target_heatmap_through_nms_and_back_projection_recovers_the_corners_withi
             .iter()
             .map(|p| grid.project(p).unwrap())
             .min_by(|a, b| {
-                let d = |c: &boxpose_geometry::heatmap::VoxelCoord| (c.u - truth.u).powi(2) + (c.v - truth.v).powi(2) + (c.z_bin - truth.z_bin).powi(2);
+                let d = |c: &boxpose_geometry::heatmap::VoxelCoord| {
+                    (c.u - truth.u).powi(2)
+                        + (c.v - truth.v).powi(2)
+                        + (c.z_bin - truth.z_bin).powi(2)
+                };
                 d(a).total_cmp(&d(b))
             })
             .unwrap();
-        for (axis, error) in [("u", nearest.u - truth.u), ("v", nearest.v - truth.v), ("z", nearest.z_bin - truth.z_bin)] {
-            assert!(error.abs() < 0.5, "corner {corner:?}: {axis} off by {error:.3} voxels");
+        for (axis, error) in [
+            ("u", nearest.u - truth.u),
+            ("v", nearest.v - truth.v),
+            ("z", nearest.z_bin - truth.z_bin),
+        ] {
+            assert!(
+                error.abs() < 0.5,
+                "corner {corner:?}: {axis} off by {error:.3} voxels"
+            );
         }
     }
 }
@@ -88,7 +132,11 @@ fn a_saved_model_loads_with_identical_outputs() {
     let mut optimizer = AdamConfig::new().init();
     let train_device = device.clone().autodiff();
     for _ in 0..2 {
-        let input = Tensor::<4>::random([2, 4, 64, 64], Distribution::Normal(0.5, 1.0), &train_device);
+        let input = Tensor::<4>::random(
+            [2, 4, 64, 64],
+            Distribution::Normal(0.5, 1.0),
+            &train_device,
+        );
         let loss = net.forward(input).powi_scalar(2).mean();
         let grads = GradientsParams::from_grads(loss.backward(), &net);
         net = optimizer.step(1e-2, net, grads);
@@ -98,13 +146,29 @@ fn a_saved_model_loads_with_identical_outputs() {
     KeypointModel::save(&config, &net.valid(), &model_dir).unwrap();
     let loaded = KeypointModel::load(&model_dir, device.clone()).unwrap();
     assert_eq!(loaded.config, config);
-    let original = KeypointModel { config: config.clone(), net: net.valid(), device: device.clone() };
-    let inputs: Vec<Vec<f32>> = (0..3).map(|i| (0..4 * 64 * 64).map(|j| ((i * 31 + j) % 97) as f32 / 50.0 - 1.0).collect()).collect();
-    assert_eq!(original.heatmaps(&inputs, 2).unwrap(), loaded.heatmaps(&inputs, 2).unwrap());
+    let original = KeypointModel {
+        config: config.clone(),
+        net: net.valid(),
+        device: device.clone(),
+    };
+    let inputs: Vec<Vec<f32>> = (0..3)
+        .map(|i| {
+            (0..4 * 64 * 64)
+                .map(|j| ((i * 31 + j) % 97) as f32 / 50.0 - 1.0)
+                .collect()
+        })
+        .collect();
+    assert_eq!(
+        original.heatmaps(&inputs, 2).unwrap(),
+        loaded.heatmaps(&inputs, 2).unwrap()
+    );
 
     // a missing or corrupt file names itself
     std::fs::write(model_dir.join("model.bpk"), b"junk").unwrap();
-    let error = KeypointModel::load(&model_dir, device).err().expect("corrupt weights are refused").to_string();
+    let error = KeypointModel::load(&model_dir, device)
+        .err()
+        .expect("corrupt weights are refused")
+        .to_string();
     assert!(error.contains("model.bpk"), "{error}");
     std::fs::remove_dir_all(dir).unwrap();
 }
@@ -125,7 +189,10 @@ fn two_box_frame() -> boxpose_data::Frame {
             frame_id: 0,
             object_id,
             size: [0.1, 0.1, 0.1],
-            camera_box: boxpose_data::Pose { quat_wxyz: [1.0, 0.0, 0.0, 0.0], translation: [0.0, 0.0, 1.0] },
+            camera_box: boxpose_data::Pose {
+                quat_wxyz: [1.0, 0.0, 0.0, 0.0],
+                translation: [0.0, 0.0, 1.0],
+            },
             corners_camera: [[0.0, 0.0, 1.0]; 8],
             corners_px: [[0.0, 0.0]; 8],
             visibility: [boxpose_data::Visibility::Visible; 8],
@@ -141,14 +208,25 @@ fn two_box_frame() -> boxpose_data::Frame {
         frame_id: 0,
         width,
         height,
-        intrinsics: Intrinsics { fx: 60.0, fy: 60.0, cx: 32.0, cy: 24.0 },
-        world_camera: boxpose_data::Pose { quat_wxyz: [1.0, 0.0, 0.0, 0.0], translation: [0.0; 3] },
+        intrinsics: Intrinsics {
+            fx: 60.0,
+            fy: 60.0,
+            cx: 32.0,
+            cy: 24.0,
+        },
+        world_camera: boxpose_data::Pose {
+            quat_wxyz: [1.0, 0.0, 0.0, 0.0],
+            translation: [0.0; 3],
+        },
         samples: 1,
         denoise: false,
         render_seed: 0,
         blender_version: String::new(),
         rgb: vec![128; width * height * 3],
-        depth: mask.iter().map(|&m| if m > 0 { 0.9 } else { 1.0 }).collect(),
+        depth: mask
+            .iter()
+            .map(|&m| if m > 0 { 0.9 } else { 1.0 })
+            .collect(),
         instance_mask: mask,
         sensor_depth: None,
         instances,
@@ -174,16 +252,31 @@ fn the_segmenter_targets_decode_back_into_the_true_instances() {
     let plane = 16 * 16;
     // a perfect output: confident foreground logits, the target centres and offsets
     let mut output = target[..4 * plane].to_vec();
-    output[..plane].iter_mut().for_each(|v| *v = if *v > 0.5 { 10.0 } else { -10.0 });
+    output[..plane]
+        .iter_mut()
+        .for_each(|v| *v = if *v > 0.5 { 10.0 } else { -10.0 });
     let detections = segmentation::decode(&config, &frame, &output);
     assert_eq!(detections.len(), 2, "one detection per box");
     let found = segmentation::match_detections(&frame, &detections, 0.7);
-    assert!(found.iter().all(Option::is_some), "every box matched with mask IoU ≥ 0.7: {found:?}");
+    assert!(
+        found.iter().all(Option::is_some),
+        "every box matched with mask IoU ≥ 0.7: {found:?}"
+    );
     let scores = segmentation::score_detections(&[&frame], &[detections.clone()]);
     assert_eq!((scores.mask_ap50, scores.bbox_ap50), (1.0, 1.0));
     // a false positive with the best score lowers precision at every recall
     let mut noisy = detections;
-    noisy.insert(0, segmentation::Detection { mask: vec![false; 64 * 48], bbox: [60, 0, 64, 4], score: 2.0 });
+    noisy.insert(
+        0,
+        segmentation::Detection {
+            mask: vec![false; 64 * 48],
+            bbox: [60, 0, 64, 4],
+            score: 2.0,
+        },
+    );
     let scores = segmentation::score_detections(&[&frame], &[noisy]);
-    assert!(scores.bbox_ap50 < 0.75 && scores.bbox_ap50 > 0.4, "{scores:?}");
+    assert!(
+        scores.bbox_ap50 < 0.75 && scores.bbox_ap50 > 0.4,
+        "{scores:?}"
+    );
 }

@@ -12,12 +12,23 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let dataset = Dataset::open(&args[1])?;
     let id: i64 = args[2].parse()?;
     let tolerance: f64 = args.get(3).map(|t| t.parse()).transpose()?.unwrap_or(1e-8);
-    let scene = dataset.scenes()?.into_iter().find(|s| s.scene_id == id).ok_or("no such scene")?;
-    let mut objs: Vec<_> = dataset.objects()?.into_iter().filter(|o| o.scene_id == id).collect();
+    let scene = dataset
+        .scenes()?
+        .into_iter()
+        .find(|s| s.scene_id == id)
+        .ok_or("no such scene")?;
+    let mut objs: Vec<_> = dataset
+        .objects()?
+        .into_iter()
+        .filter(|o| o.scene_id == id)
+        .collect();
     objs.sort_by_key(|o| o.object_id);
     let recipe = RecipePhysics::from_toml(&scene.recipe_toml)?;
     let desc = SceneDescription::from_objects(recipe.support, &objs);
-    let options = MujocoOptions { tolerance, ..Default::default() };
+    let options = MujocoOptions {
+        tolerance,
+        ..Default::default()
+    };
     let model = MjModel::from_xml_string(&to_mjcf_with(&desc, &recipe.settle, &options))?;
     let mut data = MjData::new(&model);
     let (mut iters, mut t0) = (0i64, std::time::Instant::now());
@@ -30,10 +41,20 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let speeds: Vec<(f64, f64)> = data
                 .qvel()
                 .chunks(6)
-                .map(|q| ((q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt(), (q[3] * q[3] + q[4] * q[4] + q[5] * q[5]).sqrt()))
+                .map(|q| {
+                    (
+                        (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt(),
+                        (q[3] * q[3] + q[4] * q[4] + q[5] * q[5]).sqrt(),
+                    )
+                })
                 .collect();
-            let (fastest, &(vmax, wmax)) =
-                speeds.iter().enumerate().max_by(|a, b| (a.1.0 / 0.005 + a.1.1 / 0.05).total_cmp(&(b.1.0 / 0.005 + b.1.1 / 0.05))).unwrap();
+            let (fastest, &(vmax, wmax)) = speeds
+                .iter()
+                .enumerate()
+                .max_by(|a, b| {
+                    (a.1.0 / 0.005 + a.1.1 / 0.05).total_cmp(&(b.1.0 / 0.005 + b.1.1 / 0.05))
+                })
+                .unwrap();
             let z = data.qpos()[7 * fastest + 2];
             println!(
                 "step {step:>5}  ncon {:>3}  nefc {:>4}  nisland {:>2}  solver iters/step {:>5.1}  box {fastest} |v| {vmax:.4} |w| {wmax:.3} z {z:.3}  {:>5.0} µs/step",

@@ -8,7 +8,10 @@
 use std::collections::BTreeMap;
 
 use boxpose_data::{Dataset, Object};
-use boxpose_physics::{Cone, Integrator, MujocoOptions, RecipePhysics, SceneDescription, SettleOutcome, Settler, down_face};
+use boxpose_physics::{
+    Cone, Integrator, MujocoOptions, RecipePhysics, SceneDescription, SettleOutcome, Settler,
+    down_face,
+};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut args = std::env::args().skip(1);
@@ -23,15 +26,72 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let d = MujocoOptions::default();
     let variants: Vec<(&str, MujocoOptions)> = vec![
         ("default", d),
-        ("solref 0.01", MujocoOptions { solref: [0.01, 1.0], ..d }),
-        ("solref 0.004", MujocoOptions { solref: [0.004, 1.0], ..d }),
-        ("impratio 100", MujocoOptions { impratio: 100.0, ..d }),
-        ("solref .004 imp 100", MujocoOptions { solref: [0.004, 1.0], impratio: 100.0, ..d }),
-        ("solref .01 imp 100", MujocoOptions { solref: [0.01, 1.0], impratio: 100.0, ..d }),
-        ("noslip 10", MujocoOptions { noslip_iterations: 10, ..d }),
-        ("Euler", MujocoOptions { integrator: Integrator::Euler, ..d }),
-        ("pyramidal", MujocoOptions { cone: Cone::Pyramidal, impratio: 1.0, ..d }),
-        ("sleep 1e-3", MujocoOptions { sleep_tolerance: Some(1e-3), ..d }),
+        (
+            "solref 0.01",
+            MujocoOptions {
+                solref: [0.01, 1.0],
+                ..d
+            },
+        ),
+        (
+            "solref 0.004",
+            MujocoOptions {
+                solref: [0.004, 1.0],
+                ..d
+            },
+        ),
+        (
+            "impratio 100",
+            MujocoOptions {
+                impratio: 100.0,
+                ..d
+            },
+        ),
+        (
+            "solref .004 imp 100",
+            MujocoOptions {
+                solref: [0.004, 1.0],
+                impratio: 100.0,
+                ..d
+            },
+        ),
+        (
+            "solref .01 imp 100",
+            MujocoOptions {
+                solref: [0.01, 1.0],
+                impratio: 100.0,
+                ..d
+            },
+        ),
+        (
+            "noslip 10",
+            MujocoOptions {
+                noslip_iterations: 10,
+                ..d
+            },
+        ),
+        (
+            "Euler",
+            MujocoOptions {
+                integrator: Integrator::Euler,
+                ..d
+            },
+        ),
+        (
+            "pyramidal",
+            MujocoOptions {
+                cone: Cone::Pyramidal,
+                impratio: 1.0,
+                ..d
+            },
+        ),
+        (
+            "sleep 1e-3",
+            MujocoOptions {
+                sleep_tolerance: Some(1e-3),
+                ..d
+            },
+        ),
     ];
     // One settler per (variant, scene), built up front.
     let mut settlers = Vec::new();
@@ -47,7 +107,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         settlers.push(row);
     }
     let mut best = vec![vec![f64::INFINITY; scenes.len()]; variants.len()];
-    let mut outcomes: Vec<Vec<Option<SettleOutcome>>> = vec![vec![None; scenes.len()]; variants.len()];
+    let mut outcomes: Vec<Vec<Option<SettleOutcome>>> =
+        vec![vec![None; scenes.len()]; variants.len()];
     for _ in 0..rounds {
         for (v, row) in settlers.iter_mut().enumerate() {
             for (k, (settler, _)) in row.iter_mut().enumerate() {
@@ -63,11 +124,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         for (k, (_, objs)) in settlers[v].iter().enumerate() {
             let out = outcomes[v][k].as_ref().unwrap();
             let c = &out.certificate;
-            by_n.entry(objs.len()).or_default().push((best[v][k], best[v][k] / c.steps as f64));
+            by_n.entry(objs.len())
+                .or_default()
+                .push((best[v][k], best[v][k] / c.steps as f64));
             stable += usize::from(out.stable);
             sim += c.settle_time_s;
             for (o, p) in objs.iter().zip(&out.poses) {
-                faces += usize::from(down_face(o.world_box.quat_wxyz).0 == down_face(p.quat_wxyz).0);
+                faces +=
+                    usize::from(down_face(o.world_box.quat_wxyz).0 == down_face(p.quat_wxyz).0);
                 boxes += 1;
             }
         }
@@ -75,7 +139,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .iter()
             .map(|(n, w)| {
                 let m = w.len() as f64;
-                let (ms, us) = (w.iter().map(|x| x.0).sum::<f64>() / m * 1e3, w.iter().map(|x| x.1).sum::<f64>() / m * 1e6);
+                let (ms, us) = (
+                    w.iter().map(|x| x.0).sum::<f64>() / m * 1e3,
+                    w.iter().map(|x| x.1).sum::<f64>() / m * 1e6,
+                );
                 format!("{n} boxes {ms:6.1} ms ({us:3.0} µs/step)")
             })
             .collect();

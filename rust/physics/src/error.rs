@@ -10,10 +10,20 @@ pub enum PhysicsError {
     BadMass { index: usize, mass_kg: f64 },
     #[error("box {index}: friction {friction} must be finite and non-negative")]
     BadFriction { index: usize, friction: f64 },
-    #[error("box {index}: pose is not finite (quat_wxyz {quat_wxyz:?}, translation {translation:?})")]
-    NonFinitePose { index: usize, quat_wxyz: [f64; 4], translation: [f64; 3] },
+    #[error(
+        "box {index}: pose is not finite (quat_wxyz {quat_wxyz:?}, translation {translation:?})"
+    )]
+    NonFinitePose {
+        index: usize,
+        quat_wxyz: [f64; 4],
+        translation: [f64; 3],
+    },
     #[error("box {index}: quaternion {quat_wxyz:?} has norm {norm}, not 1")]
-    NonUnitQuaternion { index: usize, quat_wxyz: [f64; 4], norm: f64 },
+    NonUnitQuaternion {
+        index: usize,
+        quat_wxyz: [f64; 4],
+        norm: f64,
+    },
     #[error("{count} initial poses given for a scene of {expected} boxes")]
     PoseCount { count: usize, expected: usize },
     #[error("support: {0}")]
@@ -26,7 +36,9 @@ pub enum PhysicsError {
     Compile { message: String },
     #[error("MuJoCo: {0}")]
     MuJoCo(String),
-    #[error("simulation diverged at t = {time_s} s ({warning}); the initial state is probably deeply interpenetrating")]
+    #[error(
+        "simulation diverged at t = {time_s} s ({warning}); the initial state is probably deeply interpenetrating"
+    )]
     Diverged { time_s: f64, warning: String },
 }
 

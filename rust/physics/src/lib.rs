@@ -17,10 +17,14 @@ mod settle;
 
 pub use boxpose_data::Pose;
 pub use error::{PhysicsError, Result};
-pub use mjcf::{CONTACT_SOLIMP, CONTACT_SOLREF, Cone, IMPRATIO, Integrator, MujocoOptions, Solver, to_mjcf, to_mjcf_with};
+pub use mjcf::{
+    CONTACT_SOLIMP, CONTACT_SOLREF, Cone, IMPRATIO, Integrator, MujocoOptions, Solver, to_mjcf,
+    to_mjcf_with,
+};
 pub use scene::{
-    BIN_WALL_THICKNESS_M, BoxBody, GRAVITY_MPS2, PALLET_HEIGHT_M, QUATERNION_NORM_TOLERANCE, RecipePhysics, SUPPORT_FRICTION,
-    SceneDescription, SettleParams, Support, SupportKind, combined_friction,
+    BIN_WALL_THICKNESS_M, BoxBody, GRAVITY_MPS2, PALLET_HEIGHT_M, QUATERNION_NORM_TOLERANCE,
+    RecipePhysics, SUPPORT_FRICTION, SceneDescription, SettleParams, Support, SupportKind,
+    combined_friction,
 };
 pub use settle::{Certificate, DISTANCE_HORIZON_M, Rejection, SettleOutcome, Settler, settle};
 
@@ -37,7 +41,12 @@ pub struct Face {
 
 impl std::fmt::Display for Face {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}{}", if self.positive { '+' } else { '-' }, ['x', 'y', 'z'][self.axis])
+        write!(
+            f,
+            "{}{}",
+            if self.positive { '+' } else { '-' },
+            ['x', 'y', 'z'][self.axis]
+        )
     }
 }
 
@@ -45,9 +54,21 @@ impl std::fmt::Display for Face {
 pub fn rotation_matrix(q: [f64; 4]) -> [[f64; 3]; 3] {
     let [w, x, y, z] = q;
     [
-        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
-        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
-        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+        [
+            1.0 - 2.0 * (y * y + z * z),
+            2.0 * (x * y - w * z),
+            2.0 * (x * z + w * y),
+        ],
+        [
+            2.0 * (x * y + w * z),
+            1.0 - 2.0 * (x * x + z * z),
+            2.0 * (y * z - w * x),
+        ],
+        [
+            2.0 * (x * z - w * y),
+            2.0 * (y * z + w * x),
+            1.0 - 2.0 * (x * x + y * y),
+        ],
     ]
 }
 
@@ -57,7 +78,15 @@ pub fn down_face(quat_wxyz: [f64; 4]) -> (Face, f64) {
     let r = rotation_matrix(quat_wxyz);
     // World z-component of each box axis.
     let up = r[2];
-    let axis = (0..3).max_by(|&a, &b| up[a].abs().total_cmp(&up[b].abs())).unwrap_or(2);
+    let axis = (0..3)
+        .max_by(|&a, &b| up[a].abs().total_cmp(&up[b].abs()))
+        .unwrap_or(2);
     let tilt = up[axis].abs().clamp(0.0, 1.0).acos();
-    (Face { axis, positive: up[axis] < 0.0 }, tilt)
+    (
+        Face {
+            axis,
+            positive: up[axis] < 0.0,
+        },
+        tilt,
+    )
 }

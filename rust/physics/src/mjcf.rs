@@ -29,7 +29,8 @@
 use std::fmt::Write;
 
 use crate::scene::{
-    BIN_WALL_THICKNESS_M, GRAVITY_MPS2, PALLET_HEIGHT_M, SUPPORT_FRICTION, SceneDescription, SettleParams, SupportKind, combined_friction,
+    BIN_WALL_THICKNESS_M, GRAVITY_MPS2, PALLET_HEIGHT_M, SUPPORT_FRICTION, SceneDescription,
+    SettleParams, SupportKind, combined_friction,
 };
 
 pub const CONTACT_SOLREF: [f64; 2] = [0.01, 1.0];
@@ -119,7 +120,11 @@ pub fn box_name(i: usize) -> String {
 pub const SUPPORT_PREFIX: &str = "support";
 
 fn v(values: &[f64]) -> String {
-    values.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(" ")
+    values
+        .iter()
+        .map(|x| format!("{x}"))
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// The MJCF text of `scene`, boxes placed at their initial poses, with the default options.
@@ -160,13 +165,19 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
         o.ls_iterations,
         o.noslip_iterations,
         if o.dense { "dense" } else { "auto" },
-        o.sleep_tolerance.map(|t| format!(r#" sleep_tolerance="{t}""#)).unwrap_or_default()
+        o.sleep_tolerance
+            .map(|t| format!(r#" sleep_tolerance="{t}""#))
+            .unwrap_or_default()
     );
     let _ = writeln!(
         s,
         r#"    <flag island="{}" sleep="{}"/>"#,
         if o.islands { "enable" } else { "disable" },
-        if o.sleep_tolerance.is_some() { "enable" } else { "disable" }
+        if o.sleep_tolerance.is_some() {
+            "enable"
+        } else {
+            "disable"
+        }
     );
     let _ = writeln!(s, "  </option>");
     let _ = writeln!(s, r#"  <size memory="{}M"/>"#, 4 + scene.boxes.len() / 4);
@@ -177,34 +188,65 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
         v(&o.solref),
         v(&o.solimp)
     );
-    let _ = writeln!(s, r#"    <pair condim="3" solref="{}" solimp="{}" margin="0"/>"#, v(&o.solref), v(&o.solimp));
+    let _ = writeln!(
+        s,
+        r#"    <pair condim="3" solref="{}" solimp="{}" margin="0"/>"#,
+        v(&o.solref),
+        v(&o.solimp)
+    );
     let _ = writeln!(s, "  </default>");
     let _ = writeln!(s, "  <worldbody>");
     let ground = format!("{SUPPORT_PREFIX}_ground");
     let reach = 4.0 * hx.max(hy);
-    let _ = writeln!(s, r#"    <geom name="{ground}" type="plane" size="{reach} {reach} 0.05"/>"#);
+    let _ = writeln!(
+        s,
+        r#"    <geom name="{ground}" type="plane" size="{reach} {reach} 0.05"/>"#
+    );
     let mut support = vec![ground];
     let mut slab = |s: &mut String, name: &str, pos: [f64; 3], half: [f64; 3]| {
         let name = format!("{SUPPORT_PREFIX}_{name}");
-        let _ = writeln!(s, r#"    <geom name="{name}" type="box" pos="{}" size="{}"/>"#, v(&pos), v(&half));
+        let _ = writeln!(
+            s,
+            r#"    <geom name="{name}" type="box" pos="{}" size="{}"/>"#,
+            v(&pos),
+            v(&half)
+        );
         support.push(name);
     };
     match scene.support.kind {
         SupportKind::Floor => {}
         SupportKind::Bin => {
-            let (t, h) = (BIN_WALL_THICKNESS_M / 2.0, scene.support.wall_height_m / 2.0);
+            let (t, h) = (
+                BIN_WALL_THICKNESS_M / 2.0,
+                scene.support.wall_height_m / 2.0,
+            );
             slab(&mut s, "wall_px", [hx + t, 0.0, h], [t, hy + 2.0 * t, h]);
             slab(&mut s, "wall_nx", [-hx - t, 0.0, h], [t, hy + 2.0 * t, h]);
             slab(&mut s, "wall_py", [0.0, hy + t, h], [hx, t, h]);
             slab(&mut s, "wall_ny", [0.0, -hy - t, h], [hx, t, h]);
         }
-        SupportKind::Pallet => slab(&mut s, "deck", [0.0, 0.0, PALLET_HEIGHT_M / 2.0], [hx, hy, PALLET_HEIGHT_M / 2.0]),
+        SupportKind::Pallet => slab(
+            &mut s,
+            "deck",
+            [0.0, 0.0, PALLET_HEIGHT_M / 2.0],
+            [hx, hy, PALLET_HEIGHT_M / 2.0],
+        ),
     }
     for (i, b) in scene.boxes.iter().enumerate() {
         let name = box_name(i);
-        let _ = writeln!(s, r#"    <body name="{name}" pos="{}" quat="{}">"#, v(&b.initial.translation), v(&b.initial.quat_wxyz));
+        let _ = writeln!(
+            s,
+            r#"    <body name="{name}" pos="{}" quat="{}">"#,
+            v(&b.initial.translation),
+            v(&b.initial.quat_wxyz)
+        );
         let _ = writeln!(s, r#"      <freejoint name="{name}"/>"#);
-        let _ = writeln!(s, r#"      <inertial pos="0 0 0" mass="{}" diaginertia="{}"/>"#, b.mass_kg, v(&b.diag_inertia()));
+        let _ = writeln!(
+            s,
+            r#"      <inertial pos="0 0 0" mass="{}" diaginertia="{}"/>"#,
+            b.mass_kg,
+            v(&b.diag_inertia())
+        );
         let _ = writeln!(
             s,
             r#"      <geom name="{name}" type="box" size="{}" friction="{} {FRICTION_TAIL}"/>"#,
@@ -217,14 +259,27 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
     if o.drake_friction {
         let _ = writeln!(s, "  <contact>");
         let pair = |s: &mut String, a: &str, b: &str, mu: f64| {
-            let _ = writeln!(s, r#"    <pair geom1="{a}" geom2="{b}" friction="{mu} {mu} {PAIR_FRICTION_TAIL}"/>"#);
+            let _ = writeln!(
+                s,
+                r#"    <pair geom1="{a}" geom2="{b}" friction="{mu} {mu} {PAIR_FRICTION_TAIL}"/>"#
+            );
         };
         for (i, bi) in scene.boxes.iter().enumerate() {
             for g in &support {
-                pair(&mut s, &box_name(i), g, combined_friction(bi.friction, SUPPORT_FRICTION));
+                pair(
+                    &mut s,
+                    &box_name(i),
+                    g,
+                    combined_friction(bi.friction, SUPPORT_FRICTION),
+                );
             }
             for (j, bj) in scene.boxes.iter().enumerate().skip(i + 1) {
-                pair(&mut s, &box_name(i), &box_name(j), combined_friction(bi.friction, bj.friction));
+                pair(
+                    &mut s,
+                    &box_name(i),
+                    &box_name(j),
+                    combined_friction(bi.friction, bj.friction),
+                );
             }
         }
         let _ = writeln!(s, "  </contact>");

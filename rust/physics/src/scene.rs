@@ -22,7 +22,11 @@ pub const SUPPORT_FRICTION: f64 = 0.6;
 /// The friction coefficient of a contact between two materials, Drake's rule (`CoulombFriction`
 /// combination): 2 μ₁ μ₂ / (μ₁ + μ₂), 0 when both are 0.
 pub fn combined_friction(a: f64, b: f64) -> f64 {
-    if a + b > 0.0 { 2.0 * a * b / (a + b) } else { 0.0 }
+    if a + b > 0.0 {
+        2.0 * a * b / (a + b)
+    } else {
+        0.0
+    }
 }
 
 /// Standard gravity, along −z of the world frame.
@@ -43,7 +47,12 @@ pub struct BoxBody {
 impl BoxBody {
     /// A box from an `objects` row, starting from its `initial_world_box` pose.
     pub fn from_object(object: &Object) -> Self {
-        Self { size: object.size, mass_kg: object.mass_kg, friction: object.friction, initial: object.initial_world_box }
+        Self {
+            size: object.size,
+            mass_kg: object.mass_kg,
+            friction: object.friction,
+            initial: object.initial_world_box,
+        }
     }
 
     /// Principal moments of inertia of a solid box of uniform density (kg m²).
@@ -96,12 +105,20 @@ pub struct Support {
 
 impl Support {
     pub fn floor() -> Self {
-        Self { kind: SupportKind::Floor, half_extent_m: [0.25, 0.25], wall_height_m: 0.0 }
+        Self {
+            kind: SupportKind::Floor,
+            half_extent_m: [0.25, 0.25],
+            wall_height_m: 0.0,
+        }
     }
 
     /// Height of the surface boxes rest on: 0, or the pallet's deck.
     pub fn top_z(&self) -> f64 {
-        if self.kind == SupportKind::Pallet { PALLET_HEIGHT_M } else { 0.0 }
+        if self.kind == SupportKind::Pallet {
+            PALLET_HEIGHT_M
+        } else {
+            0.0
+        }
     }
 
     /// Whether a box centre at `t` is over the support region and above its top surface (the
@@ -114,10 +131,16 @@ impl Support {
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(PhysicsError::BadSupport(m));
         if !self.half_extent_m.iter().all(|h| h.is_finite() && *h > 0.0) {
-            return bad(format!("half_extent_m {:?} must be finite and positive", self.half_extent_m));
+            return bad(format!(
+                "half_extent_m {:?} must be finite and positive",
+                self.half_extent_m
+            ));
         }
         if !self.wall_height_m.is_finite() || self.wall_height_m < 0.0 {
-            return bad(format!("wall_height_m {} must be finite and non-negative", self.wall_height_m));
+            return bad(format!(
+                "wall_height_m {} must be finite and non-negative",
+                self.wall_height_m
+            ));
         }
         if self.kind == SupportKind::Bin && self.wall_height_m <= 0.0 {
             return bad("a bin needs wall_height_m > 0".into());
@@ -169,14 +192,22 @@ impl SettleParams {
         ];
         for (name, v) in positive {
             if !v.is_finite() || v <= 0.0 {
-                return Err(PhysicsError::BadParams(format!("{name} = {v} must be finite and positive")));
+                return Err(PhysicsError::BadParams(format!(
+                    "{name} = {v} must be finite and positive"
+                )));
             }
         }
         if !self.max_penetration_m.is_finite() || self.max_penetration_m < 0.0 {
-            return Err(PhysicsError::BadParams(format!("max_penetration_m = {} must be finite and non-negative", self.max_penetration_m)));
+            return Err(PhysicsError::BadParams(format!(
+                "max_penetration_m = {} must be finite and non-negative",
+                self.max_penetration_m
+            )));
         }
         if self.window_s > self.max_time_s {
-            return Err(PhysicsError::BadParams(format!("window_s = {} exceeds max_time_s = {}", self.window_s, self.max_time_s)));
+            return Err(PhysicsError::BadParams(format!(
+                "window_s = {} exceeds max_time_s = {}",
+                self.window_s, self.max_time_s
+            )));
         }
         Ok(())
     }
@@ -209,7 +240,8 @@ impl RecipePhysics {
     }
 
     pub fn from_file(path: &std::path::Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).map_err(|e| PhysicsError::Recipe(format!("{}: {e}", path.display())))?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| PhysicsError::Recipe(format!("{}: {e}", path.display())))?;
         Self::from_toml(&text).map_err(|e| PhysicsError::Recipe(format!("{}: {e}", path.display())))
     }
 }
@@ -224,8 +256,14 @@ pub struct SceneDescription {
 impl SceneDescription {
     /// The scene of some `objects` rows (one scene's, in object_id order), from their
     /// `initial_world_box` poses.
-    pub fn from_objects<'a>(support: Support, objects: impl IntoIterator<Item = &'a Object>) -> Self {
-        Self { support, boxes: objects.into_iter().map(BoxBody::from_object).collect() }
+    pub fn from_objects<'a>(
+        support: Support,
+        objects: impl IntoIterator<Item = &'a Object>,
+    ) -> Self {
+        Self {
+            support,
+            boxes: objects.into_iter().map(BoxBody::from_object).collect(),
+        }
     }
 
     /// The initial poses of every box.
@@ -242,13 +280,22 @@ impl SceneDescription {
         self.support.validate()?;
         for (index, b) in self.boxes.iter().enumerate() {
             if !b.size.iter().all(|s| s.is_finite() && *s > 0.0) {
-                return Err(PhysicsError::BadSize { index, size: b.size });
+                return Err(PhysicsError::BadSize {
+                    index,
+                    size: b.size,
+                });
             }
             if !b.mass_kg.is_finite() || b.mass_kg <= 0.0 {
-                return Err(PhysicsError::BadMass { index, mass_kg: b.mass_kg });
+                return Err(PhysicsError::BadMass {
+                    index,
+                    mass_kg: b.mass_kg,
+                });
             }
             if !b.friction.is_finite() || b.friction < 0.0 {
-                return Err(PhysicsError::BadFriction { index, friction: b.friction });
+                return Err(PhysicsError::BadFriction {
+                    index,
+                    friction: b.friction,
+                });
             }
         }
         check_poses(&self.initial_poses(), self.boxes.len())?;
@@ -259,20 +306,39 @@ impl SceneDescription {
 /// Validates poses and returns them with normalized quaternions.
 pub(crate) fn check_poses(poses: &[Pose], expected: usize) -> Result<Vec<Pose>> {
     if poses.len() != expected {
-        return Err(PhysicsError::PoseCount { count: poses.len(), expected });
+        return Err(PhysicsError::PoseCount {
+            count: poses.len(),
+            expected,
+        });
     }
     poses
         .iter()
         .enumerate()
         .map(|(index, p)| {
-            if !p.quat_wxyz.iter().chain(&p.translation).all(|v| v.is_finite()) {
-                return Err(PhysicsError::NonFinitePose { index, quat_wxyz: p.quat_wxyz, translation: p.translation });
+            if !p
+                .quat_wxyz
+                .iter()
+                .chain(&p.translation)
+                .all(|v| v.is_finite())
+            {
+                return Err(PhysicsError::NonFinitePose {
+                    index,
+                    quat_wxyz: p.quat_wxyz,
+                    translation: p.translation,
+                });
             }
             let norm = p.quat_wxyz.iter().map(|v| v * v).sum::<f64>().sqrt();
             if (norm - 1.0).abs() > QUATERNION_NORM_TOLERANCE {
-                return Err(PhysicsError::NonUnitQuaternion { index, quat_wxyz: p.quat_wxyz, norm });
+                return Err(PhysicsError::NonUnitQuaternion {
+                    index,
+                    quat_wxyz: p.quat_wxyz,
+                    norm,
+                });
             }
-            Ok(Pose { quat_wxyz: p.quat_wxyz.map(|v| v / norm), translation: p.translation })
+            Ok(Pose {
+                quat_wxyz: p.quat_wxyz.map(|v| v / norm),
+                translation: p.translation,
+            })
         })
         .collect()
 }

@@ -90,7 +90,10 @@ pub struct Settler {
 
 impl std::fmt::Debug for Settler {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Settler").field("scene", &self.scene).field("params", &self.params).finish_non_exhaustive()
+        f.debug_struct("Settler")
+            .field("scene", &self.scene)
+            .field("params", &self.params)
+            .finish_non_exhaustive()
     }
 }
 
@@ -107,30 +110,55 @@ impl Settler {
     }
 
     /// As [`Settler::new`], with other MuJoCo settings (for tuning and benchmarks).
-    pub fn with_options(scene: &SceneDescription, params: &SettleParams, options: &MujocoOptions) -> Result<Self> {
+    pub fn with_options(
+        scene: &SceneDescription,
+        params: &SettleParams,
+        options: &MujocoOptions,
+    ) -> Result<Self> {
         scene.validate()?;
         params.validate()?;
         let mjcf = to_mjcf_with(scene, params, options);
-        let model = MjModel::from_xml_string(&mjcf).map_err(|e| PhysicsError::Compile { message: compile_message(e) })?;
+        let model = MjModel::from_xml_string(&mjcf).map_err(|e| PhysicsError::Compile {
+            message: compile_message(e),
+        })?;
         let n = scene.boxes.len();
         let (nq, nv) = (model.ffi().nq as usize, model.ffi().nv as usize);
         if nq != 7 * n || nv != 6 * n {
-            return Err(PhysicsError::MuJoCo(format!("compiled model has nq = {nq}, nv = {nv}; expected {} and {} for {n} free boxes", 7 * n, 6 * n)));
+            return Err(PhysicsError::MuJoCo(format!(
+                "compiled model has nq = {nq}, nv = {nv}; expected {} and {} for {n} free boxes",
+                7 * n,
+                6 * n
+            )));
         }
         let geom = |name: &str| {
             model
                 .name_to_id(MjtObjBase::mjOBJ_GEOM, name)
-                .ok_or_else(|| PhysicsError::MuJoCo(format!("geom `{name}` missing from the compiled model")))
+                .ok_or_else(|| {
+                    PhysicsError::MuJoCo(format!("geom `{name}` missing from the compiled model"))
+                })
         };
-        let box_geoms = (0..n).map(|i| geom(&box_name(i))).collect::<Result<Vec<_>>>()?;
+        let box_geoms = (0..n)
+            .map(|i| geom(&box_name(i)))
+            .collect::<Result<Vec<_>>>()?;
         let mut support_geoms = Vec::new();
         for id in 0..model.ffi().ngeom as usize {
-            if model.id_to_name(MjtObjBase::mjOBJ_GEOM, id).is_some_and(|name| name.starts_with(SUPPORT_PREFIX)) {
+            if model
+                .id_to_name(MjtObjBase::mjOBJ_GEOM, id)
+                .is_some_and(|name| name.starts_with(SUPPORT_PREFIX))
+            {
                 support_geoms.push(id);
             }
         }
-        let data = MjData::try_new(Box::new(model)).map_err(|e| PhysicsError::MuJoCo(format!("allocating mjData: {e:?}")))?;
-        Ok(Self { data, scene: scene.clone(), params: *params, mjcf, box_geoms, support_geoms })
+        let data = MjData::try_new(Box::new(model))
+            .map_err(|e| PhysicsError::MuJoCo(format!("allocating mjData: {e:?}")))?;
+        Ok(Self {
+            data,
+            scene: scene.clone(),
+            params: *params,
+            mjcf,
+            box_geoms,
+            support_geoms,
+        })
     }
 
     /// The MJCF the model was compiled from (the boxes at the scene's initial poses).
@@ -184,19 +212,28 @@ impl Settler {
             let qvel = data.qvel();
             let (v, w) = max_speeds(qvel);
             if !qvel.iter().all(|x| x.is_finite()) {
-                return Err(PhysicsError::Diverged { time_s: data.time(), warning: "non-finite velocity".into() });
+                return Err(PhysicsError::Diverged {
+                    time_s: data.time(),
+                    warning: "non-finite velocity".into(),
+                });
             }
             if recent.len() == window {
                 recent.pop_front();
             }
             recent.push_back((v, w));
-            quiet = if v <= v_max && w <= w_max { quiet + 1 } else { 0 };
+            quiet = if v <= v_max && w <= w_max {
+                quiet + 1
+            } else {
+                0
+            };
             if quiet >= window {
                 settled = true;
                 break;
             }
         }
-        let (max_v, max_w) = recent.iter().fold((0.0f64, 0.0f64), |(a, b), &(v, w)| (a.max(v), b.max(w)));
+        let (max_v, max_w) = recent
+            .iter()
+            .fold((0.0f64, 0.0f64), |(a, b), &(v, w)| (a.max(v), b.max(w)));
         let settle_time_s = data.time();
 
         let poses = final_poses(data.qpos());
@@ -205,7 +242,10 @@ impl Settler {
             Some(Rejection::NotSettled)
         } else if min_signed_distance_m < -params.max_penetration_m {
             Some(Rejection::Penetration)
-        } else if !poses.iter().all(|p| self.scene.support.holds(p.translation)) {
+        } else if !poses
+            .iter()
+            .all(|p| self.scene.support.holds(p.translation))
+        {
             Some(Rejection::LeftSupport)
         } else {
             None
@@ -248,7 +288,10 @@ fn compile_message(e: MjModelError) -> String {
 
 /// Warnings after which the simulation cannot be trusted; MuJoCo resets the state on some of them.
 const FATAL_WARNINGS: [(mjtWarning, &str); 5] = [
-    (mjtWarning::mjWARN_BADQACC, "bad acceleration, MuJoCo reset the state"),
+    (
+        mjtWarning::mjWARN_BADQACC,
+        "bad acceleration, MuJoCo reset the state",
+    ),
     (mjtWarning::mjWARN_BADQPOS, "bad position"),
     (mjtWarning::mjWARN_BADQVEL, "bad velocity"),
     (mjtWarning::mjWARN_CONTACTFULL, "contact buffer full"),
@@ -259,7 +302,10 @@ fn check_warnings(data: &MjData<Box<MjModel>>) -> Result<()> {
     let warnings = &data.ffi().warning;
     for (kind, what) in FATAL_WARNINGS {
         if warnings[kind as usize].number > 0 {
-            return Err(PhysicsError::Diverged { time_s: data.time(), warning: what.to_string() });
+            return Err(PhysicsError::Diverged {
+                time_s: data.time(),
+                warning: what.to_string(),
+            });
         }
     }
     Ok(())
@@ -280,7 +326,10 @@ fn final_poses(qpos: &[f64]) -> Vec<Pose> {
         .map(|q| {
             let norm = (q[3] * q[3] + q[4] * q[4] + q[5] * q[5] + q[6] * q[6]).sqrt();
             let sign = if q[3] < 0.0 { -1.0 } else { 1.0 };
-            Pose { quat_wxyz: [q[3], q[4], q[5], q[6]].map(|c| sign * c / norm), translation: [q[0], q[1], q[2]] }
+            Pose {
+                quat_wxyz: [q[3], q[4], q[5], q[6]].map(|c| sign * c / norm),
+                translation: [q[0], q[1], q[2]],
+            }
         })
         .collect()
 }

@@ -30,14 +30,31 @@ pub fn lowest_z(size: [f64; 3], pose: &Pose) -> f64 {
 }
 
 /// A box of uniform density 150 kg/m³ whose lowest corner is `gap` above z = 0.
-pub fn dropped_box(size: [f64; 3], quat: [f64; 4], xy: [f64; 2], gap: f64, friction: f64) -> BoxBody {
-    let mut pose = Pose { quat_wxyz: quat, translation: [xy[0], xy[1], 0.0] };
+pub fn dropped_box(
+    size: [f64; 3],
+    quat: [f64; 4],
+    xy: [f64; 2],
+    gap: f64,
+    friction: f64,
+) -> BoxBody {
+    let mut pose = Pose {
+        quat_wxyz: quat,
+        translation: [xy[0], xy[1], 0.0],
+    };
     pose.translation[2] = gap - lowest_z(size, &pose);
-    BoxBody { size, mass_kg: 150.0 * size.iter().product::<f64>(), friction, initial: pose }
+    BoxBody {
+        size,
+        mass_kg: 150.0 * size.iter().product::<f64>(),
+        friction,
+        initial: pose,
+    }
 }
 
 pub fn floor_scene(boxes: Vec<BoxBody>) -> SceneDescription {
-    SceneDescription { support: Support::floor(), boxes }
+    SceneDescription {
+        support: Support::floor(),
+        boxes,
+    }
 }
 
 /// Small deterministic generator (xorshift) so tests need no rand dependency.
@@ -53,9 +70,18 @@ impl Rng {
 
     /// Uniformly random rotation (Shoemake).
     pub fn quat(&mut self) -> [f64; 4] {
-        let (u1, u2, u3) = (self.uniform(0.0, 1.0), self.uniform(0.0, 1.0), self.uniform(0.0, 1.0));
+        let (u1, u2, u3) = (
+            self.uniform(0.0, 1.0),
+            self.uniform(0.0, 1.0),
+            self.uniform(0.0, 1.0),
+        );
         let tau = std::f64::consts::TAU;
         let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
-        [a * (tau * u2).sin(), a * (tau * u2).cos(), b * (tau * u3).sin(), b * (tau * u3).cos()]
+        [
+            a * (tau * u2).sin(),
+            a * (tau * u2).cos(),
+            b * (tau * u3).sin(),
+            b * (tau * u3).cos(),
+        ]
     }
 }

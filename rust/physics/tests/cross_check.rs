@@ -22,7 +22,11 @@ fn repo_root() -> PathBuf {
 fn drake_and_mujoco_agree_on_the_same_drops() {
     let root = repo_root();
     let python = root.join(".venv/bin/python");
-    assert!(python.exists(), "{} missing: run `make setup` (the cross-check runs the Drake stage)", python.display());
+    assert!(
+        python.exists(),
+        "{} missing: run `make setup` (the cross-check runs the Drake stage)",
+        python.display()
+    );
     let recipe_path = root.join("datasets/recipes/tiny.toml");
     let out = tempfile::tempdir().unwrap();
     let output = Command::new(&python)
@@ -34,7 +38,11 @@ fn drake_and_mujoco_agree_on_the_same_drops() {
         .output()
         .expect("running the Drake stage");
     let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(output.status.success(), "drake_scenes.bench_settle failed:\n{stdout}\n{}", String::from_utf8_lossy(&output.stderr));
+    assert!(
+        output.status.success(),
+        "drake_scenes.bench_settle failed:\n{stdout}\n{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
     let drake: BTreeMap<i64, serde_json::Value> = stdout
         .lines()
         .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
@@ -52,17 +60,34 @@ fn drake_and_mujoco_agree_on_the_same_drops() {
     for scene in dataset.scenes().unwrap() {
         let mut objs = objects.remove(&scene.scene_id).unwrap();
         objs.sort_by_key(|o| o.object_id);
-        assert_eq!(drake[&scene.scene_id]["stable"].as_bool(), Some(scene.stable));
-        assert!(scene.stable, "Drake did not settle scene {}: {}", scene.scene_id, drake[&scene.scene_id]);
+        assert_eq!(
+            drake[&scene.scene_id]["stable"].as_bool(),
+            Some(scene.stable)
+        );
+        assert!(
+            scene.stable,
+            "Drake did not settle scene {}: {}",
+            scene.scene_id, drake[&scene.scene_id]
+        );
 
         let description = SceneDescription::from_objects(recipe.support, &objs);
-        let outcome = Settler::new(&description, &recipe.settle).unwrap().settle().unwrap();
+        let outcome = Settler::new(&description, &recipe.settle)
+            .unwrap()
+            .settle()
+            .unwrap();
         let c = &outcome.certificate;
-        assert!(outcome.stable, "MuJoCo did not settle scene {} ({:?}): {c:?}", scene.scene_id, outcome.rejection);
+        assert!(
+            outcome.stable,
+            "MuJoCo did not settle scene {} ({:?}): {c:?}",
+            scene.scene_id, outcome.rejection
+        );
         for (o, p) in objs.iter().zip(&outcome.poses) {
             let (drake_face, drake_tilt) = down_face(o.world_box.quat_wxyz);
             let (mujoco_face, mujoco_tilt) = down_face(p.quat_wxyz);
-            let d = (0..3).map(|k| (o.world_box.translation[k] - p.translation[k]).powi(2)).sum::<f64>().sqrt();
+            let d = (0..3)
+                .map(|k| (o.world_box.translation[k] - p.translation[k]).powi(2))
+                .sum::<f64>()
+                .sqrt();
             report.push(format!(
                 "scene {} box {}: drake {drake_face} ({:.1}°), mujoco {mujoco_face} ({:.1}°), centres {:.1} mm apart, mujoco {:.1} ms",
                 scene.scene_id,
@@ -73,14 +98,31 @@ fn drake_and_mujoco_agree_on_the_same_drops() {
                 c.wall_time_s * 1e3
             ));
             if objs.len() == 1 {
-                assert_eq!(mujoco_face, drake_face, "scene {}: single box rests on different faces\n{}", scene.scene_id, report.join("\n"));
+                assert_eq!(
+                    mujoco_face,
+                    drake_face,
+                    "scene {}: single box rests on different faces\n{}",
+                    scene.scene_id,
+                    report.join("\n")
+                );
                 assert!(mujoco_tilt < 1f64.to_radians() && drake_tilt < 1f64.to_radians());
                 // Same face, same resting height.
-                assert!((o.world_box.translation[2] - p.translation[2]).abs() < 2e-3, "{}", report.join("\n"));
+                assert!(
+                    (o.world_box.translation[2] - p.translation[2]).abs() < 2e-3,
+                    "{}",
+                    report.join("\n")
+                );
             }
         }
-        if objs.len() == 1 { single += 1 } else { multi += 1 }
+        if objs.len() == 1 {
+            single += 1
+        } else {
+            multi += 1
+        }
     }
     println!("{}", report.join("\n"));
-    assert!(single >= 2 && multi >= 2, "too few scenes projected: {single} single-box, {multi} multi-box");
+    assert!(
+        single >= 2 && multi >= 2,
+        "too few scenes projected: {single} single-box, {multi} multi-box"
+    );
 }

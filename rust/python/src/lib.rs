@@ -5,13 +5,16 @@
 //! (dx, dy, dz). Heatmaps are (D, H, W) float32 arrays over (z-bin, v, u). Invalid input (NaN,
 //! too few or degenerate points, empty heatmaps) raises `ValueError` with the reason.
 
-use boxpose_geometry::heatmap::{
-    self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord, VoxelGrid,
-};
 use boxpose_geometry::adaptive::FitConfidence;
+use boxpose_geometry::heatmap::{
+    self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord,
+    VoxelGrid,
+};
 use boxpose_geometry::{BoxModel, GeometryError, align, correspondence, metrics, robust, size_fit};
 use nalgebra::{Isometry3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
-use numpy::{IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3};
+use numpy::{
+    IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
+};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -23,9 +26,16 @@ fn value_error(e: GeometryError) -> PyErr {
 fn points(array: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<Point3<f64>>> {
     let view = array.as_array();
     if view.ncols() != 3 {
-        return Err(PyValueError::new_err(format!("{what} must have shape (N, 3), got {:?}", view.shape())));
+        return Err(PyValueError::new_err(format!(
+            "{what} must have shape (N, 3), got {:?}",
+            view.shape()
+        )));
     }
-    Ok(view.rows().into_iter().map(|r| Point3::new(r[0], r[1], r[2])).collect())
+    Ok(view
+        .rows()
+        .into_iter()
+        .map(|r| Point3::new(r[0], r[1], r[2]))
+        .collect())
 }
 
 fn box_model(size: [f64; 3]) -> PyResult<BoxModel> {
@@ -35,14 +45,22 @@ fn box_model(size: [f64; 3]) -> PyResult<BoxModel> {
 fn isometry(matrix: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Isometry3<f64>> {
     let view = matrix.as_array();
     if view.shape() != [4, 4] {
-        return Err(PyValueError::new_err(format!("{what} must be a 4 × 4 matrix, got {:?}", view.shape())));
+        return Err(PyValueError::new_err(format!(
+            "{what} must be a 4 × 4 matrix, got {:?}",
+            view.shape()
+        )));
     }
     let m = Matrix4::from_fn(|r, c| view[[r, c]]);
     if m.iter().any(|v| !v.is_finite()) {
-        return Err(PyValueError::new_err(format!("{what} has non-finite entries")));
+        return Err(PyValueError::new_err(format!(
+            "{what} has non-finite entries"
+        )));
     }
     let rotation = Rotation3::from_matrix(&m.fixed_view::<3, 3>(0, 0).into_owned());
-    Ok(Isometry3::from_parts(Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]), UnitQuaternion::from_rotation_matrix(&rotation)))
+    Ok(Isometry3::from_parts(
+        Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
+        UnitQuaternion::from_rotation_matrix(&rotation),
+    ))
 }
 
 fn matrix<'py>(py: Python<'py>, pose: &Isometry3<f64>) -> Bound<'py, PyArray2<f64>> {
@@ -76,9 +94,19 @@ fn nms<'py>(
     let view = heatmap.as_array();
     let (depth, height, width) = view.dim();
     let volume: Vec<f32> = view.iter().copied().collect();
-    let dims = HeatmapDims { depth, height, width };
-    let params = NmsParams { count, sigma, refine_radius };
-    let peaks = py.detach(|| heatmap::non_maximum_suppression(&volume, dims, &params)).map_err(value_error)?;
+    let dims = HeatmapDims {
+        depth,
+        height,
+        width,
+    };
+    let params = NmsParams {
+        count,
+        sigma,
+        refine_radius,
+    };
+    let peaks = py
+        .detach(|| heatmap::non_maximum_suppression(&volume, dims, &params))
+        .map_err(value_error)?;
     let coords = numpy::ndarray::Array2::from_shape_fn((peaks.len(), 3), |(i, k)| {
         let c = peaks[i].coord;
         [c.z_bin, c.v, c.u][k]
@@ -96,19 +124,44 @@ fn render_target_heatmap<'py>(
     centres: PyReadonlyArray2<f64>,
     sigma: f64,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-    let centres: Vec<VoxelCoord> =
-        points(&centres, "centres")?.iter().map(|p| VoxelCoord { z_bin: p[0], v: p[1], u: p[2] }).collect();
-    let dims = HeatmapDims { depth: shape.0, height: shape.1, width: shape.2 };
+    let centres: Vec<VoxelCoord> = points(&centres, "centres")?
+        .iter()
+        .map(|p| VoxelCoord {
+            z_bin: p[0],
+            v: p[1],
+            u: p[2],
+        })
+        .collect();
+    let dims = HeatmapDims {
+        depth: shape.0,
+        height: shape.1,
+        width: shape.2,
+    };
     let volume = heatmap::render_target_heatmap(dims, &centres, sigma).map_err(value_error)?;
-    let array = numpy::ndarray::Array3::from_shape_vec(shape, volume).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let array = numpy::ndarray::Array3::from_shape_vec(shape, volume)
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(array.into_pyarray(py))
 }
 
 fn voxel_grid(intrinsics: [f64; 4], crop: [f64; 4], depth_bins: [f64; 3]) -> VoxelGrid {
     VoxelGrid {
-        intrinsics: PinholeIntrinsics { fx: intrinsics[0], fy: intrinsics[1], cx: intrinsics[2], cy: intrinsics[3] },
-        crop: CropTransform { x0: crop[0], y0: crop[1], sx: crop[2], sy: crop[3] },
-        depth: DepthBins { z_ref: depth_bins[0], z_min: depth_bins[1], bin_size: depth_bins[2] },
+        intrinsics: PinholeIntrinsics {
+            fx: intrinsics[0],
+            fy: intrinsics[1],
+            cx: intrinsics[2],
+            cy: intrinsics[3],
+        },
+        crop: CropTransform {
+            x0: crop[0],
+            y0: crop[1],
+            sx: crop[2],
+            sy: crop[3],
+        },
+        depth: DepthBins {
+            z_ref: depth_bins[0],
+            z_min: depth_bins[1],
+            bin_size: depth_bins[2],
+        },
     }
 }
 
@@ -126,7 +179,13 @@ fn back_project<'py>(
     let grid = voxel_grid(intrinsics, crop, depth_bins);
     let out = points(&coords, "coords")?
         .iter()
-        .map(|p| grid.back_project(&VoxelCoord { z_bin: p[0], v: p[1], u: p[2] }))
+        .map(|p| {
+            grid.back_project(&VoxelCoord {
+                z_bin: p[0],
+                v: p[1],
+                u: p[2],
+            })
+        })
         .collect::<Result<Vec<_>, _>>()
         .map_err(value_error)?;
     Ok(points_array(py, &out))
@@ -134,20 +193,33 @@ fn back_project<'py>(
 
 /// Least-squares rigid transform (4 × 4, proper rotation) mapping `source` onto `target`.
 #[pyfunction]
-fn kabsch<'py>(py: Python<'py>, source: PyReadonlyArray2<f64>, target: PyReadonlyArray2<f64>) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    let pose = align::kabsch(&points(&source, "source")?, &points(&target, "target")?).map_err(value_error)?;
+fn kabsch<'py>(
+    py: Python<'py>,
+    source: PyReadonlyArray2<f64>,
+    target: PyReadonlyArray2<f64>,
+) -> PyResult<Bound<'py, PyArray2<f64>>> {
+    let pose = align::kabsch(&points(&source, "source")?, &points(&target, "target")?)
+        .map_err(value_error)?;
     Ok(matrix(py, &pose))
 }
 
 /// Least-squares similarity transform: returns (scale, 4 × 4 rigid part) with
 /// target ≈ scale · R · source + t.
 #[pyfunction]
-fn umeyama<'py>(py: Python<'py>, source: PyReadonlyArray2<f64>, target: PyReadonlyArray2<f64>) -> PyResult<(f64, Bound<'py, PyArray2<f64>>)> {
-    let similarity = align::umeyama(&points(&source, "source")?, &points(&target, "target")?).map_err(value_error)?;
+fn umeyama<'py>(
+    py: Python<'py>,
+    source: PyReadonlyArray2<f64>,
+    target: PyReadonlyArray2<f64>,
+) -> PyResult<(f64, Bound<'py, PyArray2<f64>>)> {
+    let similarity = align::umeyama(&points(&source, "source")?, &points(&target, "target")?)
+        .map_err(value_error)?;
     Ok((similarity.scaling(), matrix(py, &similarity.isometry)))
 }
 
-fn correspondence_dict<'py>(py: Python<'py>, fit: &correspondence::CorrespondenceFit) -> PyResult<Bound<'py, PyDict>> {
+fn correspondence_dict<'py>(
+    py: Python<'py>,
+    fit: &correspondence::CorrespondenceFit,
+) -> PyResult<Bound<'py, PyDict>> {
     let dict = PyDict::new(py);
     dict.set_item("pose", matrix(py, &fit.pose))?;
     dict.set_item("peaks", fit.peaks.clone())?;
@@ -156,13 +228,27 @@ fn correspondence_dict<'py>(py: Python<'py>, fit: &correspondence::Correspondenc
     Ok(dict)
 }
 
-type Search = fn(&BoxModel, &[Point3<f64>], &[f64], usize) -> boxpose_geometry::Result<correspondence::CorrespondenceFit>;
+type Search = fn(
+    &BoxModel,
+    &[Point3<f64>],
+    &[f64],
+    usize,
+) -> boxpose_geometry::Result<correspondence::CorrespondenceFit>;
 
-fn search<'py>(py: Python<'py>, run: Search, size: [f64; 3], points_: PyReadonlyArray2<f64>, scores: PyReadonlyArray1<f64>, m: usize) -> PyResult<Bound<'py, PyDict>> {
+fn search<'py>(
+    py: Python<'py>,
+    run: Search,
+    size: [f64; 3],
+    points_: PyReadonlyArray2<f64>,
+    scores: PyReadonlyArray1<f64>,
+    m: usize,
+) -> PyResult<Bound<'py, PyDict>> {
     let model = box_model(size)?;
     let pts = points(&points_, "points")?;
     let scores = scores.as_array().to_vec();
-    let fit = py.detach(|| run(&model, &pts, &scores, m)).map_err(value_error)?;
+    let fit = py
+        .detach(|| run(&model, &pts, &scores, m))
+        .map_err(value_error)?;
     correspondence_dict(py, &fit)
 }
 
@@ -171,15 +257,41 @@ fn search<'py>(py: Python<'py>, run: Search, size: [f64; 3], points_: PyReadonly
 /// Returns {"pose", "peaks", "corners", "sum_squared_error"}.
 #[pyfunction]
 #[pyo3(signature = (size, points, scores, m = 5))]
-fn paper_exact_search<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64>, scores: PyReadonlyArray1<f64>, m: usize) -> PyResult<Bound<'py, PyDict>> {
-    search(py, correspondence::paper_exact_search, size, points, scores, m)
+fn paper_exact_search<'py>(
+    py: Python<'py>,
+    size: [f64; 3],
+    points: PyReadonlyArray2<f64>,
+    scores: PyReadonlyArray1<f64>,
+    m: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    search(
+        py,
+        correspondence::paper_exact_search,
+        size,
+        points,
+        scores,
+        m,
+    )
 }
 
 /// Same optimum as `paper_exact_search`, found with symmetry reduction and branch-and-bound.
 #[pyfunction]
 #[pyo3(signature = (size, points, scores, m = 5))]
-fn fast_exact_search<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64>, scores: PyReadonlyArray1<f64>, m: usize) -> PyResult<Bound<'py, PyDict>> {
-    search(py, correspondence::fast_exact_search, size, points, scores, m)
+fn fast_exact_search<'py>(
+    py: Python<'py>,
+    size: [f64; 3],
+    points: PyReadonlyArray2<f64>,
+    scores: PyReadonlyArray1<f64>,
+    m: usize,
+) -> PyResult<Bound<'py, PyDict>> {
+    search(
+        py,
+        correspondence::fast_exact_search,
+        size,
+        points,
+        scores,
+        m,
+    )
 }
 
 fn confidence_items(dict: &Bound<'_, PyDict>, c: &FitConfidence) -> PyResult<()> {
@@ -192,7 +304,12 @@ fn confidence_items(dict: &Bound<'_, PyDict>, c: &FitConfidence) -> PyResult<()>
 }
 
 fn inlier_rms(residuals: &[f64], inliers: &[bool]) -> f64 {
-    let squares: Vec<f64> = residuals.iter().zip(inliers).filter(|(_, i)| **i).map(|(r, _)| r * r).collect();
+    let squares: Vec<f64> = residuals
+        .iter()
+        .zip(inliers)
+        .filter(|(_, i)| **i)
+        .map(|(r, _)| r * r)
+        .collect();
     (squares.iter().sum::<f64>() / squares.len().max(1) as f64).sqrt()
 }
 
@@ -211,7 +328,13 @@ fn inlier_rms(residuals: &[f64], inliers: &[bool]) -> f64 {
 /// its pose (`robust::assess_pose`).
 #[pyfunction]
 #[pyo3(signature = (size, points, inlier_threshold = None, *, method = "adaptive"))]
-fn robust_fit<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64>, inlier_threshold: Option<f64>, method: &str) -> PyResult<Bound<'py, PyDict>> {
+fn robust_fit<'py>(
+    py: Python<'py>,
+    size: [f64; 3],
+    points: PyReadonlyArray2<f64>,
+    inlier_threshold: Option<f64>,
+    method: &str,
+) -> PyResult<Bound<'py, PyDict>> {
     let model = box_model(size)?;
     let pts = self::points(&points, "points")?;
     let dict = PyDict::new(py);
@@ -219,9 +342,13 @@ fn robust_fit<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64
     match method {
         "adaptive" => {
             if inlier_threshold.is_some() {
-                return Err(PyValueError::new_err("inlier_threshold applies to method=\"fixed_threshold\" only"));
+                return Err(PyValueError::new_err(
+                    "inlier_threshold applies to method=\"fixed_threshold\" only",
+                ));
             }
-            let fit = py.detach(|| robust::adaptive_fit(&model, &pts, &robust::AdaptiveParams::default())).map_err(value_error)?;
+            let fit = py
+                .detach(|| robust::adaptive_fit(&model, &pts, &robust::AdaptiveParams::default()))
+                .map_err(value_error)?;
             dict.set_item("pose", matrix(py, &fit.pose))?;
             dict.set_item("inlier_rms", inlier_rms(&fit.residuals, &fit.inliers))?;
             dict.set_item("inliers", fit.inliers)?;
@@ -252,7 +379,11 @@ fn robust_fit<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64
             dict.set_item("cost", fit.truncated_cost)?;
             confidence_items(&dict, &confidence)?;
         }
-        other => return Err(PyValueError::new_err(format!("method must be \"adaptive\" or \"fixed_threshold\", got {other:?}"))),
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "method must be \"adaptive\" or \"fixed_threshold\", got {other:?}"
+            )));
+        }
     }
     Ok(dict)
 }
@@ -269,25 +400,57 @@ fn robust_fit<'py>(py: Python<'py>, size: [f64; 3], points: PyReadonlyArray2<f64
 /// is the noise-adaptive assessment of its box (`size_fit::assess_sized_box`).
 #[pyfunction]
 #[pyo3(signature = (points, *, method = "robust"))]
-fn fit_pose_and_size<'py>(py: Python<'py>, points: PyReadonlyArray2<f64>, method: &str) -> PyResult<Bound<'py, PyDict>> {
+fn fit_pose_and_size<'py>(
+    py: Python<'py>,
+    points: PyReadonlyArray2<f64>,
+    method: &str,
+) -> PyResult<Bound<'py, PyDict>> {
     let pts = self::points(&points, "points")?;
     let fit = match method {
         "robust" => py
             .detach(|| -> boxpose_geometry::Result<_> {
                 let f = size_fit::robust_size_fit(&pts, &size_fit::RobustSizeParams::default())?;
-                Ok((f.model, f.pose, f.nearest_corners, inlier_rms(&f.residuals, &f.inliers), f.residuals, f.inliers, f.confidence))
+                Ok((
+                    f.model,
+                    f.pose,
+                    f.nearest_corners,
+                    inlier_rms(&f.residuals, &f.inliers),
+                    f.residuals,
+                    f.inliers,
+                    f.confidence,
+                ))
             })
             .map_err(value_error)?,
         "least_squares" => py
             .detach(|| -> boxpose_geometry::Result<_> {
                 let f = size_fit::fit_pose_and_size(&pts, &size_fit::SizeFitParams::default())?;
                 let confidence = size_fit::assess_sized_box(&pts, &f.model, &f.pose)?;
-                Ok((f.model, f.pose, f.nearest_corners, f.inlier_rms, f.residuals, f.inliers, confidence))
+                Ok((
+                    f.model,
+                    f.pose,
+                    f.nearest_corners,
+                    f.inlier_rms,
+                    f.residuals,
+                    f.inliers,
+                    confidence,
+                ))
             })
             .map_err(value_error)?,
-        other => return Err(PyValueError::new_err(format!("method must be \"robust\" or \"least_squares\", got {other:?}"))),
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "method must be \"robust\" or \"least_squares\", got {other:?}"
+            )));
+        }
     };
-    let (model, pose, nearest_corners, rms, residuals, inliers, confidence): (BoxModel, Isometry3<f64>, Vec<usize>, f64, Vec<f64>, Vec<bool>, FitConfidence) = fit;
+    let (model, pose, nearest_corners, rms, residuals, inliers, confidence): (
+        BoxModel,
+        Isometry3<f64>,
+        Vec<usize>,
+        f64,
+        Vec<f64>,
+        Vec<bool>,
+        FitConfidence,
+    ) = fit;
     let dict = PyDict::new(py);
     dict.set_item("method", method)?;
     let size = model.size();
@@ -305,45 +468,94 @@ fn fit_pose_and_size<'py>(py: Python<'py>, points: PyReadonlyArray2<f64>, method
 /// The paper's error: (1/8) Σ_i ‖R m_{c_i} + t − s_i‖², s_i the ground-truth corner nearest to
 /// each transformed model corner. `truth_corners` is (8, 3).
 #[pyfunction]
-fn paper_error(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth_corners: PyReadonlyArray2<f64>) -> PyResult<f64> {
-    metrics::paper_error(&box_model(size)?, &isometry(&estimate, "estimate")?, &points(&truth_corners, "truth_corners")?).map_err(value_error)
+fn paper_error(
+    size: [f64; 3],
+    estimate: PyReadonlyArray2<f64>,
+    truth_corners: PyReadonlyArray2<f64>,
+) -> PyResult<f64> {
+    metrics::paper_error(
+        &box_model(size)?,
+        &isometry(&estimate, "estimate")?,
+        &points(&truth_corners, "truth_corners")?,
+    )
+    .map_err(value_error)
 }
 
 type PoseMetric = fn(&BoxModel, &Isometry3<f64>, &Isometry3<f64>) -> boxpose_geometry::Result<f64>;
 
-fn pose_metric(metric: PoseMetric, size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
-    metric(&box_model(size)?, &isometry(&estimate, "estimate")?, &isometry(&truth, "truth")?).map_err(value_error)
+fn pose_metric(
+    metric: PoseMetric,
+    size: [f64; 3],
+    estimate: PyReadonlyArray2<f64>,
+    truth: PyReadonlyArray2<f64>,
+) -> PyResult<f64> {
+    metric(
+        &box_model(size)?,
+        &isometry(&estimate, "estimate")?,
+        &isometry(&truth, "truth")?,
+    )
+    .map_err(value_error)
 }
 
 /// ADD-S as bop_toolkit's `adi`: mean distance from each true-placed point of the box's surface
 /// sample to the nearest estimate-placed one (metres; see `metrics::add_s` for the sample).
 #[pyfunction]
-fn add_s(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
+fn add_s(
+    size: [f64; 3],
+    estimate: PyReadonlyArray2<f64>,
+    truth: PyReadonlyArray2<f64>,
+) -> PyResult<f64> {
     pose_metric(metrics::add_s, size, estimate, truth)
 }
 
 /// MSSD: maximum corner distance, minimised over the box's symmetry group (metres, as in BOP).
 #[pyfunction]
-fn mssd(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
+fn mssd(
+    size: [f64; 3],
+    estimate: PyReadonlyArray2<f64>,
+    truth: PyReadonlyArray2<f64>,
+) -> PyResult<f64> {
     pose_metric(metrics::mssd, size, estimate, truth)
 }
 
 /// Rotation error in degrees, minimised over the box's symmetry group.
 #[pyfunction]
-fn rotation_error_deg(size: [f64; 3], estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
+fn rotation_error_deg(
+    size: [f64; 3],
+    estimate: PyReadonlyArray2<f64>,
+    truth: PyReadonlyArray2<f64>,
+) -> PyResult<f64> {
     pose_metric(metrics::rotation_error_deg, size, estimate, truth)
 }
 
 /// Distance between the two box centres (metres).
 #[pyfunction]
-fn translation_error(estimate: PyReadonlyArray2<f64>, truth: PyReadonlyArray2<f64>) -> PyResult<f64> {
-    metrics::translation_error(&isometry(&estimate, "estimate")?, &isometry(&truth, "truth")?).map_err(value_error)
+fn translation_error(
+    estimate: PyReadonlyArray2<f64>,
+    truth: PyReadonlyArray2<f64>,
+) -> PyResult<f64> {
+    metrics::translation_error(
+        &isometry(&estimate, "estimate")?,
+        &isometry(&truth, "truth")?,
+    )
+    .map_err(value_error)
 }
 
 /// Intersection over union of two oriented boxes.
 #[pyfunction]
-fn iou_3d(size_a: [f64; 3], pose_a: PyReadonlyArray2<f64>, size_b: [f64; 3], pose_b: PyReadonlyArray2<f64>) -> PyResult<f64> {
-    metrics::iou_3d(&box_model(size_a)?, &isometry(&pose_a, "pose_a")?, &box_model(size_b)?, &isometry(&pose_b, "pose_b")?).map_err(value_error)
+fn iou_3d(
+    size_a: [f64; 3],
+    pose_a: PyReadonlyArray2<f64>,
+    size_b: [f64; 3],
+    pose_b: PyReadonlyArray2<f64>,
+) -> PyResult<f64> {
+    metrics::iou_3d(
+        &box_model(size_a)?,
+        &isometry(&pose_a, "pose_a")?,
+        &box_model(size_b)?,
+        &isometry(&pose_b, "pose_b")?,
+    )
+    .map_err(value_error)
 }
 
 #[pymodule]

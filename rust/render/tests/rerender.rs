@@ -200,27 +200,64 @@ fn crop_matches_the_full_frame() {
 #[test]
 fn crop_around_an_object_holds_its_corners() {
     let mut r = renderer();
-    let full = render(&mut r, RenderRequest { frame_id: 0, ..Default::default() });
-    let around = render(&mut r, RenderRequest { frame_id: 0, crop_object: Some((0, 0.2)), ..Default::default() });
-    let (w, h) = (int(&around.frames, "width") as f64, int(&around.frames, "height") as f64);
+    let full = render(
+        &mut r,
+        RenderRequest {
+            frame_id: 0,
+            ..Default::default()
+        },
+    );
+    let around = render(
+        &mut r,
+        RenderRequest {
+            frame_id: 0,
+            crop_object: Some((0, 0.2)),
+            ..Default::default()
+        },
+    );
+    let (w, h) = (
+        int(&around.frames, "width") as f64,
+        int(&around.frames, "height") as f64,
+    );
     assert!(w * h < (W * H) as f64, "{w}×{h} is the whole frame");
-    let settings = around.frames.column_by_name("render_settings").unwrap().as_string::<i32>().value(0).to_string();
+    let settings = around
+        .frames
+        .column_by_name("render_settings")
+        .unwrap()
+        .as_string::<i32>()
+        .value(0)
+        .to_string();
     let crop: Vec<f64> = serde_json_crop(&settings);
     assert_eq!((crop[2] - crop[0], crop[3] - crop[1]), (w, h));
-    let (a, b) = (list_f64(&around.instances, "corners_px", 0), list_f64(&full.instances, "corners_px", 0));
+    let (a, b) = (
+        list_f64(&around.instances, "corners_px", 0),
+        list_f64(&full.instances, "corners_px", 0),
+    );
     for k in 0..8 {
         assert!((a[2 * k] - (b[2 * k] - crop[0])).abs() < 1e-9);
-        let in_frame = (-0.5..W as f64 - 0.5).contains(&b[2 * k]) && (-0.5..H as f64 - 0.5).contains(&b[2 * k + 1]);
-        let in_crop = (-0.5..w - 0.5).contains(&a[2 * k]) && (-0.5..h - 0.5).contains(&a[2 * k + 1]);
-        assert!(!in_frame || in_crop, "corner {k} at {:?} outside the {w}×{h} region", &a[2 * k..2 * k + 2]);
+        let in_frame = (-0.5..W as f64 - 0.5).contains(&b[2 * k])
+            && (-0.5..H as f64 - 0.5).contains(&b[2 * k + 1]);
+        let in_crop =
+            (-0.5..w - 0.5).contains(&a[2 * k]) && (-0.5..h - 0.5).contains(&a[2 * k + 1]);
+        assert!(
+            !in_frame || in_crop,
+            "corner {k} at {:?} outside the {w}×{h} region",
+            &a[2 * k..2 * k + 2]
+        );
     }
 }
 
 /// The `crop` entry of a frame's `render_settings` JSON.
 fn serde_json_crop(settings: &str) -> Vec<f64> {
-    let start = settings.find("\"crop\": [").expect("a crop in the settings") + 9;
+    let start = settings
+        .find("\"crop\": [")
+        .expect("a crop in the settings")
+        + 9;
     let end = start + settings[start..].find(']').unwrap();
-    settings[start..end].split(',').map(|v| v.trim().parse().unwrap()).collect()
+    settings[start..end]
+        .split(',')
+        .map(|v| v.trim().parse().unwrap())
+        .collect()
 }
 
 #[test]

@@ -112,12 +112,24 @@ fn forced_ratio_is_the_self_normalised_estimate() {
     use boxpose_search_stats::{EstimatorKind, ImportanceEstimate, WeightedSample};
     let weights = [0.5f64, 2.0, 1.5, 0.25];
     let failed = [true, false, true, false];
-    let samples: Vec<WeightedSample> =
-        weights.iter().zip(failed).map(|(w, f)| WeightedSample { log_weight: w.ln(), valid: true, failed: f, stratum: 0 }).collect();
+    let samples: Vec<WeightedSample> = weights
+        .iter()
+        .zip(failed)
+        .map(|(w, f)| WeightedSample {
+            log_weight: w.ln(),
+            valid: true,
+            failed: f,
+            stratum: 0,
+        })
+        .collect();
     let ratio = ImportanceEstimate::compute_ratio(&samples, &[1.0]).unwrap();
     assert_eq!(ratio.estimator, EstimatorKind::Ratio);
     assert!((ratio.p_hat - 2.0 / 4.25).abs() < 1e-12, "{}", ratio.p_hat);
     let unbiased = ImportanceEstimate::compute(&samples, &[1.0]).unwrap();
     assert_eq!(unbiased.estimator, EstimatorKind::Unbiased);
-    assert!((unbiased.p_hat - 2.0 / 4.0).abs() < 1e-12, "{}", unbiased.p_hat);
+    assert!(
+        (unbiased.p_hat - 2.0 / 4.0).abs() < 1e-12,
+        "{}",
+        unbiased.p_hat
+    );
 }

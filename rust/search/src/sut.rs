@@ -50,8 +50,13 @@ impl Default for Predicate {
 impl std::fmt::Display for Predicate {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Predicate::PaperError { threshold } => write!(f, "the paper's error / (diag²/3) > {threshold}, or the box not found"),
-            Predicate::Mssd { fraction } => write!(f, "MSSD > {fraction} × diameter, or the box not found"),
+            Predicate::PaperError { threshold } => write!(
+                f,
+                "the paper's error / (diag²/3) > {threshold}, or the box not found"
+            ),
+            Predicate::Mssd { fraction } => {
+                write!(f, "MSSD > {fraction} × diameter, or the box not found")
+            }
         }
     }
 }
