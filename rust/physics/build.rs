@@ -19,12 +19,11 @@ fn main() {
     };
     let dir = PathBuf::from(dir);
     let mut dirs = vec![dir.clone()];
-    if let Ok(lib) = dir.join("libmujoco.so").canonicalize() {
-        if let Some(parent) = lib.parent() {
-            if parent != dir {
-                dirs.push(parent.to_path_buf());
-            }
-        }
+    if let Ok(lib) = dir.join("libmujoco.so").canonicalize()
+        && let Some(parent) = lib.parent()
+        && parent != dir
+    {
+        dirs.push(parent.to_path_buf());
     }
     let joined = dirs
         .iter()

@@ -191,7 +191,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 "--intrinsics takes 4 values: fx,fy,cx,cy"
             );
             anyhow::ensure!(
-                args.bbox.len() % 4 == 0,
+                args.bbox.len().is_multiple_of(4),
                 "each --bbox takes 4 values: x_min,y_min,x_max,y_max"
             );
             let frame = frame_from_files(

@@ -14,6 +14,9 @@ use nalgebra::Point3;
 
 use crate::plots::{self, OverlayBox};
 
+/// Reads the predicate's metric off a sample (None where the sample has no such score).
+type MetricOf = fn(&SampleRow) -> Option<f64>;
+
 /// Points of the estimate-against-samples curve.
 const CURVE_POINTS: usize = 60;
 
@@ -34,13 +37,12 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
         Sampler::Ce => "final",
     };
     let estimating: Vec<&SampleRow> = rows.iter().filter(|r| r.stage == stage).collect();
-    let (metric_name, threshold, metric): (&str, f64, fn(&SampleRow) -> Option<f64>) =
-        match settings.predicate {
-            Predicate::PaperError { threshold } => ("paper's error / (diag²/3)", threshold, |r| {
-                r.paper_error_normalized
-            }),
-            Predicate::Mssd { fraction } => ("MSSD / diameter", fraction, |r| r.mssd_over_diameter),
-        };
+    let (metric_name, threshold, metric): (&str, f64, MetricOf) = match settings.predicate {
+        Predicate::PaperError { threshold } => ("paper's error / (diag²/3)", threshold, |r| {
+            r.paper_error_normalized
+        }),
+        Predicate::Mssd { fraction } => ("MSSD / diameter", fraction, |r| r.mssd_over_diameter),
+    };
     let weighted: Vec<(f64, f64)> = estimating
         .iter()
         .filter_map(|r| {

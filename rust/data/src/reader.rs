@@ -341,14 +341,14 @@ fn check_values(
             ));
         }
         let Some(width) = column.list_size else {
-            if let Some(values) = floats(array.as_ref()) {
-                if let Some(row) = values.iter().position(|v| !v.is_finite()) {
-                    return Err(bad(
-                        row,
-                        column.name,
-                        format!("non-finite value {}", values[row]),
-                    ));
-                }
+            if let Some(values) = floats(array.as_ref())
+                && let Some(row) = values.iter().position(|v| !v.is_finite())
+            {
+                return Err(bad(
+                    row,
+                    column.name,
+                    format!("non-finite value {}", values[row]),
+                ));
             }
             continue;
         };

@@ -92,7 +92,7 @@ impl NetworkConfig {
 
     pub fn validate(&self) -> Result<(), LearnError> {
         let bad = |reason: String| Err(LearnError::Config(reason));
-        if self.input_size == 0 || self.input_size % 32 != 0 {
+        if self.input_size == 0 || !self.input_size.is_multiple_of(32) {
             return bad(format!(
                 "input_size {} must be a positive multiple of 32",
                 self.input_size

@@ -21,6 +21,9 @@ use crate::LearnError;
 use crate::config::{AugmentConfig, DataConfig, NetworkConfig};
 use crate::training::Task;
 
+/// One training example as the loader hands it over: (input tensor data, target tensor data).
+type Example = (Vec<f32>, Vec<f32>);
+
 /// RGB is normalized as (x/255 − mean)/std with these (a neutral grey; boxes are not ImageNet).
 const RGB_MEAN: f32 = 0.5;
 const RGB_STD: f32 = 0.25;
@@ -466,7 +469,7 @@ pub fn spawn_loader<T: Task>(
             let picks: Vec<usize> = (0..batch_size)
                 .map(|slot| sampled_item(&mut order, items, seed, step * batch_size + slot))
                 .collect();
-            let examples: Result<Vec<(Vec<f32>, Vec<f32>)>, LearnError> = pool.install(|| {
+            let examples: Result<Vec<Example>, LearnError> = pool.install(|| {
                 picks
                     .par_iter()
                     .enumerate()

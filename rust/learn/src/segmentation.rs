@@ -54,9 +54,9 @@ impl SegmenterConfig {
 
     pub fn validate(&self) -> Result<(), LearnError> {
         if self.input_width == 0
-            || self.input_width % 32 != 0
+            || !self.input_width.is_multiple_of(32)
             || self.input_height == 0
-            || self.input_height % 32 != 0
+            || !self.input_height.is_multiple_of(32)
         {
             return Err(LearnError::Config(format!(
                 "input {}×{} must be positive multiples of 32",
@@ -433,8 +433,11 @@ pub struct SegmentationScores {
     pub detections: usize,
 }
 
+/// A ground-truth instance for matching: (object id, full-frame mask, bounding box x0, y0, x1, y1).
+pub type TrueMask = (i32, Vec<bool>, [i32; 4]);
+
 /// True instances a detector is asked to find: every box with a visible pixel.
-pub fn true_masks(frame: &Frame) -> Vec<(i32, Vec<bool>, [i32; 4])> {
+pub fn true_masks(frame: &Frame) -> Vec<TrueMask> {
     frame
         .instances
         .iter()
@@ -457,18 +460,17 @@ pub fn score_detections(frames: &[&Frame], detections: &[Vec<Detection>]) -> Seg
         .iter()
         .map(|d| d.iter().map(|d| d.score).collect())
         .collect();
-    let ious =
-        |overlap: &dyn Fn(&Detection, &(i32, Vec<bool>, [i32; 4])) -> f64| -> Vec<Vec<Vec<f64>>> {
-            detections
-                .iter()
-                .zip(&truths)
-                .map(|(dets, gts)| {
-                    dets.iter()
-                        .map(|d| gts.iter().map(|g| overlap(d, g)).collect())
-                        .collect()
-                })
-                .collect()
-        };
+    let ious = |overlap: &dyn Fn(&Detection, &TrueMask) -> f64| -> Vec<Vec<Vec<f64>>> {
+        detections
+            .iter()
+            .zip(&truths)
+            .map(|(dets, gts)| {
+                dets.iter()
+                    .map(|d| gts.iter().map(|g| overlap(d, g)).collect())
+                    .collect()
+            })
+            .collect()
+    };
     let mask_ious = ious(&|d, g| mask_iou(&d.mask, &g.1));
     let bbox_ious = ious(&|d, g| bbox_iou(&d.bbox, &g.2));
     let coco = |ious: &[Vec<Vec<f64>>]| {

@@ -238,7 +238,7 @@ pub fn train<T: Task, C: RunConfig>(
         loss_count += 1;
         bar.set_position(state.step as u64);
         bar.set_message(format!("loss {:.3e}", loss_sum / loss_count as f64));
-        if state.step % o.validate_every == 0 || state.step == last_step {
+        if state.step.is_multiple_of(o.validate_every) || state.step == last_step {
             state.train_seconds += session_start.elapsed().as_secs_f64();
             let validation = Validation {
                 step: state.step,

@@ -262,7 +262,7 @@ fn the_segmenter_targets_decode_back_into_the_true_instances() {
         found.iter().all(Option::is_some),
         "every box matched with mask IoU ≥ 0.7: {found:?}"
     );
-    let scores = segmentation::score_detections(&[&frame], &[detections.clone()]);
+    let scores = segmentation::score_detections(&[&frame], std::slice::from_ref(&detections));
     assert_eq!((scores.mask_ap50, scores.bbox_ap50), (1.0, 1.0));
     // a false positive with the best score lowers precision at every recall
     let mut noisy = detections;

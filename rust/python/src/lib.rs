@@ -19,6 +19,9 @@ use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
+/// `nms`'s result: peak positions (count × 3, voxel units) and their scores.
+type PeaksAndScores<'py> = (Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f32>>);
+
 fn value_error(e: GeometryError) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
@@ -90,7 +93,7 @@ fn nms<'py>(
     count: usize,
     sigma: f64,
     refine_radius: usize,
-) -> PyResult<(Bound<'py, PyArray2<f64>>, Bound<'py, PyArray1<f32>>)> {
+) -> PyResult<PeaksAndScores<'py>> {
     let view = heatmap.as_array();
     let (depth, height, width) = view.dim();
     let volume: Vec<f32> = view.iter().copied().collect();
@@ -388,6 +391,17 @@ fn robust_fit<'py>(
     Ok(dict)
 }
 
+/// What either size fit of `fit_pose_and_size` hands to the dict it returns.
+struct SizedFit {
+    model: BoxModel,
+    pose: Isometry3<f64>,
+    nearest_corners: Vec<usize>,
+    rms: f64,
+    residuals: Vec<f64>,
+    inliers: Vec<bool>,
+    confidence: FitConfidence,
+}
+
 /// Pose and box size together, for boxes of unknown size.
 ///
 /// `method="robust"` (default): minimal hypotheses scored by the noise-adaptive cost, survives
@@ -410,30 +424,30 @@ fn fit_pose_and_size<'py>(
         "robust" => py
             .detach(|| -> boxpose_geometry::Result<_> {
                 let f = size_fit::robust_size_fit(&pts, &size_fit::RobustSizeParams::default())?;
-                Ok((
-                    f.model,
-                    f.pose,
-                    f.nearest_corners,
-                    inlier_rms(&f.residuals, &f.inliers),
-                    f.residuals,
-                    f.inliers,
-                    f.confidence,
-                ))
+                Ok(SizedFit {
+                    rms: inlier_rms(&f.residuals, &f.inliers),
+                    model: f.model,
+                    pose: f.pose,
+                    nearest_corners: f.nearest_corners,
+                    residuals: f.residuals,
+                    inliers: f.inliers,
+                    confidence: f.confidence,
+                })
             })
             .map_err(value_error)?,
         "least_squares" => py
             .detach(|| -> boxpose_geometry::Result<_> {
                 let f = size_fit::fit_pose_and_size(&pts, &size_fit::SizeFitParams::default())?;
                 let confidence = size_fit::assess_sized_box(&pts, &f.model, &f.pose)?;
-                Ok((
-                    f.model,
-                    f.pose,
-                    f.nearest_corners,
-                    f.inlier_rms,
-                    f.residuals,
-                    f.inliers,
+                Ok(SizedFit {
+                    model: f.model,
+                    pose: f.pose,
+                    nearest_corners: f.nearest_corners,
+                    rms: f.inlier_rms,
+                    residuals: f.residuals,
+                    inliers: f.inliers,
                     confidence,
-                ))
+                })
             })
             .map_err(value_error)?,
         other => {
@@ -442,15 +456,15 @@ fn fit_pose_and_size<'py>(
             )));
         }
     };
-    let (model, pose, nearest_corners, rms, residuals, inliers, confidence): (
-        BoxModel,
-        Isometry3<f64>,
-        Vec<usize>,
-        f64,
-        Vec<f64>,
-        Vec<bool>,
-        FitConfidence,
-    ) = fit;
+    let SizedFit {
+        model,
+        pose,
+        nearest_corners,
+        rms,
+        residuals,
+        inliers,
+        confidence,
+    } = fit;
     let dict = PyDict::new(py);
     dict.set_item("method", method)?;
     let size = model.size();

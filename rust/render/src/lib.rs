@@ -461,9 +461,7 @@ impl Renderer {
             if let Some(c) = request.crop_object {
                 set(
                     "crop_object",
-                    c.into_pyobject(py)
-                        .map_err(|e| py_err(py, e.into()))?
-                        .into_any(),
+                    c.into_pyobject(py).map_err(|e| py_err(py, e))?.into_any(),
                 )?;
             }
             if !request.poses.is_empty() {

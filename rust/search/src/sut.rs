@@ -183,6 +183,8 @@ impl std::fmt::Display for Invalid {
 }
 
 /// What the pipeline made of the target box.
+// One value per sample, moved once: boxing the metrics would only add an allocation.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, PartialEq)]
 pub enum Perceived {
     /// Scored: the fit's metrics.
