@@ -70,10 +70,12 @@ def read_exr(data: bytes) -> dict[str, np.ndarray]:
             raise ExrError("only uncompressed EXR (codec NONE) is supported")
         x0, y0, x1, y1 = struct.unpack("<iiii", header["dataWindow"][1])
         height, width = y1 - y0 + 1, x1 - x0 + 1
-        count = struct.unpack("<i", header["chunkCount"][1])[0] if "chunkCount" in header else height
+        count = (
+            struct.unpack("<i", header["chunkCount"][1])[0] if "chunkCount" in header else height
+        )
         parts.append((header, y0, height, width, count))
         pos += 8 * count  # offset table; uncompressed chunks follow in file order
-    for number, (header, y0, height, width, count) in enumerate(parts):
+    for number, (header, y0, height, width, _count) in enumerate(parts):
         channels = _channels(header["channels"][1])
         arrays = {name: np.empty((height, width), np.float32) for name, _ in channels}
         line_bytes = sum(_PIXEL_TYPES[t].itemsize for _, t in channels) * width

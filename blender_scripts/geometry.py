@@ -17,7 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 # Corner i = (±dx/2, ±dy/2, ±dz/2) with bit0 → x, bit1 → y, bit2 → z.
-CORNER_SIGNS = np.array([[1 if (i >> k) & 1 else -1 for k in range(3)] for i in range(8)], dtype=np.float64)
+CORNER_SIGNS = np.array(
+    [[1 if (i >> k) & 1 else -1 for k in range(3)] for i in range(8)], dtype=np.float64
+)
 # The 12 edges of a box as pairs of corner indices (corners differing in exactly one bit).
 BOX_EDGES = [(i, i | (1 << k)) for i in range(8) for k in range(3) if not (i >> k) & 1]
 # Label corners on the +z face, same bit pattern in the label's own (u, v) axes: bit0 → u, bit1 → v.
@@ -109,8 +111,11 @@ class Camera:
         return Camera(width, height, f, f, 0.5 * (width - 1), 0.5 * (height - 1), world_camera)
 
     def crop(self, x0: int, y0: int, x1: int, y1: int) -> Camera:
-        """The camera of the pixel region [x0, x1) × [y0, y1): same pose, principal point shifted."""
-        return Camera(x1 - x0, y1 - y0, self.fx, self.fy, self.cx - x0, self.cy - y0, self.world_camera)
+        """The camera of the pixel region [x0, x1) × [y0, y1): same pose, principal point
+        shifted."""
+        return Camera(
+            x1 - x0, y1 - y0, self.fx, self.fy, self.cx - x0, self.cy - y0, self.world_camera
+        )
 
     @property
     def camera_world(self) -> np.ndarray:
@@ -128,9 +133,12 @@ class Camera:
         return np.stack([self.fx * p[:, 0] / z + self.cx, self.fy * p[:, 1] / z + self.cy], axis=1)
 
     def in_image(self, uv: np.ndarray, z: np.ndarray) -> np.ndarray:
-        """Whether projected points fall on the image (pixel areas, i.e. [−0.5, W−0.5)) in front of the camera."""
+        """Whether projected points fall on the image (pixel areas, i.e. [−0.5, W−0.5)) in front of
+        the camera."""
         u, v = uv[:, 0], uv[:, 1]
-        return (z > 0) & (u >= -0.5) & (u < self.width - 0.5) & (v >= -0.5) & (v < self.height - 0.5)
+        return (
+            (z > 0) & (u >= -0.5) & (u < self.width - 0.5) & (v >= -0.5) & (v < self.height - 0.5)
+        )
 
 
 def look_at(centre, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:

@@ -7,8 +7,8 @@ scene provides one backed by `scene.ray_cast`, tests can provide their own.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -100,14 +100,17 @@ def instance_row(
     ray_cast: RayCast,
     contact_m: float,
 ) -> dict:
-    """The `instances` row of one box in one frame (mask: the frame's instance mask, object_id + 1)."""
+    """The `instances` row of one box in one frame (mask: the frame's instance mask,
+    object_id + 1)."""
     camera_world = camera.camera_world
     camera_box = camera_world @ box.world_box
     corners_box = geo.box_corners(box.size)
     corners_world = geo.transform(box.world_box, corners_box)
     corners_camera = geo.transform(camera_box, corners_box)
     corners_px = camera.project(corners_camera)
-    visibility = corner_visibility(camera, box, corners_world, corners_camera, corners_px, ray_cast, contact_m)
+    visibility = corner_visibility(
+        camera, box, corners_world, corners_camera, corners_px, ray_cast, contact_m
+    )
 
     label_camera = label_px = None
     if box.appearance.label is not None:

@@ -53,11 +53,19 @@ class Graph:
 
     def combine(self, x, y, z):
         n = self.node("ShaderNodeCombineXYZ")
-        for s, v in zip(n.inputs, (x, y, z)):
+        for s, v in zip(n.inputs, (x, y, z), strict=True):
             self._feed(s, v)
         return n.outputs[0]
 
-    def noise(self, vector, scale: float, w: float = 0.0, detail: float = 2.0, roughness: float = 0.5, four_d: bool = True):
+    def noise(
+        self,
+        vector,
+        scale: float,
+        w: float = 0.0,
+        detail: float = 2.0,
+        roughness: float = 0.5,
+        four_d: bool = True,
+    ):
         n = self.node("ShaderNodeTexNoise", noise_dimensions="4D" if four_d else "3D")
         self._feed(n.inputs["Vector"], vector)
         if four_d:
@@ -91,13 +99,17 @@ class Graph:
 
     def band(self, coord, centre: float, half: float):
         """1 where |coord − centre| < half, else 0."""
-        return self.math("LESS_THAN", self.math("ABSOLUTE", self.math("SUBTRACT", coord, centre)), half)
+        return self.math(
+            "LESS_THAN", self.math("ABSOLUTE", self.math("SUBTRACT", coord, centre)), half
+        )
 
     def both(self, a, b):
         return self.math("MULTIPLY", a, b)
 
     def principled(self, material, base_color, roughness, normal=None, specular: float = 0.5):
-        bsdf = material.node_tree.nodes.get("Principled BSDF") or self.node("ShaderNodeBsdfPrincipled")
+        bsdf = material.node_tree.nodes.get("Principled BSDF") or self.node(
+            "ShaderNodeBsdfPrincipled"
+        )
         self._feed(bsdf.inputs["Base Color"], base_color)
         self._feed(bsdf.inputs["Roughness"], roughness)
         bsdf.inputs["Specular IOR Level"].default_value = specular
@@ -110,7 +122,9 @@ def _rgba(rgb) -> tuple[float, float, float, float]:
     return (float(rgb[0]), float(rgb[1]), float(rgb[2]), 1.0)
 
 
-def cardboard_material(name: str, size, base_color, roughness: float, look: BoxAppearance) -> bpy.types.Material:
+def cardboard_material(
+    name: str, size, base_color, roughness: float, look: BoxAppearance
+) -> bpy.types.Material:
     """Cardboard: base colour modulated by low-frequency blotches and fine fibres;
     tape strips over the +z face and down two opposite sides; a printed label on +z."""
     mat = bpy.data.materials.new(name)
@@ -123,7 +137,9 @@ def cardboard_material(name: str, size, base_color, roughness: float, look: BoxA
     # Cardboard colour: blotches (low frequency) and fibres (high frequency), both seeded.
     blotch = g.noise(coords, look.noise_scale, w=ox, detail=4.0, roughness=0.6)
     fibre = g.noise(coords, look.fibre_scale, w=oy, detail=1.0)
-    shade = g.math("ADD", 1.0, g.math("MULTIPLY", g.math("SUBTRACT", blotch, 0.5), 2.0 * look.color_variation))
+    shade = g.math(
+        "ADD", 1.0, g.math("MULTIPLY", g.math("SUBTRACT", blotch, 0.5), 2.0 * look.color_variation)
+    )
     shade = g.math("ADD", shade, g.math("MULTIPLY", g.math("SUBTRACT", fibre, 0.5), 0.12))
     color = g.scale_color(_rgba(base_color), shade)
     rough = float(roughness)
@@ -150,24 +166,45 @@ def cardboard_material(name: str, size, base_color, roughness: float, look: BoxA
         tt = g.math("DIVIDE", g.math("ADD", v, hv), 2.0 * hv)
         in_s = g.band(s, 0.5, 0.42)
         # Barcode: crisp bars of random widths over the lower part of the label.
-        bars = g.math("GREATER_THAN", g.noise(g.combine(g.math("MULTIPLY", s, 9.0), lab.pattern_seed, 0.0), 4.0, w=oz, detail=0.0), 0.5)
+        bars = g.math(
+            "GREATER_THAN",
+            g.noise(
+                g.combine(g.math("MULTIPLY", s, 9.0), lab.pattern_seed, 0.0), 4.0, w=oz, detail=0.0
+            ),
+            0.5,
+        )
         barcode = g.both(g.both(bars, in_s), g.band(tt, 0.25, 0.17))
         # Text: five lines of "words" over the upper part.
         line = g.math("FLOOR", g.math("MULTIPLY", tt, 12.0))
         in_line = g.math("LESS_THAN", g.math("FRACT", g.math("MULTIPLY", tt, 12.0)), 0.55)
-        words = g.math("GREATER_THAN", g.noise(g.combine(g.math("MULTIPLY", s, 3.0), g.math("MULTIPLY", line, 3.1), lab.pattern_seed), 3.0, w=oz, detail=0.0), 0.42)
+        words = g.math(
+            "GREATER_THAN",
+            g.noise(
+                g.combine(
+                    g.math("MULTIPLY", s, 3.0), g.math("MULTIPLY", line, 3.1), lab.pattern_seed
+                ),
+                3.0,
+                w=oz,
+                detail=0.0,
+            ),
+            0.42,
+        )
         text = g.both(g.both(g.both(words, in_line), in_s), g.band(tt, 0.72, 0.2))
         ink = g.math("MAXIMUM", barcode, g.math("MULTIPLY", text, 0.8))
         paper = g.mix_color(ink, (0.82, 0.82, 0.78, 1.0), (0.02, 0.02, 0.02, 1.0))
         color = g.mix_color(inside, color, paper)
-        rough_socket = g.mix_float(inside, rough_socket if rough_socket is not None else rough, 0.55)
+        rough_socket = g.mix_float(
+            inside, rough_socket if rough_socket is not None else rough, 0.55
+        )
 
     # No bump: at these resolutions it is invisible and costs ~20 % of a crop render.
     g.principled(mat, color, rough_socket if rough_socket is not None else rough, specular=0.3)
     return mat
 
 
-def support_material(name: str, kind: str, appearance: dict, color_key: str = "color") -> bpy.types.Material:
+def support_material(
+    name: str, kind: str, appearance: dict, color_key: str = "color"
+) -> bpy.types.Material:
     """Concrete-like floor, plastic bin or pine pallet boards: a base colour with seeded noise."""
     mat = bpy.data.materials.new(name)
     g = Graph(mat.node_tree)
@@ -179,13 +216,21 @@ def support_material(name: str, kind: str, appearance: dict, color_key: str = "c
         x, y, z = g.xyz(coords)
         grain = g.noise(g.combine(g.math("MULTIPLY", x, 0.08), y, z), 60.0, w=ox, detail=6.0)
         shade = g.math("ADD", 0.75, g.math("MULTIPLY", grain, 0.5))
-        gap = g.math("LESS_THAN", g.math("FRACT", g.math("MULTIPLY", g.math("ADD", y, 1000.0), 1.0 / 0.12)), 0.06)
+        gap = g.math(
+            "LESS_THAN",
+            g.math("FRACT", g.math("MULTIPLY", g.math("ADD", y, 1000.0), 1.0 / 0.12)),
+            0.06,
+        )
         shade = g.math("MULTIPLY", shade, g.math("SUBTRACT", 1.0, g.math("MULTIPLY", gap, 0.7)))
         color = g.scale_color(base, shade)
     else:
         blotch = g.noise(coords, 3.0, w=ox, detail=6.0, roughness=0.65)
         speck = g.noise(coords, 80.0, w=oy, detail=2.0)
-        shade = g.math("ADD", 0.8, g.math("ADD", g.math("MULTIPLY", blotch, 0.3), g.math("MULTIPLY", speck, 0.1)))
+        shade = g.math(
+            "ADD",
+            0.8,
+            g.math("ADD", g.math("MULTIPLY", blotch, 0.3), g.math("MULTIPLY", speck, 0.1)),
+        )
         color = g.scale_color(base, shade)
     g.principled(mat, color, float(appearance["roughness"]), specular=0.4)
     return mat

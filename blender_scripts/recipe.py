@@ -82,8 +82,13 @@ def _get(data: dict, key: str, kind, source: str):
 
 def _pair(data: dict, key: str, kind, source: str) -> tuple:
     node = _get(data, key, list, source)
-    if len(node) != 2 or any(isinstance(v, bool) or not isinstance(v, (int, float) if kind is float else kind) for v in node):
-        raise RecipeError(f"recipe {source}: key '{key}' must be a list of 2 {kind.__name__}s, got {node!r}")
+    if len(node) != 2 or any(
+        isinstance(v, bool) or not isinstance(v, (int, float) if kind is float else kind)
+        for v in node
+    ):
+        raise RecipeError(
+            f"recipe {source}: key '{key}' must be a list of 2 {kind.__name__}s, got {node!r}"
+        )
     lo, hi = kind(node[0]), kind(node[1])
     if lo > hi:
         raise RecipeError(f"recipe {source}: key '{key}' must be a range [min, max], got {node!r}")
@@ -106,7 +111,11 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         elevation_deg=p("camera.elevation_deg"),
         azimuth_deg=p("camera.azimuth_deg"),
         look_at_jitter_m=g("camera.look_at_jitter_m", float),
-        **({"look_at_object": g("camera.look_at_object", int)} if "look_at_object" in data.get("camera", {}) else {}),
+        **(
+            {"look_at_object": g("camera.look_at_object", int)}
+            if "look_at_object" in data.get("camera", {})
+            else {}
+        ),
     )
     lighting = LightingSpec(
         sun_strength=p("lighting.sun_strength"),
@@ -114,14 +123,22 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         area_power_w=p("lighting.area_power_w"),
         world_strength=p("lighting.world_strength"),
         world_color_jitter=g("lighting.world_color_jitter", float),
-        **{k: p(f"lighting.{k}") for k in ("sun_elevation_deg", "sun_azimuth_deg") if k in data.get("lighting", {})},
+        **{
+            k: p(f"lighting.{k}")
+            for k in ("sun_elevation_deg", "sun_azimuth_deg")
+            if k in data.get("lighting", {})
+        },
     )
     materials = MaterialsSpec(
         roughness=p("materials.roughness"),
         tape_probability=g("materials.tape_probability", float),
         label_probability=g("materials.label_probability", float),
     )
-    optional = {k: g(f"render.{k}", kind) for k, kind in _OPTIONAL_RENDER.items() if k in data.get("render", {})}
+    optional = {
+        k: g(f"render.{k}", kind)
+        for k, kind in _OPTIONAL_RENDER.items()
+        if k in data.get("render", {})
+    }
     render = RenderSpec(
         samples=g("render.samples", int),
         denoise=g("render.denoise", bool),
@@ -147,7 +164,21 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         problems.append("render.samples must be >= 1 and render.max_bounces >= 0")
     if problems:
         raise RecipeError(f"recipe {source}: " + "; ".join(problems))
-    support = SupportSpec(g("support.kind", str), p("support.half_extent_m"), g("support.wall_height_m", float))
+    support = SupportSpec(
+        g("support.kind", str), p("support.half_extent_m"), g("support.wall_height_m", float)
+    )
     # Settled boxes may sink into each other and the support by up to settle.max_penetration_m.
-    penetration = g("settle.max_penetration_m", float) if "max_penetration_m" in data.get("settle", {}) else 0.002
-    return RenderRecipe(_get(data, "name", str, source), camera, lighting, materials, render, support, penetration + 0.001)
+    penetration = (
+        g("settle.max_penetration_m", float)
+        if "max_penetration_m" in data.get("settle", {})
+        else 0.002
+    )
+    return RenderRecipe(
+        _get(data, "name", str, source),
+        camera,
+        lighting,
+        materials,
+        render,
+        support,
+        penetration + 0.001,
+    )

@@ -42,7 +42,9 @@ def _uniform(rng: np.random.Generator, lo_hi) -> float:
 # Camera and lighting (per frame)
 
 
-def draw_camera(spec: CameraSpec, box_centres_world: np.ndarray, rng: np.random.Generator) -> tuple[Camera, dict]:
+def draw_camera(
+    spec: CameraSpec, box_centres_world: np.ndarray, rng: np.random.Generator
+) -> tuple[Camera, dict]:
     """The frame's camera: looks at the boxes' centroid plus uniform jitter from `distance`,
     `elevation` above the support plane (world z up) and `azimuth` about world z."""
     hfov = _uniform(rng, spec.hfov_deg)
@@ -54,7 +56,9 @@ def draw_camera(spec: CameraSpec, box_centres_world: np.ndarray, rng: np.random.
     centroid = np.mean(np.asarray(box_centres_world, dtype=np.float64).reshape(-1, 3), axis=0)
     target = centroid + jitter
     el, az = math.radians(elevation), math.radians(azimuth)
-    centre = target + distance * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+    centre = target + distance * np.array(
+        [math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)]
+    )
     camera = Camera.from_hfov(spec.width, spec.height, math.radians(hfov), look_at(centre, target))
     draw = {
         "hfov_deg": hfov,
@@ -77,14 +81,18 @@ def draw_lighting(spec: LightingSpec, target: np.ndarray, rng: np.random.Generat
     sun = {
         "strength": _uniform(rng, spec.sun_strength),
         # direction *towards* the sun, and its angular diameter (soft shadows)
-        "direction": _direction(_uniform(rng, spec.sun_elevation_deg), _uniform(rng, spec.sun_azimuth_deg)),
+        "direction": _direction(
+            _uniform(rng, spec.sun_elevation_deg), _uniform(rng, spec.sun_azimuth_deg)
+        ),
         "angle_deg": _uniform(rng, (2.0, 15.0)),
     }
     lo, hi = spec.area_lights
     areas = []
     for _ in range(int(rng.integers(lo, hi + 1))):
         power = _uniform(rng, spec.area_power_w)
-        radius = _uniform(rng, (3.0, 4.5))  # Cycles: 100 W at 2 m lights white paper to 1.8, a unit sun to 0.32
+        radius = _uniform(
+            rng, (3.0, 4.5)
+        )  # Cycles: 100 W at 2 m lights white paper to 1.8, a unit sun to 0.32
         direction = np.array(_direction(_uniform(rng, (35.0, 85.0)), _uniform(rng, (0.0, 360.0))))
         warmth = _uniform(rng, (-0.1, 0.1))
         areas.append(
@@ -99,7 +107,9 @@ def draw_lighting(spec: LightingSpec, target: np.ndarray, rng: np.random.Generat
     jit = spec.world_color_jitter
     world = {
         "strength": _uniform(rng, spec.world_strength),
-        "color": np.clip(1.0 + rng.uniform(-jit, jit, 3), 0.0, None).tolist() if jit > 0 else [1.0, 1.0, 1.0],
+        "color": np.clip(1.0 + rng.uniform(-jit, jit, 3), 0.0, None).tolist()
+        if jit > 0
+        else [1.0, 1.0, 1.0],
     }
     return {"sun": sun, "area": areas, "world": world}
 
@@ -139,7 +149,11 @@ class Label:
         u = np.array([0.0, 1.0]) if self.rotated else np.array([1.0, 0.0])
         v = np.array([-1.0, 0.0]) if self.rotated else np.array([0.0, 1.0])
         c = np.array(self.centre_m)
-        xy = c + LABEL_CORNER_SIGNS[:, :1] * self.half_m[0] * u + LABEL_CORNER_SIGNS[:, 1:] * self.half_m[1] * v
+        xy = (
+            c
+            + LABEL_CORNER_SIGNS[:, :1] * self.half_m[0] * u
+            + LABEL_CORNER_SIGNS[:, 1:] * self.half_m[1] * v
+        )
         return np.column_stack([xy, np.full(4, 0.5 * float(size[2]))])
 
 
@@ -172,7 +186,9 @@ def draw_appearance(texture_seed: int, size, has_tape: bool, has_label: bool) ->
         width = min(0.048, 0.35 * across)
         offset = _uniform(rng, (-0.1, 0.1)) * (across - width)
         color, roughness, opacity = _TAPE_STYLES[int(rng.integers(0, len(_TAPE_STYLES)))]
-        tape = Tape(axis, offset, width, _uniform(rng, (0.3, 0.8)) * dz, tuple(color), roughness, opacity)
+        tape = Tape(
+            axis, offset, width, _uniform(rng, (0.3, 0.8)) * dz, tuple(color), roughness, opacity
+        )
     label = None
     if has_label:
         rotated = bool(rng.integers(0, 2))
@@ -183,7 +199,9 @@ def draw_appearance(texture_seed: int, size, has_tape: bool, has_label: bool) ->
         cu = _uniform(rng, (-1.0, 1.0)) * max(0.5 * eu - hu - 0.05 * eu, 0.0)
         cv = _uniform(rng, (-1.0, 1.0)) * max(0.5 * ev - hv - 0.05 * ev, 0.0)
         centre = (-cv, cu) if rotated else (cu, cv)  # u = y, v = −x  ⇒  x = −v, y = u
-        label = Label((float(centre[0]), float(centre[1])), (hu, hv), rotated, _uniform(rng, (0.0, 1000.0)))
+        label = Label(
+            (float(centre[0]), float(centre[1])), (hu, hv), rotated, _uniform(rng, (0.0, 1000.0))
+        )
     return BoxAppearance(noise_offset, noise_scale, fibre_scale, variation, tape, label)
 
 
@@ -191,8 +209,18 @@ def draw_appearance(texture_seed: int, size, has_tape: bool, has_label: bool) ->
 # Support appearance (per scene)
 
 _SUPPORT_COLORS = {
-    "floor": [[0.30, 0.30, 0.30], [0.45, 0.42, 0.38], [0.20, 0.22, 0.25], [0.55, 0.55, 0.52]],  # concrete, greys
-    "bin": [[0.05, 0.15, 0.45], [0.45, 0.05, 0.04], [0.25, 0.25, 0.27], [0.05, 0.25, 0.08]],  # plastic crates
+    "floor": [
+        [0.30, 0.30, 0.30],
+        [0.45, 0.42, 0.38],
+        [0.20, 0.22, 0.25],
+        [0.55, 0.55, 0.52],
+    ],  # concrete, greys
+    "bin": [
+        [0.05, 0.15, 0.45],
+        [0.45, 0.05, 0.04],
+        [0.25, 0.25, 0.27],
+        [0.05, 0.25, 0.08],
+    ],  # plastic crates
     "pallet": [[0.48, 0.34, 0.20], [0.40, 0.30, 0.18], [0.55, 0.42, 0.28]],  # pine
 }
 
@@ -201,7 +229,9 @@ def draw_support_appearance(scene_seed: int, kind: str) -> dict:
     rng = np.random.default_rng(derive_seed(scene_seed, _SUPPORT_TAG))
     palette = _SUPPORT_COLORS.get(kind, _SUPPORT_COLORS["floor"])
     base = np.asarray(palette[int(rng.integers(0, len(palette)))]) * rng.uniform(0.85, 1.15)
-    floor = np.asarray(_SUPPORT_COLORS["floor"][int(rng.integers(0, len(_SUPPORT_COLORS["floor"])))])
+    floor = np.asarray(
+        _SUPPORT_COLORS["floor"][int(rng.integers(0, len(_SUPPORT_COLORS["floor"])))]
+    )
     return {
         "color": np.clip(base, 0.0, 1.0).tolist(),
         "roughness": _uniform(rng, (0.4, 0.9)),

@@ -57,8 +57,12 @@ def _box_mesh(name: str, size) -> bpy.types.Mesh:
             # order the 4 corners around the face, then make the normal point outwards
             a, b = [k for k in range(3) if k != axis]
             centre = corners[quad].mean(axis=0)
-            quad.sort(key=lambda i: math.atan2(corners[i][b] - centre[b], corners[i][a] - centre[a]))
-            normal = np.cross(corners[quad[1]] - corners[quad[0]], corners[quad[2]] - corners[quad[0]])
+            quad.sort(
+                key=lambda i: math.atan2(corners[i][b] - centre[b], corners[i][a] - centre[a])
+            )
+            normal = np.cross(
+                corners[quad[1]] - corners[quad[0]], corners[quad[2]] - corners[quad[0]]
+            )
             outward = np.zeros(3)
             outward[axis] = 1.0 if sign else -1.0
             if np.dot(normal, outward) < 0:
@@ -139,7 +143,13 @@ class BlenderScene:
     # -- scene content --------------------------------------------------------------------
 
     def clear(self) -> None:
-        for collection in (bpy.data.objects, bpy.data.meshes, bpy.data.materials, bpy.data.lights, bpy.data.cameras):
+        for collection in (
+            bpy.data.objects,
+            bpy.data.meshes,
+            bpy.data.materials,
+            bpy.data.lights,
+            bpy.data.cameras,
+        ):
             if len(collection):
                 bpy.data.batch_remove(list(collection))
         self.boxes.clear()
@@ -167,26 +177,50 @@ class BlenderScene:
         h = _FLOOR_HALF_EXTENT_M
         hx, hy = support.half_extent_m
         if support.kind == "floor":
-            self._slab("support_floor", (-h, -h, -0.05), (h, h, 0.0), support_material("floor", "floor", support_look))
+            self._slab(
+                "support_floor",
+                (-h, -h, -0.05),
+                (h, h, 0.0),
+                support_material("floor", "floor", support_look),
+            )
         elif support.kind == "bin":
             t, wall = _BIN_WALL_THICKNESS_M, support.wall_height_m
             mat = support_material("bin", "bin", support_look)
-            self._slab("support_floor", (-h, -h, -0.05), (h, h, 0.0), support_material("ground", "floor", support_look, "floor_color"))
+            self._slab(
+                "support_floor",
+                (-h, -h, -0.05),
+                (h, h, 0.0),
+                support_material("ground", "floor", support_look, "floor_color"),
+            )
             self._slab("support_wall_-x", (-hx - t, -hy - t, 0.0), (-hx, hy + t, wall), mat)
             self._slab("support_wall_+x", (hx, -hy - t, 0.0), (hx + t, hy + t, wall), mat)
             self._slab("support_wall_-y", (-hx, -hy - t, 0.0), (hx, -hy, wall), mat)
             self._slab("support_wall_+y", (-hx, hy, 0.0), (hx, hy + t, wall), mat)
         elif support.kind == "pallet":
             ph = _PALLET_HEIGHT_M
-            self._slab("support_floor", (-h, -h, -0.05), (h, h, 0.0), support_material("ground", "floor", support_look, "floor_color"))
-            self._slab("support_pallet", (-hx, -hy, 0.0), (hx, hy, ph), support_material("pallet", "pallet", support_look))
+            self._slab(
+                "support_floor",
+                (-h, -h, -0.05),
+                (h, h, 0.0),
+                support_material("ground", "floor", support_look, "floor_color"),
+            )
+            self._slab(
+                "support_pallet",
+                (-hx, -hy, 0.0),
+                (hx, hy, ph),
+                support_material("pallet", "pallet", support_look),
+            )
         else:
             raise BlenderError(f"unknown support kind '{support.kind}' (floor, bin or pallet)")
         for box in boxes:
             oid = int(box["object_id"])
             name = f"box_{oid:03d}"
             obj = bpy.data.objects.new(name, _box_mesh(name, box["size"]))
-            obj.data.materials.append(cardboard_material(name, box["size"], box["base_color"], box["roughness"], box["appearance"]))
+            obj.data.materials.append(
+                cardboard_material(
+                    name, box["size"], box["base_color"], box["roughness"], box["appearance"]
+                )
+            )
             obj.pass_index = oid + 1
             obj.matrix_world = _matrix(box["world_box"])
             self.boxes[oid] = self._link(obj)
@@ -209,7 +243,9 @@ class BlenderScene:
             raise BlenderError("Blender cameras need square pixels (fx = fy)")
         r = self.scene.render
         r.resolution_x, r.resolution_y = camera.width, camera.height
-        self.camera_object.data.lens = geo.blender_lens(camera, self.camera_object.data.sensor_width)
+        self.camera_object.data.lens = geo.blender_lens(
+            camera, self.camera_object.data.sensor_width
+        )
         self.camera_object.matrix_world = _matrix(geo.blender_camera_matrix(camera.world_camera))
 
     def set_lighting(self, lighting: dict) -> None:
@@ -235,7 +271,9 @@ class BlenderScene:
             obj.matrix_world = _matrix(_aim(loc, np.asarray(area["target_m"]) - loc))
             self.lights.append(self._link(obj))
         world = lighting["world"]
-        bg = self.scene.world.node_tree.nodes.get("Background") or self.scene.world.node_tree.nodes.new("ShaderNodeBackground")
+        bg = self.scene.world.node_tree.nodes.get(
+            "Background"
+        ) or self.scene.world.node_tree.nodes.new("ShaderNodeBackground")
         bg.inputs["Color"].default_value = (*world["color"], 1.0)
         bg.inputs["Strength"].default_value = world["strength"]
         out = self.scene.world.node_tree.nodes.get("World Output")
@@ -306,7 +344,9 @@ class BlenderScene:
         except KeyError as e:
             raise BlenderError(f"render result lacks pass {e}; found {sorted(channels)}") from e
         if depth.shape != (y1 - y0, x1 - x0):
-            raise BlenderError(f"render is {depth.shape[1]}×{depth.shape[0]}, expected {x1 - x0}×{y1 - y0}")
+            raise BlenderError(
+                f"render is {depth.shape[1]}×{depth.shape[0]}, expected {x1 - x0}×{y1 - y0}"
+            )
         # EXR rows run top to bottom like our images.
         depth = np.where(depth < _NO_SURFACE, depth, 0.0).astype(np.float32)
         index = np.rint(index).astype(np.uint16)
@@ -316,7 +356,10 @@ class BlenderScene:
         """The first surface along a ray: (location, normal, object_id or −1), or None."""
         depsgraph = bpy.context.evaluated_depsgraph_get()
         hit, location, normal, _index, obj, _m = self.scene.ray_cast(
-            depsgraph, mathutils.Vector(origin.tolist()), mathutils.Vector(direction.tolist()), distance=float(distance)
+            depsgraph,
+            mathutils.Vector(origin.tolist()),
+            mathutils.Vector(direction.tolist()),
+            distance=float(distance),
         )
         if not hit:
             return None

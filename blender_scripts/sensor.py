@@ -56,7 +56,15 @@ def _normals_cos(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float) 
     return cos
 
 
-def simulate(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, rng: np.random.Generator, model: SensorModel = SensorModel()) -> np.ndarray:
+def simulate(
+    depth: np.ndarray,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    rng: np.random.Generator,
+    model: SensorModel = SensorModel(),
+) -> np.ndarray:
     """The sensor's depth image (float32, metres, 0 = no return) for an exact planar depth image."""
     z = depth.astype(np.float64)
     valid = z > 0
@@ -66,8 +74,12 @@ def simulate(depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, rng:
 
     # Depth edges: a relative jump to any 4-neighbour, dilated.
     edge = np.zeros_like(valid)
-    jump_x = np.abs(z[:, 1:] - z[:, :-1]) > model.edge_threshold * np.minimum(z[:, 1:], z[:, :-1]).clip(1e-6)
-    jump_y = np.abs(z[1:, :] - z[:-1, :]) > model.edge_threshold * np.minimum(z[1:, :], z[:-1, :]).clip(1e-6)
+    jump_x = np.abs(z[:, 1:] - z[:, :-1]) > model.edge_threshold * np.minimum(
+        z[:, 1:], z[:, :-1]
+    ).clip(1e-6)
+    jump_y = np.abs(z[1:, :] - z[:-1, :]) > model.edge_threshold * np.minimum(
+        z[1:, :], z[:-1, :]
+    ).clip(1e-6)
     jump_x |= valid[:, 1:] != valid[:, :-1]
     jump_y |= valid[1:, :] != valid[:-1, :]
     edge[:, 1:] |= jump_x

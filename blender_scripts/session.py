@@ -29,7 +29,9 @@ class RenderInputError(ValueError):
     """Scene and object rows that do not fit together; the message names the scene and object."""
 
 
-def check_scene_objects(scenes: list[dict], objects: list[dict], where: str = "") -> dict[int, list[dict]]:
+def check_scene_objects(
+    scenes: list[dict], objects: list[dict], where: str = ""
+) -> dict[int, list[dict]]:
     """Groups object rows by scene, checking that every object's scene exists and that every scene
     has exactly its `num_objects` objects with ids 0..n−1. Returns {scene_id: objects sorted}."""
     suffix = f" in {where}" if where else ""
@@ -40,7 +42,8 @@ def check_scene_objects(scenes: list[dict], objects: list[dict], where: str = ""
         sid = int(o["scene_id"])
         if sid not in by_scene:
             raise RenderInputError(
-                f"objects row (scene_id={sid}, object_id={o['object_id']}){suffix} references scene {sid}, which is not in the scenes table"
+                f"objects row (scene_id={sid}, object_id={o['object_id']}){suffix} "
+                f"references scene {sid}, which is not in the scenes table"
             )
         by_scene[sid].append(o)
     for s in scenes:
@@ -93,16 +96,31 @@ class Session:
     def load(self, scene_row: dict, object_rows: list[dict]) -> None:
         """Builds the Blender scene of one `scenes` row and its `objects` rows."""
         objects = check_scene_objects([scene_row], object_rows)[int(scene_row["scene_id"])]
-        self.recipe = parse_render_recipe(scene_row["recipe_toml"], source=f"of scene {scene_row['scene_id']}")
+        self.recipe = parse_render_recipe(
+            scene_row["recipe_toml"], source=f"of scene {scene_row['scene_id']}"
+        )
         if scene_row["support"] != self.recipe.support.kind:
-            raise RenderInputError(f"scene {scene_row['scene_id']}: support '{scene_row['support']}' differs from its recipe's '{self.recipe.support.kind}'")
+            raise RenderInputError(
+                f"scene {scene_row['scene_id']}: support '{scene_row['support']}' differs from "
+                f"its recipe's '{self.recipe.support.kind}'"
+            )
         self.scene_row = dict(scene_row)
         self.objects = objects
-        self.world_boxes = {int(o["object_id"]): geo.pose_matrix(o["world_box_quat_wxyz"], o["world_box_translation_m"]) for o in objects}
-        self.appearances = {
-            int(o["object_id"]): sampling.draw_appearance(o["texture_seed"], o["size_m"], bool(o["has_tape"]), bool(o["has_label"])) for o in objects
+        self.world_boxes = {
+            int(o["object_id"]): geo.pose_matrix(
+                o["world_box_quat_wxyz"], o["world_box_translation_m"]
+            )
+            for o in objects
         }
-        self.support_look = sampling.draw_support_appearance(int(scene_row["seed"]), self.recipe.support.kind)
+        self.appearances = {
+            int(o["object_id"]): sampling.draw_appearance(
+                o["texture_seed"], o["size_m"], bool(o["has_tape"]), bool(o["has_label"])
+            )
+            for o in objects
+        }
+        self.support_look = sampling.draw_support_appearance(
+            int(scene_row["seed"]), self.recipe.support.kind
+        )
         boxes = [
             {
                 "object_id": int(o["object_id"]),
@@ -117,14 +135,23 @@ class Session:
         self.blender.build(self.recipe.support, self.support_look, boxes)
         self.loads += 1
 
-    def load_batches(self, scenes: pa.RecordBatch | pa.Table, objects: pa.RecordBatch | pa.Table, scene_id: int | None = None) -> None:
+    def load_batches(
+        self,
+        scenes: pa.RecordBatch | pa.Table,
+        objects: pa.RecordBatch | pa.Table,
+        scene_id: int | None = None,
+    ) -> None:
         """`load` from Arrow data: `scenes` holds the scene (the first row, or `scene_id`),
         `objects` at least its objects (others are ignored)."""
         scene_rows = scenes.to_pylist()
         if scene_id is not None:
             scene_rows = [s for s in scene_rows if int(s["scene_id"]) == int(scene_id)]
         if not scene_rows:
-            raise RenderInputError(f"scene {scene_id} is not in the scenes data" if scene_id is not None else "no scenes row given")
+            raise RenderInputError(
+                f"scene {scene_id} is not in the scenes data"
+                if scene_id is not None
+                else "no scenes row given"
+            )
         scene_row = scene_rows[0]
         sid = int(scene_row["scene_id"])
         self.load(scene_row, [o for o in objects.to_pylist() if int(o["scene_id"]) == sid])
@@ -133,14 +160,19 @@ class Session:
 
     def frame_draw(self, frame_id: int) -> tuple[int, geo.Camera, dict, dict]:
         """(render_seed, camera, camera draw, lighting) of a frame of the loaded scene. The look-at
-        point derives from the settled poses of the objects rows (all boxes' centroid, or the recipe's
-        `camera.look_at_object`), never from pose overrides."""
+        point derives from the settled poses of the objects rows (all boxes' centroid, or the
+        recipe's `camera.look_at_object`), never from pose overrides."""
         seed = sampling.render_seed(int(self.scene_row["seed"]), frame_id)
         rng = np.random.default_rng(seed)
         aim = self.recipe.camera.look_at_object
         if aim is not None and aim not in self.world_boxes:
-            raise RenderInputError(f"scene {self.scene_row['scene_id']}: camera.look_at_object = {aim} is not one of its object_ids")
-        centres = np.array([m[:3, 3] for oid, m in self.world_boxes.items() if aim is None or oid == aim])
+            raise RenderInputError(
+                f"scene {self.scene_row['scene_id']}: camera.look_at_object = {aim} "
+                "is not one of its object_ids"
+            )
+        centres = np.array(
+            [m[:3, 3] for oid, m in self.world_boxes.items() if aim is None or oid == aim]
+        )
         camera, draw = sampling.draw_camera(self.recipe.camera, centres, rng)
         lighting = sampling.draw_lighting(self.recipe.lighting, np.asarray(draw["look_at_m"]), rng)
         return seed, camera, draw, lighting
@@ -189,7 +221,9 @@ class Session:
         b.set_camera(full_camera)
         b.set_lighting(lighting)
         start = time.perf_counter()
-        out = b.render(samples, denoise, seed, spec.max_bounces, spec.view_transform, spec.exposure, crop)
+        out = b.render(
+            samples, denoise, seed, spec.max_bounces, spec.view_transform, spec.exposure, crop
+        )
 
         b.update()
         sid = int(self.scene_row["scene_id"])
@@ -197,13 +231,25 @@ class Session:
         for o in self.objects:
             oid = int(o["object_id"])
             box = BoxState(oid, tuple(o["size_m"]), world_boxes[oid], self.appearances[oid])
-            instances.append(instance_row(sid, frame_id, camera, box, out.index, b.ray_cast, self.recipe.contact_m))
+            instances.append(
+                instance_row(
+                    sid, frame_id, camera, box, out.index, b.ray_cast, self.recipe.contact_m
+                )
+            )
 
         sensor_bytes, sensor_settings = None, None
         if sensor_depth:
             model = sensor.SensorModel()
             sensor_seed = sampling.derive_seed(seed, _SENSOR_TAG)
-            noisy = sensor.simulate(out.depth, camera.fx, camera.fy, camera.cx, camera.cy, np.random.default_rng(sensor_seed), model)
+            noisy = sensor.simulate(
+                out.depth,
+                camera.fx,
+                camera.fy,
+                camera.cx,
+                camera.cy,
+                np.random.default_rng(sensor_seed),
+                model,
+            )
             sensor_bytes = noisy.astype("<f4").tobytes()
             sensor_settings = {"model": "structured_light", "seed": sensor_seed, **model.as_dict()}
 
@@ -223,7 +269,10 @@ class Session:
             "camera": camera_draw,
             "lighting": lighting,
             "support": {"kind": self.recipe.support.kind, **self.support_look},
-            "pose_overrides": {str(k): dict(zip(("quat_wxyz", "translation_m"), geo.pose_parts(v))) for k, v in sorted(poses.items())},
+            "pose_overrides": {
+                str(k): dict(zip(("quat_wxyz", "translation_m"), geo.pose_parts(v), strict=True))
+                for k, v in sorted(poses.items())
+            },
             "sensor_depth": sensor_settings,
             "contact_tolerance_m": self.recipe.contact_m,
         }
@@ -253,12 +302,16 @@ class Session:
         self.last_timing = {"render_s": out.seconds, "total_s": time.perf_counter() - start}
         return frame, instances
 
-    def _region_around(self, camera: geo.Camera, world_boxes: dict, object_id: int, margin: float) -> tuple[int, int, int, int] | None:
+    def _region_around(
+        self, camera: geo.Camera, world_boxes: dict, object_id: int, margin: float
+    ) -> tuple[int, int, int, int] | None:
         """The pixel region of `render(crop_object=…)`; None (the whole frame) when the box is
         partly behind the camera, or its region leaves nothing of the image."""
         object_id, margin = int(object_id), float(margin)
         if object_id not in world_boxes:
-            raise RenderInputError(f"scene {self.scene_row['scene_id']} has no object_id {object_id}")
+            raise RenderInputError(
+                f"scene {self.scene_row['scene_id']} has no object_id {object_id}"
+            )
         if not (np.isfinite(margin) and margin >= 0):
             raise RenderInputError(f"crop_object margin {margin} must be finite and non-negative")
         size = next(o["size_m"] for o in self.objects if int(o["object_id"]) == object_id)
@@ -271,14 +324,26 @@ class Session:
         (cu, cv) = ((u0 + u1) / 2, (v0 + v1) / 2)
         # pixel i covers [i − 0.5, i + 0.5)
         x0, y0 = max(0, int(np.floor(cu - half + 0.5))), max(0, int(np.floor(cv - half + 0.5)))
-        x1, y1 = min(camera.width, int(np.ceil(cu + half + 0.5))), min(camera.height, int(np.ceil(cv + half + 0.5)))
+        x1, y1 = (
+            min(camera.width, int(np.ceil(cu + half + 0.5))),
+            min(camera.height, int(np.ceil(cv + half + 0.5))),
+        )
         return (x0, y0, x1, y1) if x0 < x1 and y0 < y1 else None
 
     def render_batches(
-        self, frame_id: int = 0, samples=None, denoise=None, crop=None, poses=None, sensor_depth=None, crop_object=None
+        self,
+        frame_id: int = 0,
+        samples=None,
+        denoise=None,
+        crop=None,
+        poses=None,
+        sensor_depth=None,
+        crop_object=None,
     ) -> tuple[pa.RecordBatch, pa.RecordBatch]:
         """`render` as Arrow record batches with the contract schemas (for the Rust side)."""
-        frame, instances = self.render(frame_id, samples, denoise, crop, poses, sensor_depth, crop_object)
+        frame, instances = self.render(
+            frame_id, samples, denoise, crop, poses, sensor_depth, crop_object
+        )
         return _batch("frames", [frame]), _batch("instances", instances)
 
 

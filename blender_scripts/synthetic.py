@@ -49,7 +49,7 @@ def synthetic_scene(
         placed.append((xy, radius))
         sizes.append(size)
     objects = []
-    for k, (size, (xy, _r)) in enumerate(zip(sizes, placed)):
+    for k, (size, (xy, _r)) in enumerate(zip(sizes, placed, strict=True)):
         yaw = float(rng.uniform(0, 2 * math.pi))
         z = top + size[2] / 2
         if stack and k == num_boxes - 1 and num_boxes > 1:  # last box on top of the first one
@@ -68,7 +68,15 @@ def synthetic_scene(
                 "initial_world_box_translation_m": [t[0], t[1], t[2] + 0.05],
                 "mass_kg": float(np.prod(size) * 150.0),
                 "friction": 0.7,
-                "base_color_rgb": [float(c) for c in np.clip(np.array([0.45, 0.30, 0.16]) * rng.uniform(0.7, 1.2) + rng.uniform(-0.03, 0.03, 3), 0, 1)],
+                "base_color_rgb": [
+                    float(c)
+                    for c in np.clip(
+                        np.array([0.45, 0.30, 0.16]) * rng.uniform(0.7, 1.2)
+                        + rng.uniform(-0.03, 0.03, 3),
+                        0,
+                        1,
+                    )
+                ],
                 "roughness": float(rng.uniform(*recipe.materials.roughness)),
                 "texture_seed": int(rng.integers(0, 2**62)),
                 "has_tape": bool(rng.random() < recipe.materials.tape_probability),
@@ -80,7 +88,9 @@ def synthetic_scene(
         "seed": int(seed),
         "recipe": recipe.name,
         "recipe_toml": recipe_toml,
-        "tool_versions": json.dumps({"python": platform.python_version(), "generator": "blender_scripts.synthetic"}),
+        "tool_versions": json.dumps(
+            {"python": platform.python_version(), "generator": "blender_scripts.synthetic"}
+        ),
         "physics_backend": "none",
         "support": recipe.support.kind,
         "num_objects": num_boxes,
@@ -97,4 +107,7 @@ def synthetic_scene(
 
 
 def box_world_corners(obj: dict) -> np.ndarray:
-    return geo.transform(geo.pose_matrix(obj["world_box_quat_wxyz"], obj["world_box_translation_m"]), geo.box_corners(obj["size_m"]))
+    return geo.transform(
+        geo.pose_matrix(obj["world_box_quat_wxyz"], obj["world_box_translation_m"]),
+        geo.box_corners(obj["size_m"]),
+    )

@@ -39,23 +39,30 @@ def _emit(**event) -> None:
     print(PROGRESS + json.dumps(event), flush=True)
 
 
-def read_shard_rows(dataset: Path, shard: int, num_shards: int) -> tuple[list[dict], list[dict], dict[int, list[dict]]]:
+def read_shard_rows(
+    dataset: Path, shard: int, num_shards: int
+) -> tuple[list[dict], list[dict], dict[int, list[dict]]]:
     """(scenes sorted by scene_id, objects, objects by scene) of one shard, checked."""
+    from blender_scripts.session import RenderInputError, check_scene_objects
     from boxpose_io import shard_path
 
-    from blender_scripts.session import RenderInputError, check_scene_objects
-
     paths = {t: shard_path(dataset, t, shard, num_shards) for t in ("scenes", "objects")}
-    for table, path in paths.items():
+    for path in paths.values():
         if not path.is_file():
-            raise RenderInputError(f"{path} is missing: the scene stage has not written shard {shard} of {num_shards}")
+            raise RenderInputError(
+                f"{path} is missing: the scene stage has not written shard {shard} of {num_shards}"
+            )
     scenes = sorted(pq.read_table(paths["scenes"]).to_pylist(), key=lambda s: int(s["scene_id"]))
     objects = pq.read_table(paths["objects"]).to_pylist()
-    by_scene = check_scene_objects(scenes, objects, where=f"shard {shard} of {num_shards} ({paths['scenes'].name})")
+    by_scene = check_scene_objects(
+        scenes, objects, where=f"shard {shard} of {num_shards} ({paths['scenes'].name})"
+    )
     return scenes, objects, by_scene
 
 
-def render_scenes(scenes: list[dict], by_scene: dict[int, list[dict]], threads: int = 0) -> tuple[list[dict], list[dict]]:
+def render_scenes(
+    scenes: list[dict], by_scene: dict[int, list[dict]], threads: int = 0
+) -> tuple[list[dict], list[dict]]:
     from blender_scripts.session import Session
 
     session = Session(threads)
@@ -72,16 +79,22 @@ def render_scenes(scenes: list[dict], by_scene: dict[int, list[dict]], threads: 
             frame, rows = session.render(frame_id)
             frames.append(frame)
             instances.extend(rows)
-            _emit(event="frame", scene_id=sid, frame_id=frame_id, seconds=time.perf_counter() - start)
+            _emit(
+                event="frame", scene_id=sid, frame_id=frame_id, seconds=time.perf_counter() - start
+            )
     return frames, instances
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m blender_scripts.worker", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(
+        prog="python -m blender_scripts.worker", description=__doc__.split("\n\n")[0]
+    )
     ap.add_argument("--dataset", type=Path, required=True)
     ap.add_argument("--shard", type=int, required=True)
     ap.add_argument("--num-shards", type=int, required=True)
-    ap.add_argument("--scenes", help="START:STOP positions of the shard's scenes (sorted by scene_id) to render")
+    ap.add_argument(
+        "--scenes", help="START:STOP positions of the shard's scenes (sorted by scene_id) to render"
+    )
     ap.add_argument("--out", type=Path, help="folder for partial results (requires --scenes)")
     ap.add_argument("--threads", type=int, default=0, help="Cycles threads (0 = all cores)")
     args = ap.parse_args(argv)
@@ -91,13 +104,16 @@ def main(argv: list[str] | None = None) -> int:
     try:
         import bpy  # noqa: F401
     except ImportError as e:
-        print(f"error: bpy is not importable by {sys.executable} ({e}); install it with `make setup` (bpy==5.0.1, Python 3.11)", file=sys.stderr)
+        print(
+            f"error: bpy is not importable by {sys.executable} ({e}); "
+            "install it with `make setup` (bpy==5.0.1, Python 3.11)",
+            file=sys.stderr,
+        )
         return EXIT_NO_BPY
-
-    from boxpose_io import ShardError, shard_path, table_from_rows, write_shard
 
     from blender_scripts.recipe import RecipeError
     from blender_scripts.session import RenderInputError
+    from boxpose_io import ShardError, shard_path, table_from_rows, write_shard
 
     try:
         scenes, _objects, by_scene = read_shard_rows(args.dataset, args.shard, args.num_shards)
@@ -110,13 +126,18 @@ def main(argv: list[str] | None = None) -> int:
     _emit(event="start", scenes=len(scenes))
     try:
         frames, instances = render_scenes(scenes, by_scene, args.threads)
-        tables = {"instances": table_from_rows("instances", instances), "frames": table_from_rows("frames", frames)}
+        tables = {
+            "instances": table_from_rows("instances", instances),
+            "frames": table_from_rows("frames", frames),
+        }
     except (RenderInputError, RecipeError, ShardError) as e:
         print(f"error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except Exception as e:  # a render failure: report it with its traceback, write nothing
         traceback.print_exc()
-        print(f"error: rendering shard {args.shard} of {args.num_shards} failed: {e}", file=sys.stderr)
+        print(
+            f"error: rendering shard {args.shard} of {args.num_shards} failed: {e}", file=sys.stderr
+        )
         return EXIT_RENDER
     if args.out is None:
         for name in ("instances", "frames"):  # frames last: its presence marks a complete shard

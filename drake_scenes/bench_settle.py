@@ -30,13 +30,27 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m drake_scenes.bench_settle",
         description=DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        epilog="example: python -m drake_scenes.bench_settle --recipe datasets/recipes/clutter.toml "
-        "--boxes 5 20 --scenes 3 --out build/bench_settle",
+        epilog="example: python -m drake_scenes.bench_settle "
+        "--recipe datasets/recipes/clutter.toml --boxes 5 20 --scenes 3 --out build/bench_settle",
     )
-    parser.add_argument("--recipe", required=True, type=Path, help="recipe TOML (support, sizes, [settle] thresholds)")
-    parser.add_argument("--boxes", required=True, type=int, nargs="+", metavar="N", help="box counts to benchmark")
-    parser.add_argument("--scenes", type=int, default=3, metavar="K", help="scenes per box count (default 3)")
-    parser.add_argument("--out", required=True, type=Path, help="dataset folder for the initial states (overwritten)")
+    parser.add_argument(
+        "--recipe",
+        required=True,
+        type=Path,
+        help="recipe TOML (support, sizes, [settle] thresholds)",
+    )
+    parser.add_argument(
+        "--boxes", required=True, type=int, nargs="+", metavar="N", help="box counts to benchmark"
+    )
+    parser.add_argument(
+        "--scenes", type=int, default=3, metavar="K", help="scenes per box count (default 3)"
+    )
+    parser.add_argument(
+        "--out",
+        required=True,
+        type=Path,
+        help="dataset folder for the initial states (overwritten)",
+    )
     args = parser.parse_args(argv)
     if min(args.boxes) < 1 or args.scenes < 1:
         parser.error("--boxes and --scenes must be >= 1")
@@ -58,18 +72,27 @@ def main(argv: list[str] | None = None) -> int:
             outcome = generate_scene(recipe, scene_id, versions, num_boxes=boxes)
             line = {"boxes": boxes, "scene": k, "scene_id": scene_id}
             if outcome.scene_row is None:
-                line.update(drake_settle_s=None, stable=False, error=f"{outcome.rejection}: {outcome.solver_status}")
+                line.update(
+                    drake_settle_s=None,
+                    stable=False,
+                    error=f"{outcome.rejection}: {outcome.solver_status}",
+                )
             else:
                 scene_rows.append(outcome.scene_row)
                 object_rows.extend(outcome.object_rows)
-                line.update(drake_settle_s=round(outcome.settle_s, 4), stable=outcome.rejection is None,
-                            settle_time_s=outcome.scene_row["settle_time_s"])
+                line.update(
+                    drake_settle_s=round(outcome.settle_s, 4),
+                    stable=outcome.rejection is None,
+                    settle_time_s=outcome.scene_row["settle_time_s"],
+                )
                 if outcome.rejection:
                     line["reason"] = outcome.rejection
             print(json.dumps(line), flush=True)
             scene_id += 1
     for name, rows in (("scenes", scene_rows), ("objects", object_rows)):
-        boxpose_io.write_shard(boxpose_io.shard_path(args.out, name, 0, 1), boxpose_io.table_from_rows(name, rows))
+        boxpose_io.write_shard(
+            boxpose_io.shard_path(args.out, name, 0, 1), boxpose_io.table_from_rows(name, rows)
+        )
     print(f"initial states of {len(scene_rows)} scenes written to {args.out}", file=sys.stderr)
     return 0
 

@@ -32,7 +32,8 @@ MAX_CONSECUTIVE_SOLVER_FAILURES = 10
 
 def tool_versions() -> str:
     return json.dumps(
-        {"drake": version("drake"), "python": platform.python_version(), "numpy": np.__version__}, sort_keys=True
+        {"drake": version("drake"), "python": platform.python_version(), "numpy": np.__version__},
+        sort_keys=True,
     )
 
 
@@ -53,25 +54,35 @@ def check_feasible(recipe: Recipe) -> None:
     reach = bounding_radius(b.size_max_m)
     if reach > min(hx, hy):
         raise recipe.error(
-            f"the largest box {list(b.size_max_m)} m reaches {reach:.3f} m from its centre in some orientation, "
-            f"more than the support region's half extent {min(hx, hy)} m: it cannot be dropped inside the region"
+            f"the largest box {list(b.size_max_m)} m reaches {reach:.3f} m from its centre in "
+            f"some orientation, more than the support region's half extent {min(hx, hy)} m: "
+            "it cannot be dropped inside the region"
         )
-    smallest_face = min(b.size_min_m[0] * b.size_min_m[1], b.size_min_m[0] * b.size_min_m[2], b.size_min_m[1] * b.size_min_m[2])
+    smallest_face = min(
+        b.size_min_m[0] * b.size_min_m[1],
+        b.size_min_m[0] * b.size_min_m[2],
+        b.size_min_m[1] * b.size_min_m[2],
+    )
     footprint, area = b.count[0] * smallest_face, 4 * hx * hy
     if footprint > area:
         raise recipe.error(
-            f"even the smallest scene ({b.count[0]} boxes of at least {smallest_face:.4f} m² footprint each, "
+            f"even the smallest scene ({b.count[0]} boxes of at least {smallest_face:.4f} m² "
+            "footprint each, "
             f"{footprint:.3f} m² in all) covers more than the support region ({area:.3f} m²)"
         )
 
 
-def generate_scene(recipe: Recipe, scene_id: int, tool_versions_json: str, num_boxes: int | None = None) -> SceneOutcome:
+def generate_scene(
+    recipe: Recipe, scene_id: int, tool_versions_json: str, num_boxes: int | None = None
+) -> SceneOutcome:
     sample = sample_scene(recipe, scene_id, num_boxes)
     # The jitter of retried solves has its own stream, derived from the scene seed only.
     jitter_rng = np.random.default_rng(np.random.SeedSequence([sample.seed, 1]))
     start = time.perf_counter()
     projection = project(sample.boxes, recipe, jitter_rng)
-    outcome = SceneOutcome(sample, None, solver_status=projection.status, projection_s=time.perf_counter() - start)
+    outcome = SceneOutcome(
+        sample, None, solver_status=projection.status, projection_s=time.perf_counter() - start
+    )
     if not projection.success:
         outcome.rejection = SOLVER_FAILURE
         return outcome
@@ -99,7 +110,7 @@ def generate_scene(recipe: Recipe, scene_id: int, tool_versions_json: str, num_b
         "stable": cert.stable,
     }
     for object_id, (box, initial, (quat, translation), material) in enumerate(
-        zip(sample.boxes, projection.boxes, settled.poses, sample.materials)
+        zip(sample.boxes, projection.boxes, settled.poses, sample.materials, strict=True)
     ):
         outcome.object_rows.append(
             {
@@ -140,14 +151,19 @@ class ShardSummary:
     def report(self) -> str:
         where = f"recipe '{self.recipe}', shard {self.shard} of {self.num_shards}"
         if self.skipped:
-            return f"{where}: already complete, skipped ({', '.join(str(p) for p in self.paths.values())})"
+            paths = ", ".join(str(p) for p in self.paths.values())
+            return f"{where}: already complete, skipped ({paths})"
         n = len(self.scene_ids)
         lines = [f"{where}: {n} scenes, {self.accepted} accepted, {n - self.accepted} rejected"]
-        lines.append("  rejected by reason: " + ", ".join(f"{r}: {self.rejected[r]}" for r in REJECTION_REASONS))
+        lines.append(
+            "  rejected by reason: "
+            + ", ".join(f"{r}: {self.rejected[r]}" for r in REJECTION_REASONS)
+        )
         if n:
             lines.append(
                 f"  time: {self.wall_s:.1f} s, {self.wall_s / n:.2f} s/scene "
-                f"(projection {self.projection_s / n:.2f} s, drop and settle {self.settle_s / n:.2f} s)"
+                f"(projection {self.projection_s / n:.2f} s, "
+                f"drop and settle {self.settle_s / n:.2f} s)"
             )
         for table, path in self.paths.items():
             lines.append(f"  {table}: {path} ({self.rows[table]} rows)")
@@ -170,7 +186,9 @@ def run_shard(
     none: a RecipeError (impossible recipe) leaves nothing behind."""
     out = Path(out)
     num_scenes = recipe.num_scenes if num_scenes is None else num_scenes
-    summary = ShardSummary(recipe.name, shard, num_shards, shard_scene_ids(num_scenes, shard, num_shards))
+    summary = ShardSummary(
+        recipe.name, shard, num_shards, shard_scene_ids(num_scenes, shard, num_shards)
+    )
     paths = {t: boxpose_io.shard_path(out, t, shard, num_shards) for t in ("scenes", "objects")}
     if all(p.exists() for p in paths.values()):
         summary.skipped, summary.paths = True, paths
@@ -182,8 +200,14 @@ def run_shard(
     consecutive_failures = 0
     give_up_after = min(MAX_CONSECUTIVE_SOLVER_FAILURES, len(summary.scene_ids))
     start = time.perf_counter()
-    bar = tqdm(summary.scene_ids, desc=f"{recipe.name} {shard}/{num_shards}", unit="scene", disable=not progress,
-               mininterval=1.0, dynamic_ncols=True)
+    bar = tqdm(
+        summary.scene_ids,
+        desc=f"{recipe.name} {shard}/{num_shards}",
+        unit="scene",
+        disable=not progress,
+        mininterval=1.0,
+        dynamic_ncols=True,
+    )
     for scene_id in bar:
         outcome = generate_scene(recipe, scene_id, versions)
         summary.projection_s += outcome.projection_s
@@ -194,21 +218,27 @@ def run_shard(
             object_rows.extend(outcome.object_rows)
         else:
             summary.rejected[outcome.rejection] += 1
-        consecutive_failures = consecutive_failures + 1 if outcome.rejection == SOLVER_FAILURE else 0
+        consecutive_failures = (
+            consecutive_failures + 1 if outcome.rejection == SOLVER_FAILURE else 0
+        )
         if consecutive_failures >= give_up_after:
             raise recipe.error(
-                f"the non-penetration solve failed all {recipe.drop.max_solve_attempts} attempts for "
-                f"{consecutive_failures} consecutive scenes (last: scene {scene_id}, {outcome.solver_status}); "
-                "the boxes do not fit the drop region: fewer or smaller boxes, a larger support.half_extent_m "
-                "or a wider drop.height_m range"
+                f"the non-penetration solve failed all {recipe.drop.max_solve_attempts} attempts "
+                f"for {consecutive_failures} consecutive scenes (last: scene {scene_id}, "
+                f"{outcome.solver_status}); the boxes do not fit the drop region: fewer or smaller "
+                "boxes, a larger support.half_extent_m or a wider drop.height_m range"
             )
-        bar.set_postfix(accepted=summary.accepted, rejected=sum(summary.rejected.values()), refresh=False)
+        bar.set_postfix(
+            accepted=summary.accepted, rejected=sum(summary.rejected.values()), refresh=False
+        )
     bar.close()
     summary.wall_s = time.perf_counter() - start
 
     # Build both tables (validating every row) before writing either.
-    tables = {"scenes": boxpose_io.table_from_rows("scenes", scene_rows),
-              "objects": boxpose_io.table_from_rows("objects", object_rows)}
+    tables = {
+        "scenes": boxpose_io.table_from_rows("scenes", scene_rows),
+        "objects": boxpose_io.table_from_rows("objects", object_rows),
+    }
     for table_name, table in tables.items():
         boxpose_io.write_shard(paths[table_name], table)
         summary.rows[table_name] = table.num_rows

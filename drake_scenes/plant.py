@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from pydrake.common.eigen_geometry import Quaternion
 from pydrake.geometry import (
     AddCompliantHydroelasticProperties,
     AddContactMaterial,
@@ -21,12 +22,11 @@ from pydrake.geometry import (
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import (
     AddMultibodyPlantSceneGraph,
+    ApplyMultibodyPlantConfig,
     CoulombFriction,
     MultibodyPlant,
     MultibodyPlantConfig,
-    ApplyMultibodyPlantConfig,
 )
-from pydrake.common.eigen_geometry import Quaternion
 from pydrake.multibody.tree import RigidBody, SpatialInertia
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 
@@ -79,8 +79,10 @@ class ScenePlant:
         return context
 
     def set_poses(self, plant_context: Context, boxes: list[BoxBody]) -> None:
-        for body, box in zip(self.bodies, boxes):
-            pose = RigidTransform(Quaternion(normalized(box.quat_wxyz)), np.asarray(box.translation_m, float))
+        for body, box in zip(self.bodies, boxes, strict=True):
+            pose = RigidTransform(
+                Quaternion(normalized(box.quat_wxyz)), np.asarray(box.translation_m, float)
+            )
             self.plant.SetFreeBodyPose(plant_context, body, pose)
 
     def poses(self, plant_context: Context) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -88,7 +90,9 @@ class ScenePlant:
         out = []
         for body in self.bodies:
             pose = self.plant.EvalBodyPoseInWorld(plant_context, body)
-            out.append((canonical_quat(pose.rotation().ToQuaternion().wxyz()), pose.translation().copy()))
+            out.append(
+                (canonical_quat(pose.rotation().ToQuaternion().wxyz()), pose.translation().copy())
+            )
         return out
 
 
@@ -112,7 +116,11 @@ def support_boxes(spec: SupportSpec) -> list[tuple[str, np.ndarray, np.ndarray]]
     hx, hy = spec.half_extent_m
     t = GROUND_THICKNESS_M
     parts = [
-        ("ground", np.array([2 * (hx + GROUND_MARGIN_M), 2 * (hy + GROUND_MARGIN_M), t]), np.array([0, 0, -t / 2])),
+        (
+            "ground",
+            np.array([2 * (hx + GROUND_MARGIN_M), 2 * (hy + GROUND_MARGIN_M), t]),
+            np.array([0, 0, -t / 2]),
+        ),
     ]
     if spec.kind == "bin":
         h, w = spec.wall_height_m, WALL_THICKNESS_M
@@ -129,7 +137,9 @@ def support_boxes(spec: SupportSpec) -> list[tuple[str, np.ndarray, np.ndarray]]
     return parts
 
 
-def build_scene_plant(boxes: list[BoxBody], support: SupportSpec, time_step_s: float = 0.0) -> ScenePlant:
+def build_scene_plant(
+    boxes: list[BoxBody], support: SupportSpec, time_step_s: float = 0.0
+) -> ScenePlant:
     """A plant with `support` welded to the world and one free body per box (not yet posed).
 
     `time_step_s` 0 gives a continuous plant (enough for geometry queries); the settle
@@ -155,7 +165,9 @@ def build_scene_plant(boxes: list[BoxBody], support: SupportSpec, time_step_s: f
             properties=props,
         )
         AddRigidHydroelasticProperties(props)
-        plant.RegisterCollisionGeometry(plant.world_body(), RigidTransform(centre), Box(*size), name, props)
+        plant.RegisterCollisionGeometry(
+            plant.world_body(), RigidTransform(centre), Box(*size), name, props
+        )
 
     bodies = []
     for i, box in enumerate(boxes):
@@ -178,6 +190,8 @@ def build_scene_plant(boxes: list[BoxBody], support: SupportSpec, time_step_s: f
 def min_signed_distance(scene: ScenePlant, context: Context) -> float:
     """Smallest signed distance over every pair of bodies the plant lets collide (support
     included); negative is penetration. +inf when there is no pair."""
-    query = scene.plant.get_geometry_query_input_port().Eval(scene.plant.GetMyContextFromRoot(context))
+    query = scene.plant.get_geometry_query_input_port().Eval(
+        scene.plant.GetMyContextFromRoot(context)
+    )
     pairs = query.ComputeSignedDistancePairwiseClosestPoints(np.inf)
     return min((p.distance for p in pairs), default=np.inf)

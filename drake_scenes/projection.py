@@ -75,7 +75,9 @@ def _status(result) -> str:
     return f"{result.get_solution_result().name} ({code})"
 
 
-def project(boxes: list[BoxBody], recipe: Recipe, jitter_rng: np.random.Generator) -> ProjectionResult:
+def project(
+    boxes: list[BoxBody], recipe: Recipe, jitter_rng: np.random.Generator
+) -> ProjectionResult:
     """Projects the sampled poses of `boxes`; retries up to `drop.max_solve_attempts` times."""
     scene = build_scene_plant(boxes, recipe.support)
     plant = scene.plant
@@ -87,13 +89,17 @@ def project(boxes: list[BoxBody], recipe: Recipe, jitter_rng: np.random.Generato
     prog, q = ik.get_mutable_prog(), ik.q()
     # InverseKinematics already constrains every free body's quaternion to unit norm; add them
     # ourselves should a Drake version stop doing so (never twice: duplicates slow SNOPT down).
-    if sum(isinstance(b.evaluator(), UnitQuaternionConstraint) for b in prog.GetAllConstraints()) < len(boxes):
+    if sum(
+        isinstance(b.evaluator(), UnitQuaternionConstraint) for b in prog.GetAllConstraints()
+    ) < len(boxes):
         AddUnitQuaternionConstraintOnPlant(plant, q, prog)
-    ik.AddMinimumDistanceLowerBoundConstraint(recipe.drop.min_separation_m, INFLUENCE_DISTANCE_OFFSET_M)
+    ik.AddMinimumDistanceLowerBoundConstraint(
+        recipe.drop.min_separation_m, INFLUENCE_DISTANCE_OFFSET_M
+    )
 
     q_sampled = plant.GetPositions(plant_context).copy()
     weights = np.ones(plant.num_positions())
-    for body, box in zip(scene.bodies, boxes):
+    for body, box in zip(scene.bodies, boxes, strict=True):
         start = body.floating_positions_start()
         weights[start : start + 4] = QUATERNION_WEIGHT
         weights[start + 4 : start + 7] = TRANSLATION_WEIGHT_PER_M2
@@ -129,7 +135,9 @@ def project(boxes: list[BoxBody], recipe: Recipe, jitter_rng: np.random.Generato
                     status += ", feasible point accepted"
                 return ProjectionResult(True, projected, solver_name, status, attempt, distance)
             status += f", but min distance {distance:.2e} m"
-    return ProjectionResult(False, boxes, solver_name, status, recipe.drop.max_solve_attempts, distance)
+    return ProjectionResult(
+        False, boxes, solver_name, status, recipe.drop.max_solve_attempts, distance
+    )
 
 
 def _jittered(q: np.ndarray, scene, scale: int, rng: np.random.Generator) -> np.ndarray:
@@ -144,8 +152,16 @@ def _jittered(q: np.ndarray, scene, scale: int, rng: np.random.Generator) -> np.
 
 def _with_positions(boxes: list[BoxBody], scene, q: np.ndarray) -> list[BoxBody]:
     out = []
-    for body, box in zip(scene.bodies, boxes):
+    for body, box in zip(scene.bodies, boxes, strict=True):
         start = body.floating_positions_start()
         quat = q[start : start + 4] / np.linalg.norm(q[start : start + 4])
-        out.append(BoxBody(box.size_m, box.mass_kg, box.friction, canonical_quat(quat), q[start + 4 : start + 7].copy()))
+        out.append(
+            BoxBody(
+                box.size_m,
+                box.mass_kg,
+                box.friction,
+                canonical_quat(quat),
+                q[start + 4 : start + 7].copy(),
+            )
+        )
     return out

@@ -136,10 +136,17 @@ class Recipe:
         if self.num_scenes < 0:
             problems.append("num_scenes must be >= 0")
         if not 1 <= b.count[0] <= b.count[1]:
-            problems.append(f"boxes.count {list(b.count)} must be an inclusive range with 1 <= min <= max")
-        if any(not 0 < lo <= hi for lo, hi in zip(b.size_min_m, b.size_max_m)):
-            problems.append("boxes.size_min_m must be positive and <= boxes.size_max_m on every axis")
-        for key, (lo, hi) in (("boxes.density_kg_m3", b.density_kg_m3), ("boxes.friction", b.friction)):
+            problems.append(
+                f"boxes.count {list(b.count)} must be an inclusive range with 1 <= min <= max"
+            )
+        if any(not 0 < lo <= hi for lo, hi in zip(b.size_min_m, b.size_max_m, strict=True)):
+            problems.append(
+                "boxes.size_min_m must be positive and <= boxes.size_max_m on every axis"
+            )
+        for key, (lo, hi) in (
+            ("boxes.density_kg_m3", b.density_kg_m3),
+            ("boxes.friction", b.friction),
+        ):
             if not 0 < lo <= hi:
                 problems.append(f"{key} must be a positive range [min, max]")
         if s.kind not in SUPPORT_KINDS:
@@ -148,8 +155,14 @@ class Recipe:
             problems.append("support.half_extent_m must be positive and support.wall_height_m >= 0")
         if s.kind == "bin" and s.wall_height_m <= 0:
             problems.append("a bin needs support.wall_height_m > 0")
-        if not 0 <= d.height_m[0] <= d.height_m[1] or d.min_separation_m <= 0 or d.max_solve_attempts < 1:
-            problems.append("drop: need 0 <= height_m min <= max, min_separation_m > 0, max_solve_attempts >= 1")
+        if (
+            not 0 <= d.height_m[0] <= d.height_m[1]
+            or d.min_separation_m <= 0
+            or d.max_solve_attempts < 1
+        ):
+            problems.append(
+                "drop: need 0 <= height_m min <= max, min_separation_m > 0, max_solve_attempts >= 1"
+            )
         if not 0 < st.time_step_s < st.window_s < st.max_time_s:
             problems.append("settle: need 0 < time_step_s < window_s < max_time_s")
         if min(st.max_linear_speed_mps, st.max_angular_speed_radps, st.max_penetration_m) <= 0:
@@ -177,15 +190,23 @@ class _Reader:
         # TOML writes 0 for 0.0 happily; accept ints where floats are expected, never bools.
         ok = isinstance(value, kind) or (kind is float and isinstance(value, int))
         if isinstance(value, bool) or not ok:
-            raise RecipeError(f"recipe {self.source}: key '{key}' must be a {kind.__name__}, got {value!r}")
+            raise RecipeError(
+                f"recipe {self.source}: key '{key}' must be a {kind.__name__}, got {value!r}"
+            )
         return kind(value)
 
     def _list(self, key: str, n: int, kind: type) -> tuple:
         value = self._raw(key)
         bad = not isinstance(value, list) or len(value) != n
-        bad = bad or any(isinstance(v, bool) or not isinstance(v, (int, float) if kind is float else kind) for v in value)
+        bad = bad or any(
+            isinstance(v, bool) or not isinstance(v, (int, float) if kind is float else kind)
+            for v in value
+        )
         if bad:
-            raise RecipeError(f"recipe {self.source}: key '{key}' must be a list of {n} {kind.__name__}s, got {value!r}")
+            raise RecipeError(
+                f"recipe {self.source}: key '{key}' must be a list of {n} {kind.__name__}s, "
+                f"got {value!r}"
+            )
         return tuple(kind(v) for v in value)
 
     def pair(self, key: str, kind: type) -> tuple:

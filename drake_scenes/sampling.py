@@ -94,7 +94,9 @@ def sample_scene(recipe: Recipe, scene_id: int, num_boxes: int | None = None) ->
     seed = scene_seed(recipe.seed, scene_id)
     # Independent streams, so that (say) a change to material sampling leaves poses unchanged.
     physics_ss, pose_ss, material_ss = np.random.SeedSequence(seed).spawn(3)
-    physics, pose_rng, material_rng = (np.random.default_rng(s) for s in (physics_ss, pose_ss, material_ss))
+    physics, pose_rng, material_rng = (
+        np.random.default_rng(s) for s in (physics_ss, pose_ss, material_ss)
+    )
 
     b = recipe.boxes
     n = num_boxes if num_boxes is not None else int(physics.integers(b.count[0], b.count[1] + 1))
@@ -111,7 +113,9 @@ def sample_scene(recipe: Recipe, scene_id: int, num_boxes: int | None = None) ->
     return SceneSample(scene_id, seed, boxes, materials)
 
 
-def _place(recipe: Recipe, size, quat, placed: list[BoxBody], rng: np.random.Generator) -> np.ndarray:
+def _place(
+    recipe: Recipe, size, quat, placed: list[BoxBody], rng: np.random.Generator
+) -> np.ndarray:
     """The centre of a new box: uniform over the region, its lowest point a uniform
     `drop.height_m` gap above the support.
 
@@ -133,7 +137,15 @@ def _place(recipe: Recipe, size, quat, placed: list[BoxBody], rng: np.random.Gen
         gap = rng.uniform(*recipe.drop.height_m)
         centre = np.array([*xy, lower[2] + gap + lowest_point_offset])
         if all(
-            boxes_separated(centre, rotation, size, o.translation_m, rotation_matrix(o.quat_wxyz), o.size_m, margin)
+            boxes_separated(
+                centre,
+                rotation,
+                size,
+                o.translation_m,
+                rotation_matrix(o.quat_wxyz),
+                o.size_m,
+                margin,
+            )
             for o in placed
         ):
             return centre
@@ -150,7 +162,10 @@ def _pile_top(xy, half_xy, placed: list[BoxBody], margin: float) -> float:
     top = -np.inf
     for o in placed:
         rotation = rotation_matrix(o.quat_wxyz)
-        if np.all(np.abs(np.asarray(o.translation_m[:2]) - xy) < half_xy + half_extents_xy(o.size_m, rotation) + margin):
+        if np.all(
+            np.abs(np.asarray(o.translation_m[:2]) - xy)
+            < half_xy + half_extents_xy(o.size_m, rotation) + margin
+        ):
             top = max(top, o.translation_m[2] + half_height(o.size_m, o.quat_wxyz))
     return top
 

@@ -50,7 +50,11 @@ class _RestMonitor:
     def __init__(self, scene, recipe: Recipe):
         s = recipe.settle
         self.plant = scene.plant
-        self.window_s, self.max_v, self.max_w = s.window_s, s.max_linear_speed_mps, s.max_angular_speed_radps
+        self.window_s, self.max_v, self.max_w = (
+            s.window_s,
+            s.max_linear_speed_mps,
+            s.max_angular_speed_radps,
+        )
         # Generalized velocity of a free body: angular then linear velocity, both in world.
         starts = np.array([b.floating_velocities_start_in_v() for b in scene.bodies], dtype=int)
         self.angular_idx = starts[:, None] + np.arange(3)
@@ -72,7 +76,11 @@ class _RestMonitor:
             self.rest_since = None
         elif self.rest_since is None:
             self.rest_since = t
-        return EventStatus.ReachedTermination(None, "at rest") if self.at_rest else EventStatus.DidNothing()
+        return (
+            EventStatus.ReachedTermination(None, "at rest")
+            if self.at_rest
+            else EventStatus.DidNothing()
+        )
 
     @property
     def at_rest(self) -> bool:
@@ -133,7 +141,11 @@ def settle(objects, recipe: Recipe | str) -> SettleResult:
 
 def _rejection(recipe: Recipe, poses, cert: Certificate, at_rest: bool) -> str | None:
     s = recipe.settle
-    if not at_rest or cert.max_linear_speed_mps > s.max_linear_speed_mps or cert.max_angular_speed_radps > s.max_angular_speed_radps:
+    if (
+        not at_rest
+        or cert.max_linear_speed_mps > s.max_linear_speed_mps
+        or cert.max_angular_speed_radps > s.max_angular_speed_radps
+    ):
         return NOT_SETTLED
     if cert.min_signed_distance_m < -s.max_penetration_m:
         return PENETRATION

@@ -23,7 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-CORNER_SIGNS = np.array([[1 if (i >> axis) & 1 else -1 for axis in range(3)] for i in range(8)], float)
+CORNER_SIGNS = np.array(
+    [[1 if (i >> axis) & 1 else -1 for axis in range(3)] for i in range(8)], float
+)
 
 
 def brute_force(points, scores, sizes, m):
@@ -58,8 +60,19 @@ def main():
     if args.inputs is None:
         args.inputs = Path(tempfile.mkdtemp()) / "geometry_bench_inputs.json"
         subprocess.run(
-            ["cargo", "run", "--release", "-q", "-p", "boxpose-geometry", "--example", "bench_inputs",
-             "--", str(args.inputs), str(args.scenes)],
+            [
+                "cargo",
+                "run",
+                "--release",
+                "-q",
+                "-p",
+                "boxpose-geometry",
+                "--example",
+                "bench_inputs",
+                "--",
+                str(args.inputs),
+                str(args.scenes),
+            ],
             check=True,
         )
     data = json.loads(args.inputs.read_text())
@@ -73,22 +86,33 @@ def main():
 
     brute_force(points[:1], scores[:1], sizes[:1], m)  # warm-up
     started = time.perf_counter()
-    per_box = np.concatenate([brute_force(points[i : i + 1], scores[i : i + 1], sizes[i : i + 1], m)
-                              for i in range(len(scenes))])
+    per_box = np.concatenate(
+        [
+            brute_force(points[i : i + 1], scores[i : i + 1], sizes[i : i + 1], m)
+            for i in range(len(scenes))
+        ]
+    )
     per_box_seconds = (time.perf_counter() - started) / len(scenes)
     started = time.perf_counter()
     all_at_once = brute_force(points, scores, sizes, m)
     all_at_once_seconds = (time.perf_counter() - started) / len(scenes)
 
     tolerance = 1e-9 * rust_minima + 1e-12
-    for name, minima in [("numpy per box", per_box), ("numpy all boxes", all_at_once), ("rust fast", fast_minima)]:
+    for name, minima in [
+        ("numpy per box", per_box),
+        ("numpy all boxes", all_at_once),
+        ("rust fast", fast_minima),
+    ]:
         worst = np.max(np.abs(minima - rust_minima) - tolerance)
         status = "agree" if worst <= 0 else f"DISAGREE (worst excess {worst:.3e})"
         print(f"{name} vs rust paper-exact minima: {status}")
 
     fast = data["rust_fast_exact_seconds_per_box"]
     paper = data["rust_paper_exact_seconds_per_box"]
-    print(f"{len(scenes)} boxes, m = {m}, {len(list(itertools.permutations(range(8), m)))} assignments each")
+    print(
+        f"{len(scenes)} boxes, m = {m}, "
+        f"{len(list(itertools.permutations(range(8), m)))} assignments each"
+    )
     print(f"  numpy brute force, one box per call:   {per_box_seconds * 1e6:10.1f} µs/box")
     print(f"  numpy brute force, all boxes per call: {all_at_once_seconds * 1e6:10.1f} µs/box")
     print(f"  rust paper-exact (brute force, SVD):   {paper * 1e6:10.1f} µs/box")

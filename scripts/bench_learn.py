@@ -34,7 +34,9 @@ class BasicBlock(nn.Module):
         self.bn2 = nn.BatchNorm2d(cout)
         self.down = None
         if stride != 1 or cin != cout:
-            self.down = nn.Sequential(nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout))
+            self.down = nn.Sequential(
+                nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout)
+            )
 
     def forward(self, x):
         identity = x if self.down is None else self.down(x)
@@ -48,16 +50,25 @@ class KeypointNet(nn.Module):
     def __init__(self, layout, depth_bins):
         super().__init__()
         widths, blocks, head = LAYOUTS[layout]
-        self.stem = nn.Sequential(nn.Conv2d(4, widths[0], 7, 2, 3, bias=False), nn.BatchNorm2d(widths[0]), nn.ReLU(), nn.MaxPool2d(3, 2, 1))
+        self.stem = nn.Sequential(
+            nn.Conv2d(4, widths[0], 7, 2, 3, bias=False),
+            nn.BatchNorm2d(widths[0]),
+            nn.ReLU(),
+            nn.MaxPool2d(3, 2, 1),
+        )
         layers, c = [], widths[0]
-        for stage, (w, n) in enumerate(zip(widths, blocks)):
+        for stage, (w, n) in enumerate(zip(widths, blocks, strict=True)):
             for b in range(n):
                 layers.append(BasicBlock(c, w, 2 if stage > 0 and b == 0 else 1))
                 c = w
         self.stages = nn.Sequential(*layers)
         ups = []
         for _ in range(3):
-            ups += [nn.ConvTranspose2d(c, head, 4, 2, 1, bias=False), nn.BatchNorm2d(head), nn.ReLU()]
+            ups += [
+                nn.ConvTranspose2d(c, head, 4, 2, 1, bias=False),
+                nn.BatchNorm2d(head),
+                nn.ReLU(),
+            ]
             c = head
         self.head = nn.Sequential(*ups)
         self.output = nn.Conv2d(c, depth_bins, 1)
@@ -98,38 +109,91 @@ def bench_torch(layout, batch, size, depth_bins, steps):
                     out.append((time.perf_counter() - start) * 1e3 / crops)
         return median(out)
 
-    return {"implementation": f"pytorch-{torch.__version__}", "backbone": layout, "batch": batch, "size": size, "depth_bins": depth_bins,
-            "train_step_ms": median(times), "crop_ms_batch1": per_crop(1, 10), "crop_ms_batch16": per_crop(16, 3)}
+    return {
+        "implementation": f"pytorch-{torch.__version__}",
+        "backbone": layout,
+        "batch": batch,
+        "size": size,
+        "depth_bins": depth_bins,
+        "train_step_ms": median(times),
+        "crop_ms_batch1": per_crop(1, 10),
+        "crop_ms_batch16": per_crop(16, 3),
+    }
 
 
 def bench_burn(layout, batch, size, depth_bins, steps):
     # --workspace, not -p: the same feature set as `make setup`'s build, so burn is not rebuilt
-    cmd = ["cargo", "bench", "--quiet", "--workspace", "--bench", "keypoint_step", "--",
-           "--backbone", layout, "--batch", str(batch), "--size", str(size), "--depth-bins", str(depth_bins), "--steps", str(steps)]
+    cmd = [
+        "cargo",
+        "bench",
+        "--quiet",
+        "--workspace",
+        "--bench",
+        "keypoint_step",
+        "--",
+        "--backbone",
+        layout,
+        "--batch",
+        str(batch),
+        "--size",
+        str(size),
+        "--depth-bins",
+        str(depth_bins),
+        "--steps",
+        str(steps),
+    ]
     out = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=True).stdout
     return json.loads(out.strip().splitlines()[-1])
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--layouts", default="slim,resnet18", help="comma-separated layouts (default: slim,resnet18)")
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    ap.add_argument(
+        "--layouts",
+        default="slim,resnet18",
+        help="comma-separated layouts (default: slim,resnet18)",
+    )
     ap.add_argument("--batch", type=int, default=8)
     ap.add_argument("--size", type=int, default=128)
     ap.add_argument("--depth-bins", type=int, default=48)
-    ap.add_argument("--steps", type=int, default=10, help="timed training steps (after 2 warm-up steps)")
-    ap.add_argument("--threads", type=int, default=os.cpu_count(), help="PyTorch threads (default: every core, as burn's flex)")
+    ap.add_argument(
+        "--steps", type=int, default=10, help="timed training steps (after 2 warm-up steps)"
+    )
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=os.cpu_count(),
+        help="PyTorch threads (default: every core, as burn's flex)",
+    )
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    print(f"keypoint network, batch {args.batch}, {args.size}² input, {args.depth_bins}×{args.size // 4}² heatmap, {args.threads} threads")
-    print(f"{'layout':<10} {'implementation':<20} {'train step':>11} {'crop (b=1)':>11} {'crop (b=16)':>12}")
+    print(
+        f"keypoint network, batch {args.batch}, {args.size}² input, "
+        f"{args.depth_bins}×{args.size // 4}² heatmap, {args.threads} threads"
+    )
+    print(
+        f"{'layout':<10} {'implementation':<20} "
+        f"{'train step':>11} {'crop (b=1)':>11} {'crop (b=16)':>12}"
+    )
     for layout in args.layouts.split(","):
-        rows = [bench_burn(layout, args.batch, args.size, args.depth_bins, args.steps),
-                bench_torch(layout, args.batch, args.size, args.depth_bins, args.steps)]
+        rows = [
+            bench_burn(layout, args.batch, args.size, args.depth_bins, args.steps),
+            bench_torch(layout, args.batch, args.size, args.depth_bins, args.steps),
+        ]
         for r in rows:
-            print(f"{layout:<10} {r['implementation']:<20} {r['train_step_ms']:>8.0f} ms {r['crop_ms_batch1']:>8.1f} ms {r['crop_ms_batch16']:>9.1f} ms")
+            print(
+                f"{layout:<10} {r['implementation']:<20} {r['train_step_ms']:>8.0f} ms "
+                f"{r['crop_ms_batch1']:>8.1f} ms {r['crop_ms_batch16']:>9.1f} ms"
+            )
         burn, ref = rows
-        print(f"{layout:<10} {'burn / pytorch':<20} {burn['train_step_ms'] / ref['train_step_ms']:>10.2f}× "
-              f"{burn['crop_ms_batch1'] / ref['crop_ms_batch1']:>10.2f}× {burn['crop_ms_batch16'] / ref['crop_ms_batch16']:>11.2f}×")
+        print(
+            f"{layout:<10} {'burn / pytorch':<20} "
+            f"{burn['train_step_ms'] / ref['train_step_ms']:>10.2f}× "
+            f"{burn['crop_ms_batch1'] / ref['crop_ms_batch1']:>10.2f}× "
+            f"{burn['crop_ms_batch16'] / ref['crop_ms_batch16']:>11.2f}×"
+        )
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@
    reused, reused after moving a box, and rebuilt before every render
    (`cargo bench -p boxpose-render --bench crop_rerender`).
 
-    python scripts/bench_render.py [--samples 1,16,64] [--repeats 2] [--crop-samples 16] [--skip-rust]
+    python scripts/bench_render.py [--samples 1,16,64] [--repeats 2] [--crop-samples 16]
+                                   [--skip-rust]
 
 Cycles uses every core; the machine's load average is printed, since renders slow down 2–3×
 when other jobs share the cores. CPU seconds (all threads of the process) are printed too: they
@@ -40,7 +41,10 @@ def main() -> int:
     from blender_scripts.bench import bench_scene
     from blender_scripts.session import Session
 
-    print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())} on {os.cpu_count()} cores")
+    print(
+        f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())} "
+        f"on {os.cpu_count()} cores"
+    )
     t = time.perf_counter()
     session = Session()
     print(f"Blender started in {time.perf_counter() - t:.2f} s")
@@ -61,7 +65,9 @@ def main() -> int:
             mean, cpu_mean = sum(times) / len(times), sum(cpu) / len(cpu)
             rows.append((samples, denoise, mean, min(times)))
             print(
-                f"640x480 frame at {samples:3d} samples{' + denoise' if denoise else '          '}: mean {mean:6.2f} s, min {min(times):6.2f} s, "
+                f"640x480 frame at {samples:3d} samples"
+                f"{' + denoise' if denoise else '          '}: "
+                f"mean {mean:6.2f} s, min {min(times):6.2f} s, "
                 f"CPU {cpu_mean:6.2f} s ({len(times)} renders)",
                 flush=True,
             )
@@ -70,7 +76,8 @@ def main() -> int:
 
     if not args.skip_rust:
         cmd = ["cargo", "bench", "-q", "-p", "boxpose-render", "--bench", "crop_rerender", "--",
-               "--samples", str(args.crop_samples), "--repeats", str(args.crop_repeats), "--boxes", str(args.boxes)]  # fmt: skip
+               "--samples", str(args.crop_samples), "--repeats", str(args.crop_repeats),
+               "--boxes", str(args.boxes)]  # fmt: skip
         print("$ " + " ".join(cmd), flush=True)
         r = subprocess.run(cmd, cwd=REPO)
         if r.returncode != 0:

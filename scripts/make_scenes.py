@@ -68,7 +68,10 @@ def check_bpy(python: str) -> None:
     r = subprocess.run([python, "-c", "import bpy"], capture_output=True, text=True)
     if r.returncode != 0:
         last = (r.stderr.strip().splitlines() or ["(no message)"])[-1]
-        raise DriverError(f"bpy is not importable by {python}: {last}\n  install it with `make setup` (bpy==5.0.1 needs Python 3.11)")
+        raise DriverError(
+            f"bpy is not importable by {python}: {last}\n"
+            "  install it with `make setup` (bpy==5.0.1 needs Python 3.11)"
+        )
 
 
 def _tail(path: Path, n: int = 15) -> str:
@@ -81,28 +84,50 @@ def _tail(path: Path, n: int = 15) -> str:
 
 
 def run_scene_stage(args, shard: int, log: Path) -> None:
-    cmd = [args.python, "-m", "drake_scenes", "--recipe", str(args.recipe_path), "--out", str(args.dataset), "--shard", str(shard), "--num-shards", str(args.num_shards), "--no-progress"]
+    cmd = [
+        args.python,
+        "-m",
+        "drake_scenes",
+        "--recipe",
+        str(args.recipe_path),
+        "--out",
+        str(args.dataset),
+        "--shard",
+        str(shard),
+        "--num-shards",
+        str(args.num_shards),
+        "--no-progress",
+    ]
     if args.num_scenes is not None:
         cmd += ["--num-scenes", str(args.num_scenes)]
     log.parent.mkdir(parents=True, exist_ok=True)
     with open(log, "ab") as out:
         r = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
     if r.returncode != 0:
-        raise DriverError(f"scene stage failed on shard {shard} of {args.num_shards} (exit {r.returncode}): {' '.join(cmd)}\n{_tail(log)}")
+        raise DriverError(
+            f"scene stage failed on shard {shard} of {args.num_shards} (exit {r.returncode}): "
+            f"{' '.join(cmd)}\n{_tail(log)}"
+        )
     for table in ("scenes", "objects"):
         if not shard_file(args.dataset, table, shard, args.num_shards).is_file():
-            raise DriverError(f"scene stage exited 0 but wrote no {table} shard {shard} of {args.num_shards} under {args.dataset}")
+            raise DriverError(
+                f"scene stage exited 0 but wrote no {table} shard {shard} of {args.num_shards} "
+                f"under {args.dataset}"
+            )
 
 
 def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: tqdm) -> None:
     log = chunk_dir / "worker.log"
     cmd = [
-        args.python, "-m", "blender_scripts.worker", "--dataset", str(args.dataset), "--shard", str(shard),
-        "--num-shards", str(args.num_shards), "--scenes", f"{start}:{stop}", "--out", str(chunk_dir), "--threads", str(args.threads),
+        args.python, "-m", "blender_scripts.worker", "--dataset", str(args.dataset),
+        "--shard", str(shard), "--num-shards", str(args.num_shards), "--scenes", f"{start}:{stop}",
+        "--out", str(chunk_dir), "--threads", str(args.threads),
     ]  # fmt: skip
     current_scene = None
     with open(log, "ab") as err:
-        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, cwd=REPO, text=True, start_new_session=True)
+        proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=err, cwd=REPO, text=True, start_new_session=True
+        )
         recent = deque(maxlen=20)
         try:
             for line in proc.stdout:
@@ -124,11 +149,18 @@ def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: t
             f.write("\n".join(recent) + "\n")
     if proc.returncode == 0:
         return
-    where = f"shard {shard} of {args.num_shards}" + (f", scene {current_scene}" if current_scene is not None else "")
+    where = f"shard {shard} of {args.num_shards}" + (
+        f", scene {current_scene}" if current_scene is not None else ""
+    )
     if proc.returncode < 0:
         name = signal.Signals(-proc.returncode).name
-        raise DriverError(f"Blender worker crashed ({name}) while rendering {where}; no shard was written. Log: {log}\n{_tail(log)}")
-    messages = [line for line in log.read_text(errors="replace").splitlines() if line.startswith("error:")]
+        raise DriverError(
+            f"Blender worker crashed ({name}) while rendering {where}; no shard was written. "
+            f"Log: {log}\n{_tail(log)}"
+        )
+    messages = [
+        line for line in log.read_text(errors="replace").splitlines() if line.startswith("error:")
+    ]
     message = messages[-1][len("error: ") :] if messages else f"exit status {proc.returncode}"
     raise DriverError(f"rendering {where} failed: {message}\n  log: {log}")
 
@@ -143,40 +175,87 @@ def render_shard(args, shard: int, pbar: tqdm) -> int:
     chunk_dir.mkdir(parents=True, exist_ok=True)
     per = max(args.scenes_per_worker, 1)
     chunks = [(a, min(a + per, num_scenes)) for a in range(0, num_scenes, per)]
-    names = {c: {t: chunk_dir / f"{t}-{c[0]:06d}-{c[1]:06d}.parquet" for t in ("frames", "instances")} for c in chunks}
+    names = {
+        c: {t: chunk_dir / f"{t}-{c[0]:06d}-{c[1]:06d}.parquet" for t in ("frames", "instances")}
+        for c in chunks
+    }
     for chunk in chunks:
         if all(p.is_file() for p in names[chunk].values()):
             pbar.update(pq.ParquetFile(names[chunk]["frames"]).metadata.num_rows)
             continue
-        pbar.set_postfix_str(f"shard {shard + 1}/{args.num_shards}, scenes {chunk[0]}–{chunk[1] - 1} of {num_scenes}")
+        pbar.set_postfix_str(
+            f"shard {shard + 1}/{args.num_shards}, scenes {chunk[0]}–{chunk[1] - 1} of {num_scenes}"
+        )
         run_worker(args, shard, chunk[0], chunk[1], chunk_dir, pbar)
     tables = {}
     for table in ("instances", "frames"):
         parts = [pq.read_table(names[c][table]) for c in chunks]
         schema = boxpose_io.arrow_schema(table)
-        merged = pa.concat_tables([p.cast(schema) for p in parts]) if parts else schema.empty_table()
+        merged = (
+            pa.concat_tables([p.cast(schema) for p in parts]) if parts else schema.empty_table()
+        )
         tables[table] = merged.replace_schema_metadata(schema.metadata)
     for table in ("instances", "frames"):  # frames last: its presence marks a complete shard
-        boxpose_io.write_shard(boxpose_io.shard_path(args.dataset, table, shard, args.num_shards), tables[table])
+        boxpose_io.write_shard(
+            boxpose_io.shard_path(args.dataset, table, shard, args.num_shards), tables[table]
+        )
     shutil.rmtree(chunk_dir)
     return tables["frames"].num_rows
 
 
 def shard_complete(args, shard: int) -> bool:
-    return all(shard_file(args.dataset, t, shard, args.num_shards).is_file() for t in ("frames", "instances"))
+    return all(
+        shard_file(args.dataset, t, shard, args.num_shards).is_file()
+        for t in ("frames", "instances")
+    )
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[2])
-    ap.add_argument("--recipe", default=os.environ.get("RECIPE", "clutter"), help="recipe name (datasets/recipes/NAME.toml) or path (default: $RECIPE or clutter)")
-    ap.add_argument("--dataset", type=Path, help="output folder (default: datasets/generated/<recipe>)")
-    ap.add_argument("--num-shards", type=int, default=int(os.environ.get("SHARDS", "1")), help="shards (default: $SHARDS or 1)")
-    ap.add_argument("--num-scenes", type=int, help="override the recipe's num_scenes (passed to the scene stage)")
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("\n\n", 2)[2],
+    )
+    ap.add_argument(
+        "--recipe",
+        default=os.environ.get("RECIPE", "clutter"),
+        help="recipe name (datasets/recipes/NAME.toml) or path (default: $RECIPE or clutter)",
+    )
+    ap.add_argument(
+        "--dataset", type=Path, help="output folder (default: datasets/generated/<recipe>)"
+    )
+    ap.add_argument(
+        "--num-shards",
+        type=int,
+        default=int(os.environ.get("SHARDS", "1")),
+        help="shards (default: $SHARDS or 1)",
+    )
+    ap.add_argument(
+        "--num-scenes",
+        type=int,
+        help="override the recipe's num_scenes (passed to the scene stage)",
+    )
     ap.add_argument("--shards", help="only these shard indices, e.g. 0,2 (default: all)")
-    ap.add_argument("--scenes-per-worker", type=int, default=25, help="scenes a Blender worker process renders before it is replaced (default 25)")
-    ap.add_argument("--threads", type=int, default=0, help="Cycles threads per worker (default 0 = all cores)")
-    ap.add_argument("--python", default=sys.executable, help="interpreter of the stage processes (default: this one)")
-    ap.add_argument("--boxpose", type=Path, default=REPO / "target" / "release" / "boxpose", help="boxpose binary for the final `inspect`")
+    ap.add_argument(
+        "--scenes-per-worker",
+        type=int,
+        default=25,
+        help="scenes a Blender worker process renders before it is replaced (default 25)",
+    )
+    ap.add_argument(
+        "--threads", type=int, default=0, help="Cycles threads per worker (default 0 = all cores)"
+    )
+    ap.add_argument(
+        "--python",
+        default=sys.executable,
+        help="interpreter of the stage processes (default: this one)",
+    )
+    ap.add_argument(
+        "--boxpose",
+        type=Path,
+        default=REPO / "target" / "release" / "boxpose",
+        help="boxpose binary for the final `inspect`",
+    )
     ap.add_argument("--no-inspect", action="store_true", help="skip `boxpose inspect` at the end")
     args = ap.parse_args(argv)
     try:
@@ -185,7 +264,11 @@ def main(argv: list[str] | None = None) -> int:
         tqdm.write(f"error: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        tqdm.write("interrupted: run the same command again to resume (complete shards and chunks are kept)", file=sys.stderr)
+        tqdm.write(
+            "interrupted: run the same command again to resume "
+            "(complete shards and chunks are kept)",
+            file=sys.stderr,
+        )
         return 130
 
 
@@ -196,28 +279,41 @@ def run(args) -> int:
     text = args.recipe_path.read_text()
     try:
         recipe = parse_render_recipe(text, str(args.recipe_path))
-        num_scenes = int(tomllib.loads(text)["num_scenes"]) if args.num_scenes is None else args.num_scenes
+        num_scenes = (
+            int(tomllib.loads(text)["num_scenes"]) if args.num_scenes is None else args.num_scenes
+        )
     except (RecipeError, KeyError, ValueError) as e:
         raise DriverError(str(e)) from e
-    args.dataset = (args.dataset or REPO / "datasets" / "generated" / args.recipe_path.stem).resolve()
+    args.dataset = (
+        args.dataset or REPO / "datasets" / "generated" / args.recipe_path.stem
+    ).resolve()
     if args.num_shards < 1:
         raise DriverError("--num-shards must be >= 1")
-    shards = range(args.num_shards) if args.shards is None else [int(s) for s in args.shards.split(",")]
+    shards = (
+        range(args.num_shards) if args.shards is None else [int(s) for s in args.shards.split(",")]
+    )
     if any(not 0 <= s < args.num_shards for s in shards):
         raise DriverError(f"--shards {args.shards}: indices must lie in 0..{args.num_shards - 1}")
     check_bpy(args.python)
 
     frames_per_scene = recipe.camera.frames_per_scene
     total = num_scenes * frames_per_scene * len(shards) // args.num_shards
-    print(f"recipe {recipe.name}: {num_scenes} scenes × {frames_per_scene} views at {recipe.camera.width}×{recipe.camera.height}, "
-          f"{recipe.render.samples} samples{' + denoise' if recipe.render.denoise else ''}; {args.num_shards} shard(s) → {args.dataset}")  # fmt: skip
+    print(f"recipe {recipe.name}: {num_scenes} scenes × {frames_per_scene} views at "
+          f"{recipe.camera.width}×{recipe.camera.height}, "
+          f"{recipe.render.samples} samples{' + denoise' if recipe.render.denoise else ''}; "
+          f"{args.num_shards} shard(s) → {args.dataset}")  # fmt: skip
     start = time.perf_counter()
     rendered = 0
     estimate = num_scenes * frames_per_scene / args.num_shards  # per shard, until it is known
     with tqdm(total=total, unit="img", desc=recipe.name, dynamic_ncols=True, smoothing=0.1) as pbar:
 
         def known(table: str, shard: int, per_row: int) -> int:
-            rows = pq.ParquetFile(shard_file(args.dataset, table, shard, args.num_shards)).metadata.num_rows * per_row
+            rows = (
+                pq.ParquetFile(
+                    shard_file(args.dataset, table, shard, args.num_shards)
+                ).metadata.num_rows
+                * per_row
+            )
             pbar.total = max(round(pbar.total - estimate + rows), pbar.n)
             pbar.refresh()
             return rows
@@ -226,9 +322,16 @@ def run(args) -> int:
             if shard_complete(args, shard):
                 pbar.update(known("frames", shard, 1))
                 continue
-            if not all(shard_file(args.dataset, t, shard, args.num_shards).is_file() for t in ("scenes", "objects")):
+            if not all(
+                shard_file(args.dataset, t, shard, args.num_shards).is_file()
+                for t in ("scenes", "objects")
+            ):
                 pbar.set_postfix_str(f"shard {shard + 1}/{args.num_shards}: scenes (Drake)")
-                run_scene_stage(args, shard, args.dataset / PARTIAL / f"drake-{shard:05d}-of-{args.num_shards:05d}.log")
+                run_scene_stage(
+                    args,
+                    shard,
+                    args.dataset / PARTIAL / f"drake-{shard:05d}-of-{args.num_shards:05d}.log",
+                )
             known("scenes", shard, frames_per_scene)
             rendered += render_shard(args, shard, pbar)
     partial = args.dataset / PARTIAL
@@ -239,7 +342,10 @@ def run(args) -> int:
     if args.no_inspect:
         return 0
     if not args.boxpose.is_file():
-        raise DriverError(f"{args.boxpose} is missing: build it with `cargo build --release -p boxpose-cli` (or pass --no-inspect)")
+        raise DriverError(
+            f"{args.boxpose} is missing: build it with `cargo build --release -p boxpose-cli` "
+            "(or pass --no-inspect)"
+        )
     r = subprocess.run([str(args.boxpose), "inspect", str(args.dataset)])
     if r.returncode != 0:
         raise DriverError(f"`boxpose inspect {args.dataset}` found problems (exit {r.returncode})")

@@ -33,10 +33,16 @@ def run_boxpose(boxpose_bin: Path, *args, check: bool = True) -> subprocess.Comp
 def tiny_recipe(width: int, height: int, frames: int) -> str:
     """The `tiny` recipe (1 sample, no denoise) at another image size and number of views."""
     text = (REPO / "datasets" / "recipes" / "tiny.toml").read_text()
-    return text.replace("width = 64", f"width = {width}").replace("height = 64", f"height = {height}").replace("frames_per_scene = 1", f"frames_per_scene = {frames}")
+    return (
+        text.replace("width = 64", f"width = {width}")
+        .replace("height = 64", f"height = {height}")
+        .replace("frames_per_scene = 1", f"frames_per_scene = {frames}")
+    )
 
 
-def render_synthetic_dataset(root: Path, width: int, height: int, *, shared_size_in_scene_0: bool = False) -> Path:
+def render_synthetic_dataset(
+    root: Path, width: int, height: int, *, shared_size_in_scene_0: bool = False
+) -> Path:
     """Two synthetic scenes (2 boxes spread out, 3 boxes stacked), two views each, rendered by the
     Python worker into the dataset folder `root`. With `shared_size_in_scene_0`, scene 0's two
     boxes get one square-based size (one BOP obj_id with 7 discrete symmetries)."""
@@ -45,15 +51,36 @@ def render_synthetic_dataset(root: Path, width: int, height: int, *, shared_size
     import boxpose_io
     from blender_scripts.synthetic import synthetic_scene
 
-    rows = [synthetic_scene(k, tiny_recipe(width, height, 2), 2 + k, seed=40 + k, stack=k == 1, spread_m=0.1) for k in range(2)]
+    rows = [
+        synthetic_scene(
+            k, tiny_recipe(width, height, 2), 2 + k, seed=40 + k, stack=k == 1, spread_m=0.1
+        )
+        for k in range(2)
+    ]
     if shared_size_in_scene_0:
         boxes = rows[0][1]
         side = min(boxes[0]["size_m"][:2])
         for box in boxes:
             box["size_m"] = [side, side, boxes[0]["size_m"][2]]
-    boxpose_io.write_shard(boxpose_io.shard_path(root, "scenes", 0, 1), boxpose_io.table_from_rows("scenes", [s for s, _ in rows]))
-    boxpose_io.write_shard(boxpose_io.shard_path(root, "objects", 0, 1), boxpose_io.table_from_rows("objects", [o for _, objs in rows for o in objs]))
-    cmd = [sys.executable, "-m", "blender_scripts.worker", "--dataset", str(root), "--shard", "0", "--num-shards", "1"]
+    boxpose_io.write_shard(
+        boxpose_io.shard_path(root, "scenes", 0, 1),
+        boxpose_io.table_from_rows("scenes", [s for s, _ in rows]),
+    )
+    boxpose_io.write_shard(
+        boxpose_io.shard_path(root, "objects", 0, 1),
+        boxpose_io.table_from_rows("objects", [o for _, objs in rows for o in objs]),
+    )
+    cmd = [
+        sys.executable,
+        "-m",
+        "blender_scripts.worker",
+        "--dataset",
+        str(root),
+        "--shard",
+        "0",
+        "--num-shards",
+        "1",
+    ]
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=300)
     assert r.returncode == 0, r.stderr
     return root

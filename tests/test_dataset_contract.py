@@ -105,7 +105,9 @@ def synthetic_rows(rng) -> dict[str, list[dict]]:
                     depth_m_f32le=rng.uniform(0.3, 2, (HEIGHT, WIDTH)).astype("<f4").tobytes(),
                     instance_mask_png=mask_png(rng.integers(0, 3, (HEIGHT, WIDTH))),
                     sensor_depth_m_f32le=(
-                        rng.uniform(0.3, 2, (HEIGHT, WIDTH)).astype("<f4").tobytes() if frame_id else None
+                        rng.uniform(0.3, 2, (HEIGHT, WIDTH)).astype("<f4").tobytes()
+                        if frame_id
+                        else None
                     ),
                 )
             )
@@ -154,7 +156,7 @@ def same(rust_value, python_value, path=""):
     if isinstance(python_value, (list, tuple)):
         flat = np.asarray(rust_value, dtype=float).ravel() if rust_value is not None else None
         assert flat is not None and len(flat) == len(python_value), path
-        for i, (r, p) in enumerate(zip(flat, python_value)):
+        for i, (r, p) in enumerate(zip(flat, python_value, strict=True)):
             same(float(r), p, f"{path}[{i}]")
     elif isinstance(python_value, float):
         assert rust_value == python_value or np.float32(rust_value) == np.float32(python_value), (
@@ -166,11 +168,21 @@ def same(rust_value, python_value, path=""):
 
 def test_rust_reads_back_every_field(dataset, boxpose_bin):
     root, tables = dataset
-    dumped = [json.loads(line) for line in run_boxpose(boxpose_bin, "dump", root).stdout.splitlines()]
-    by_table = {name: [d for d in dumped if d["table"] == name] for name in ("scenes", "objects", "frames")}
-    assert len(by_table["scenes"]) == 2 and len(by_table["objects"]) == 4 and len(by_table["frames"]) == 4
+    dumped = [
+        json.loads(line) for line in run_boxpose(boxpose_bin, "dump", root).stdout.splitlines()
+    ]
+    by_table = {
+        name: [d for d in dumped if d["table"] == name] for name in ("scenes", "objects", "frames")
+    }
+    assert (
+        len(by_table["scenes"]) == 2
+        and len(by_table["objects"]) == 4
+        and len(by_table["frames"]) == 4
+    )
 
-    for written, read in zip(sorted(tables["scenes"], key=lambda r: r["scene_id"]), by_table["scenes"]):
+    for written, read in zip(
+        sorted(tables["scenes"], key=lambda r: r["scene_id"]), by_table["scenes"], strict=True
+    ):
         for column, value in written.items():
             same(read[column], value, f"scenes.{column}")
 
@@ -197,19 +209,53 @@ def test_rust_reads_back_every_field(dataset, boxpose_bin):
         if written["sensor_depth_m_f32le"] is None:
             assert read["sensor_depth_m"] is None
         else:
-            assert np.array_equal(np.asarray(read["sensor_depth_m"], np.float32), np.frombuffer(written["sensor_depth_m_f32le"], "<f4"))
-        same(read["intrinsics"], [written[k] for k in ("fx", "fy", "cx", "cy")], "frames.intrinsics")
-        same(read["world_camera"]["quat_wxyz"], written["world_camera_quat_wxyz"], "frames.world_camera_quat_wxyz")
-        same(read["world_camera"]["translation_m"], written["world_camera_translation_m"], "frames.world_camera_translation_m")
+            assert np.array_equal(
+                np.asarray(read["sensor_depth_m"], np.float32),
+                np.frombuffer(written["sensor_depth_m_f32le"], "<f4"),
+            )
+        same(
+            read["intrinsics"], [written[k] for k in ("fx", "fy", "cx", "cy")], "frames.intrinsics"
+        )
+        same(
+            read["world_camera"]["quat_wxyz"],
+            written["world_camera_quat_wxyz"],
+            "frames.world_camera_quat_wxyz",
+        )
+        same(
+            read["world_camera"]["translation_m"],
+            written["world_camera_translation_m"],
+            "frames.world_camera_translation_m",
+        )
         for column in ("width", "height", "samples", "denoise", "render_seed", "blender_version"):
             same(read[column], written[column], f"frames.{column}")
 
-        written_instances = [i for i in tables["instances"] if (i["scene_id"], i["frame_id"]) == (written["scene_id"], written["frame_id"])]
-        assert [i["object_id"] for i in read["instances"]] == [i["object_id"] for i in written_instances]
-        for w, r in zip(written_instances, read["instances"]):
-            same(r["camera_box"]["quat_wxyz"], w["camera_box_quat_wxyz"], "instances.camera_box_quat_wxyz")
-            same(r["camera_box"]["translation_m"], w["camera_box_translation_m"], "instances.camera_box_translation_m")
-            for column in ("size_m", "corners_camera_m", "corners_px", "corner_visibility", "visible_pixels", "visible_fraction"):
+        written_instances = [
+            i
+            for i in tables["instances"]
+            if (i["scene_id"], i["frame_id"]) == (written["scene_id"], written["frame_id"])
+        ]
+        assert [i["object_id"] for i in read["instances"]] == [
+            i["object_id"] for i in written_instances
+        ]
+        for w, r in zip(written_instances, read["instances"], strict=True):
+            same(
+                r["camera_box"]["quat_wxyz"],
+                w["camera_box_quat_wxyz"],
+                "instances.camera_box_quat_wxyz",
+            )
+            same(
+                r["camera_box"]["translation_m"],
+                w["camera_box_translation_m"],
+                "instances.camera_box_translation_m",
+            )
+            for column in (
+                "size_m",
+                "corners_camera_m",
+                "corners_px",
+                "corner_visibility",
+                "visible_pixels",
+                "visible_fraction",
+            ):
                 same(r[column], w[column], f"instances.{column}")
             for column in ("label_keypoints_camera_m", "label_keypoints_px", "visible_bbox_px"):
                 if w[column] is None:
@@ -231,15 +277,21 @@ def test_pandas_alone_reads_the_dataset(dataset):
     assert np.array_equal(depth.ravel(), np.frombuffer(tables["frames"][0]["depth_m_f32le"], "<f4"))
     corners = np.stack(instances.corners_camera_m.to_numpy()).reshape(-1, 8, 3)
     assert corners.shape == (8, 8, 3)
-    assert pq.read_metadata(next((root / "frames").glob("*.parquet"))).metadata[b"boxpose.schema_version"] == str(
-        boxpose_io.SCHEMA_VERSION
-    ).encode()
+    assert (
+        pq.read_metadata(next((root / "frames").glob("*.parquet"))).metadata[
+            b"boxpose.schema_version"
+        ]
+        == str(boxpose_io.SCHEMA_VERSION).encode()
+    )
 
 
 def test_duckdb_reads_the_dataset(dataset):
     import duckdb
+
     root, _ = dataset
-    count = duckdb.sql(f"SELECT count(*) FROM '{root}/instances/*.parquet' WHERE len(corner_visibility) = 8").fetchall()[0][0]
+    count = duckdb.sql(
+        f"SELECT count(*) FROM '{root}/instances/*.parquet' WHERE len(corner_visibility) = 8"
+    ).fetchall()[0][0]
     assert count == 8
 
 
@@ -275,8 +327,15 @@ def test_missing_folder(tmp_path, boxpose_bin):
 def test_shard_of_another_schema_version(dataset, boxpose_bin):
     root, _ = dataset
     shard = boxpose_io.shard_path(root, "objects", 1, NUM_SHARDS)
-    rewrite(shard, lambda t: t.replace_schema_metadata({**t.schema.metadata, b"boxpose.schema_version": b"999"}))
-    expect_error(boxpose_bin, root, shard, "schema version 999", f"version {boxpose_io.SCHEMA_VERSION}")
+    rewrite(
+        shard,
+        lambda t: t.replace_schema_metadata(
+            {**t.schema.metadata, b"boxpose.schema_version": b"999"}
+        ),
+    )
+    expect_error(
+        boxpose_bin, root, shard, "schema version 999", f"version {boxpose_io.SCHEMA_VERSION}"
+    )
 
 
 def test_missing_column(dataset, boxpose_bin):
@@ -302,7 +361,9 @@ def test_nan_in_a_pose(dataset, boxpose_bin):
         column = table.column("world_box_translation_m").to_pylist()
         column[1] = [0.0, math.nan, 0.0]
         index = table.schema.get_field_index("world_box_translation_m")
-        return table.set_column(index, table.schema.field(index), pa.array(column, table.schema.field(index).type))
+        return table.set_column(
+            index, table.schema.field(index), pa.array(column, table.schema.field(index).type)
+        )
 
     rewrite(shard, poison)
     expect_error(boxpose_bin, root, shard, "row 1", "world_box_translation_m", "non-finite")

@@ -14,7 +14,17 @@ from conftest import REPO, run_boxpose
 def tiny_dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("eval") / "tiny"
     subprocess.run(
-        [sys.executable, REPO / "scripts" / "make_scenes.py", "--recipe", "tiny", "--dataset", root, "--num-scenes", "3", "--no-inspect"],
+        [
+            sys.executable,
+            REPO / "scripts" / "make_scenes.py",
+            "--recipe",
+            "tiny",
+            "--dataset",
+            root,
+            "--num-scenes",
+            "3",
+            "--no-inspect",
+        ],
         check=True,
         capture_output=True,
     )
@@ -22,12 +32,24 @@ def tiny_dataset(tmp_path_factory):
 
 
 def evaluate(boxpose_bin, dataset, out, outliers):
-    result = run_boxpose(boxpose_bin, "eval-geometry", dataset, "--out", out, "--outliers", outliers, "--min-visible-fraction", "0.2")
+    result = run_boxpose(
+        boxpose_bin,
+        "eval-geometry",
+        dataset,
+        "--out",
+        out,
+        "--outliers",
+        outliers,
+        "--min-visible-fraction",
+        "0.2",
+    )
     assert "per-instance metrics" in result.stdout
     return pd.read_parquet(out)
 
 
-def test_perfect_heatmaps_give_the_true_pose_and_both_exact_searches_agree(tiny_dataset, boxpose_bin, tmp_path):
+def test_perfect_heatmaps_give_the_true_pose_and_both_exact_searches_agree(
+    tiny_dataset, boxpose_bin, tmp_path
+):
     rows = evaluate(boxpose_bin, tiny_dataset, tmp_path / "clean.parquet", 0)
     assert rows.fit_error.isna().all()
     paper = rows[rows.method == "paper_exact"].set_index(["scene_id", "frame_id", "object_id"])
@@ -39,7 +61,9 @@ def test_perfect_heatmaps_give_the_true_pose_and_both_exact_searches_agree(tiny_
     assert (paper.mssd_m < 0.05 * paper.diameter_m).all()
 
 
-def test_four_confident_outliers_break_the_paper_search_but_not_the_robust_fit(tiny_dataset, boxpose_bin, tmp_path):
+def test_four_confident_outliers_break_the_paper_search_but_not_the_robust_fit(
+    tiny_dataset, boxpose_bin, tmp_path
+):
     rows = evaluate(boxpose_bin, tiny_dataset, tmp_path / "outliers.parquet", 4)
     recall = rows.assign(ok=rows.mssd_m < 0.1 * rows.diameter_m).groupby("method").ok.mean()
     assert recall["robust"] >= 0.6
@@ -50,16 +74,28 @@ def test_four_confident_outliers_break_the_paper_search_but_not_the_robust_fit(t
 def test_every_fit_row_carries_its_confidence(tiny_dataset, boxpose_bin, tmp_path):
     clean = evaluate(boxpose_bin, tiny_dataset, tmp_path / "clean.parquet", 0)
     noisy = evaluate(boxpose_bin, tiny_dataset, tmp_path / "outliers.parquet", 4)
-    assert set(clean.method) == {"paper_exact", "fast_exact", "robust", "size_and_pose", "robust_fixed", "size_and_pose_ls"}
+    assert set(clean.method) == {
+        "paper_exact",
+        "fast_exact",
+        "robust",
+        "size_and_pose",
+        "robust_fixed",
+        "size_and_pose_ls",
+    }
     for rows in (clean, noisy):
         fitted = rows[rows.fit_error.isna()]
-        assert fitted.confidence.between(0, 1).all()  # 1 when no different box is a hypothesis (infinite margin)
+        assert fitted.confidence.between(
+            0, 1
+        ).all()  # 1 when no different box is a hypothesis (infinite margin)
         assert (fitted.inliers >= 3).all() and (fitted.inliers <= 8).all()
         assert (fitted.noise_scale_m > 0).all()
         assert fitted.mirror_ambiguous.dtype == bool
         # a positive margin and only a positive margin gives a positive confidence
         assert ((fitted.margin_nats > 0) == (fitted.confidence > 0)).all()
-    robust = lambda rows: rows[rows.method == "robust"]
+
+    def robust(rows):
+        return rows[rows.method == "robust"]
+
     # perfect heatmaps with 3 mm noise: every peak a corner, millimetre noise
     assert (robust(clean).inliers == 8).mean() >= 0.8
     assert robust(clean).noise_scale_m.median() < 0.006

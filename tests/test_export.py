@@ -9,25 +9,33 @@ import subprocess
 from collections import Counter
 from pathlib import Path
 
+import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
 import numpy as np
 import pandas as pd
 import pytest
 from PIL import Image
 
-import bpy  # noqa: E402, F401  (installed by `make setup`: a missing bpy fails, never skips)
+from blender_scripts import geometry as geo
+from conftest import render_synthetic_dataset
 
-from blender_scripts import geometry as geo  # noqa: E402
-from conftest import REPO, render_synthetic_dataset  # noqa: E402
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
     """Two scenes, two 96×72 views each, rendered by the Python worker. Scene 0's two boxes get the
     same square-based size, so they share one BOP obj_id whose model has 7 discrete symmetries."""
-    return render_synthetic_dataset(tmp_path_factory.mktemp("export") / "ds", 96, 72, shared_size_in_scene_0=True)
+    return render_synthetic_dataset(
+        tmp_path_factory.mktemp("export") / "ds", 96, 72, shared_size_in_scene_0=True
+    )
 
 
 def boxpose(boxpose_bin: Path, *args) -> subprocess.CompletedProcess:
-    return subprocess.run([str(boxpose_bin), *map(str, args)], capture_output=True, text=True, timeout=300, env=dict(os.environ))
+    return subprocess.run(
+        [str(boxpose_bin), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=dict(os.environ),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -49,8 +57,16 @@ def coco(dataset, boxpose_bin, tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def rows(dataset):
-    frames = pd.read_parquet(dataset / "frames").sort_values(["scene_id", "frame_id"]).reset_index(drop=True)
-    instances = pd.read_parquet(dataset / "instances").sort_values(["scene_id", "frame_id", "object_id"]).reset_index(drop=True)
+    frames = (
+        pd.read_parquet(dataset / "frames")
+        .sort_values(["scene_id", "frame_id"])
+        .reset_index(drop=True)
+    )
+    instances = (
+        pd.read_parquet(dataset / "instances")
+        .sort_values(["scene_id", "frame_id", "object_id"])
+        .reset_index(drop=True)
+    )
     return frames, instances
 
 
@@ -80,7 +96,9 @@ def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
     nv = int(next(line.split()[2] for line in header if line.startswith("element vertex")))
     nf = int(next(line.split()[2] for line in header if line.startswith("element face")))
     verts = np.array([[float(x) for x in line.split()] for line in lines[end + 1 : end + 1 + nv]])
-    faces = np.array([[int(x) for x in line.split()] for line in lines[end + 1 + nv : end + 1 + nv + nf]])
+    faces = np.array(
+        [[int(x) for x in line.split()] for line in lines[end + 1 + nv : end + 1 + nv + nf]]
+    )
     return verts, faces
 
 
@@ -89,14 +107,29 @@ def test_bop_layout_and_models(bop, dataset):
     sizes_mm = sorted({tuple(np.round(np.asarray(s) * 1e4).astype(int)) for s in objects.size_m})
     assert len(sizes_mm) == len(objects) - 1  # scene 0's two boxes share a size
     for split_scene in ("test/000000", "test/000001"):
-        for name in ("scene_camera.json", "scene_gt.json", "scene_gt_info.json", "rgb", "depth", "mask", "mask_visib"):
+        for name in (
+            "scene_camera.json",
+            "scene_gt.json",
+            "scene_gt_info.json",
+            "rgb",
+            "depth",
+            "mask",
+            "mask_visib",
+        ):
             assert (bop / split_scene / name).exists(), name
     for name in ("camera.json", "test_targets_bop19.json", "dataset_info.md", "dataset_info.json"):
         assert (bop / name).is_file(), name
 
     cam = load(bop / "camera.json")
     f0 = pd.read_parquet(dataset / "frames").iloc[0]
-    assert (cam["width"], cam["height"], cam["fx"], cam["fy"], cam["cx"], cam["cy"]) == (96, 72, f0.fx, f0.fy, f0.cx, f0.cy)
+    assert (cam["width"], cam["height"], cam["fx"], cam["fy"], cam["cx"], cam["cy"]) == (
+        96,
+        72,
+        f0.fx,
+        f0.fy,
+        f0.cx,
+        f0.cy,
+    )
 
     for models in ("models", "models_eval"):
         info = load(bop / models / "models_info.json")
@@ -110,12 +143,17 @@ def test_bop_layout_and_models(bop, dataset):
             verts, faces = read_ply(bop / models / f"obj_{obj_id:06d}.ply")
             pts, normals = verts[:, :3], verts[:, 3:]
             assert np.allclose(np.unique(np.abs(pts), axis=0), size / 2)  # every vertex a corner
-            assert len(np.unique(pts, axis=0)) == 8 and len(faces) == 12 and (faces[:, 0] == 3).all()
-            # triangles wind counter-clockwise seen from outside: their normal agrees with the vertex normals
+            assert (
+                len(np.unique(pts, axis=0)) == 8 and len(faces) == 12 and (faces[:, 0] == 3).all()
+            )
+            # triangles wind counter-clockwise seen from outside: their normal agrees with the
+            # vertex normals
             tri = pts[faces[:, 1:]]
             n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             assert (np.einsum("ij,ij->i", n, normals[faces[:, 1]]) > 0).all()
-            assert np.isclose(np.abs(np.einsum("ij,ij->i", n, tri[:, 0])).sum() / 2 / 3, size.prod(), rtol=1e-9)  # encloses the box volume
+            assert np.isclose(
+                np.abs(np.einsum("ij,ij->i", n, tri[:, 0])).sum() / 2 / 3, size.prod(), rtol=1e-9
+            )  # encloses the box volume
             syms = [np.array(s).reshape(4, 4) for s in m["symmetries_discrete"]]
             distinct = len(set(key))
             assert len(syms) == {3: 3, 2: 7, 1: 23}[distinct]
@@ -127,7 +165,9 @@ def test_bop_layout_and_models(bop, dataset):
                 assert np.allclose(r @ r.T, np.eye(3)) and np.isclose(np.linalg.det(r), 1.0)
                 assert not np.allclose(r, np.eye(3))
                 moved = corners @ r.T
-                assert all(np.isclose(moved, c).all(axis=1).any() for c in corners)  # maps the box onto itself
+                assert all(
+                    np.isclose(moved, c).all(axis=1).any() for c in corners
+                )  # maps the box onto itself
                 seen.add(tuple(np.round(r).astype(int).ravel()))
             assert len(seen) == len(syms)
     # scene 0's boxes (equal sides dx = dy) map to the model with 7 symmetries
@@ -140,18 +180,24 @@ def test_bop_cameras_images_and_depth(bop, rows):
     for f in frames.itertuples():
         scene = bop / "test" / f"{f.scene_id:06d}"
         c = load(scene / "scene_camera.json")[str(f.frame_id)]
-        assert np.allclose(np.reshape(c["cam_K"], (3, 3)), [[f.fx, 0, f.cx], [0, f.fy, f.cy], [0, 0, 1]])
+        assert np.allclose(
+            np.reshape(c["cam_K"], (3, 3)), [[f.fx, 0, f.cx], [0, f.fy, f.cy], [0, 0, 1]]
+        )
         r_wc = geo.quat_to_matrix(f.world_camera_quat_wxyz)
         r_w2c, t_w2c = np.reshape(c["cam_R_w2c"], (3, 3)), np.asarray(c["cam_t_w2c"])
         assert np.allclose(r_w2c @ r_wc, np.eye(3), atol=1e-9)
-        assert np.allclose(r_w2c @ (1000 * np.asarray(f.world_camera_translation_m)) + t_w2c, 0, atol=1e-6)  # camera centre → origin, mm
+        assert np.allclose(
+            r_w2c @ (1000 * np.asarray(f.world_camera_translation_m)) + t_w2c, 0, atol=1e-6
+        )  # camera centre → origin, mm
 
         assert np.array_equal(png(scene / "rgb" / f"{f.frame_id:06d}.png"), decode(f.rgb_png))
         d = png(scene / "depth" / f"{f.frame_id:06d}.png")
         assert d.dtype == np.uint16 and d.shape == (72, 96)
         depth_mm = 1000 * np.frombuffer(f.depth_m_f32le, "<f4").reshape(72, 96).astype(np.float64)
         assert c["depth_scale"] == 0.1
-        assert np.abs(d * c["depth_scale"] - depth_mm).max() <= 0.051  # ≤ half a 0.1 mm step, far inside 1 mm
+        assert (
+            np.abs(d * c["depth_scale"] - depth_mm).max() <= 0.051
+        )  # ≤ half a 0.1 mm step, far inside 1 mm
         assert ((d == 0) == (depth_mm == 0)).all()
 
 
@@ -169,7 +215,7 @@ def test_bop_ground_truth_matches_the_rows(bop, rows):
         mask = decode(f.instance_mask_png)
         depth = np.frombuffer(f.depth_m_f32le, "<f4").reshape(72, 96)
         cam = camera(f)
-        for gt_id, (g, gi, i) in enumerate(zip(gt, gt_info, mine.itertuples())):
+        for gt_id, (g, gi, i) in enumerate(zip(gt, gt_info, mine.itertuples(), strict=True)):
             r, t = np.reshape(g["cam_R_m2c"], (3, 3)), np.asarray(g["cam_t_m2c"])
             assert np.allclose(r, geo.quat_to_matrix(i.camera_box_quat_wxyz), atol=1e-12)
             assert np.allclose(t, 1000 * np.asarray(i.camera_box_translation_m), atol=1e-9)
@@ -183,7 +229,10 @@ def test_bop_ground_truth_matches_the_rows(bop, rows):
             assert np.allclose(uvw[:, :2] / uvw[:, 2:], np.reshape(i.corners_px, (8, 2)), atol=1e-6)
 
             visib = png(scene / "mask_visib" / f"{f.frame_id:06d}_{gt_id:06d}.png")
-            assert np.array_equal(visib > 0, mask == i.object_id + 1) and set(np.unique(visib)) <= {0, 255}
+            assert np.array_equal(visib > 0, mask == i.object_id + 1) and set(np.unique(visib)) <= {
+                0,
+                255,
+            }
             amodal = png(scene / "mask" / f"{f.frame_id:06d}_{gt_id:06d}.png") > 0
             silhouette = geo.silhouette_mask(cam, np.reshape(i.corners_camera_m, (8, 3)))
             assert np.array_equal(amodal, silhouette)
@@ -198,10 +247,18 @@ def test_bop_ground_truth_matches_the_rows(bop, rows):
                 assert gi["bbox_visib"] == [x0, y0, x1 - x0, y1 - y0]
             ys, xs = np.nonzero(silhouette)
             x, y, w, h = gi["bbox_obj"]
-            # the silhouette's box, possibly reaching past the image (never inside its in-image part)
-            assert x <= xs.min() and y <= ys.min() and x + w - 1 >= xs.max() and y + h - 1 >= ys.max()
+            # the silhouette's box, possibly reaching past the image (never inside its in-image
+            # part)
+            assert (
+                x <= xs.min() and y <= ys.min() and x + w - 1 >= xs.max() and y + h - 1 >= ys.max()
+            )
             if x >= 0 and y >= 0 and x + w <= 96 and y + h <= 72:
-                assert [x, y, w, h] == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+                assert [x, y, w, h] == [
+                    xs.min(),
+                    ys.min(),
+                    xs.max() - xs.min() + 1,
+                    ys.max() - ys.min() + 1,
+                ]
             checked += 1
     assert checked == len(instances)
 
@@ -210,10 +267,12 @@ def test_bop_test_targets(bop, rows):
     _, instances = rows
     targets = load(bop / "test_targets_bop19.json")
     want = Counter()
-    for scene_id, frame_id in {(s, f) for s, f in zip(instances.scene_id, instances.frame_id)}:
+    for scene_id, frame_id in {
+        (s, f) for s, f in zip(instances.scene_id, instances.frame_id, strict=True)
+    }:
         gt = load(bop / "test" / f"{scene_id:06d}" / "scene_gt.json")[str(frame_id)]
         info = load(bop / "test" / f"{scene_id:06d}" / "scene_gt_info.json")[str(frame_id)]
-        for g, gi in zip(gt, info):
+        for g, gi in zip(gt, info, strict=True):
             if gi["visib_fract"] >= 0.1:
                 want[(scene_id, frame_id, g["obj_id"])] += 1
     got = {(t["scene_id"], t["im_id"], t["obj_id"]): t["inst_count"] for t in targets}
@@ -247,7 +306,11 @@ def test_coco_annotations_match_the_rows(coco, rows):
     for a in doc["annotations"]:
         im = images[a["image_id"]]
         f = frames_by_key[(im["scene_id"], im["frame_id"])]
-        i = visible[(visible.scene_id == f.scene_id) & (visible.frame_id == f.frame_id) & (visible.object_id == a["object_id"])].iloc[0]
+        i = visible[
+            (visible.scene_id == f.scene_id)
+            & (visible.frame_id == f.frame_id)
+            & (visible.object_id == a["object_id"])
+        ].iloc[0]
         own = decode(f.instance_mask_png) == i.object_id + 1
         assert a["category_id"] == 1 and a["iscrowd"] == 0
         assert np.array_equal(rle_decode(a["segmentation"]), own)
@@ -258,7 +321,12 @@ def test_coco_annotations_match_the_rows(coco, rows):
         amodal = rle_decode(a["amodal_segmentation"])
         assert np.array_equal(amodal, silhouette) and a["amodal_area"] == silhouette.sum()
         ys, xs = np.nonzero(silhouette)
-        assert a["amodal_bbox"] == [xs.min(), ys.min(), xs.max() - xs.min() + 1, ys.max() - ys.min() + 1]
+        assert a["amodal_bbox"] == [
+            xs.min(),
+            ys.min(),
+            xs.max() - xs.min() + 1,
+            ys.max() - ys.min() + 1,
+        ]
         assert a["visib_fract"] == pytest.approx(i.visible_fraction, abs=1e-6)
 
 
@@ -267,7 +335,16 @@ def test_coco_evaluates_to_ap_1_with_pycocotools(coco):
     from pycocotools.cocoeval import COCOeval
 
     gt = COCO(str(coco / "annotations.json"))
-    dets = [{"image_id": a["image_id"], "category_id": 1, "segmentation": a["segmentation"], "bbox": a["bbox"], "score": 1.0} for a in gt.dataset["annotations"]]
+    dets = [
+        {
+            "image_id": a["image_id"],
+            "category_id": 1,
+            "segmentation": a["segmentation"],
+            "bbox": a["bbox"],
+            "score": 1.0,
+        }
+        for a in gt.dataset["annotations"]
+    ]
     for iou in ("segm", "bbox"):
         e = COCOeval(gt, gt.loadRes(dets), iou)
         e.evaluate()
@@ -278,7 +355,12 @@ def test_coco_evaluates_to_ap_1_with_pycocotools(coco):
 
 def test_export_help_and_refusals(boxpose_bin, dataset, bop, tmp_path):
     r = boxpose(boxpose_bin, "export", "--help")
-    assert r.returncode == 0 and "bop" in r.stdout and "coco" in r.stdout and "docs/export.md" in r.stdout
+    assert (
+        r.returncode == 0
+        and "bop" in r.stdout
+        and "coco" in r.stdout
+        and "docs/export.md" in r.stdout
+    )
     r = boxpose(boxpose_bin, "export", "bop", dataset, bop)
     assert r.returncode != 0 and "is not an empty folder" in r.stderr
     r = boxpose(boxpose_bin, "export", "coco", tmp_path / "missing", tmp_path / "x")

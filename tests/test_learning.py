@@ -1,12 +1,12 @@
-"""`boxpose train`, `predict` and `eval` on a real tiny dataset (Drake scenes, Blender 64² renders):
-a tiny network for a few steps, interrupted and resumed; then its predictions and evaluation read
-back with pandas. The numbers of a 4-step network mean nothing; the plumbing and files are tested."""
+"""`boxpose train`, `predict` and `eval` on a real tiny dataset (Drake scenes, Blender 64²
+renders): a tiny network for a few steps, interrupted and resumed; then its predictions and
+evaluation read back with pandas. The numbers of a 4-step network mean nothing; the plumbing and
+files are tested."""
 
 import json
 import shutil
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -20,8 +20,21 @@ from conftest import REPO, run_boxpose
 def tiny_dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("learn") / "tiny"
     r = subprocess.run(
-        [sys.executable, REPO / "scripts" / "make_scenes.py", "--recipe", "tiny", "--dataset", root, "--num-scenes", "4", "--no-inspect"],
-        capture_output=True, text=True, cwd=REPO, timeout=900,
+        [
+            sys.executable,
+            REPO / "scripts" / "make_scenes.py",
+            "--recipe",
+            "tiny",
+            "--dataset",
+            root,
+            "--num-scenes",
+            "4",
+            "--no-inspect",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=900,
     )
     assert r.returncode == 0, r.stderr
     return root
@@ -31,7 +44,15 @@ def tiny_dataset(tmp_path_factory):
 def trained(tiny_dataset, boxpose_bin, tmp_path_factory):
     """A tiny model trained for 4 steps, interrupted after 2 and resumed."""
     run = tmp_path_factory.mktemp("run") / "tiny-run"
-    args = ["train", "--config", REPO / "configs" / "tiny.toml", "--dataset", tiny_dataset, "--out", run]
+    args = [
+        "train",
+        "--config",
+        REPO / "configs" / "tiny.toml",
+        "--dataset",
+        tiny_dataset,
+        "--out",
+        run,
+    ]
     first = run_boxpose(boxpose_bin, *args, "--stop-after", "2")
     second = run_boxpose(boxpose_bin, *args)
     return run, first, second
@@ -50,17 +71,33 @@ def test_an_interrupted_run_resumes_from_its_checkpoint(trained):
     assert not list(run.glob("*.tmp")) and not list(run.glob("*.old"))
 
 
-def test_the_same_seed_trains_the_same_network_with_or_without_an_interruption(trained, tiny_dataset, boxpose_bin, tmp_path):
+def test_the_same_seed_trains_the_same_network_with_or_without_an_interruption(
+    trained, tiny_dataset, boxpose_bin, tmp_path
+):
     run, _, _ = trained
     again = tmp_path / "again"  # the same config, in one go
-    run_boxpose(boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml", "--dataset", tiny_dataset, "--out", again)
-    assert pd.read_csv(again / "history.csv").train_loss.tolist() == pd.read_csv(run / "history.csv").train_loss.tolist()
+    run_boxpose(
+        boxpose_bin,
+        "train",
+        "--config",
+        REPO / "configs" / "tiny.toml",
+        "--dataset",
+        tiny_dataset,
+        "--out",
+        again,
+    )
+    assert (
+        pd.read_csv(again / "history.csv").train_loss.tolist()
+        == pd.read_csv(run / "history.csv").train_loss.tolist()
+    )
     # the weight files differ only in burn's random parameter ids: compare what the models predict
     scene = int(pd.read_parquet(tiny_dataset / "frames").scene_id.iloc[0])
     outputs = []
     for model in (run / "model", again / "model"):
         out = tmp_path / model.parent.name
-        run_boxpose(boxpose_bin, "predict", tiny_dataset, "--scene", scene, "--model", model, "--out", out)
+        run_boxpose(
+            boxpose_bin, "predict", tiny_dataset, "--scene", scene, "--model", model, "--out", out
+        )
         outputs.append(json.loads((out / "predictions.json").read_text()))
     assert outputs[0] == outputs[1]
 
@@ -69,7 +106,19 @@ def test_a_changed_config_does_not_silently_resume(trained, tiny_dataset, boxpos
     run, _, _ = trained
     copy = tmp_path / "copy"
     shutil.copytree(run, copy)
-    r = run_boxpose(boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml", "--dataset", tiny_dataset, "--out", copy, "--learning-rate", "0.5", check=False)
+    r = run_boxpose(
+        boxpose_bin,
+        "train",
+        "--config",
+        REPO / "configs" / "tiny.toml",
+        "--dataset",
+        tiny_dataset,
+        "--out",
+        copy,
+        "--learning-rate",
+        "0.5",
+        check=False,
+    )
     assert r.returncode != 0
     assert "another configuration" in r.stderr and "--restart" in r.stderr
 
@@ -79,7 +128,17 @@ def test_a_corrupt_checkpoint_is_one_clear_error(trained, tiny_dataset, boxpose_
     copy = tmp_path / "copy"
     shutil.copytree(run, copy)
     (copy / "checkpoint" / "model.bpk").write_bytes(b"not a burnpack")
-    r = run_boxpose(boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml", "--dataset", tiny_dataset, "--out", copy, check=False)
+    r = run_boxpose(
+        boxpose_bin,
+        "train",
+        "--config",
+        REPO / "configs" / "tiny.toml",
+        "--dataset",
+        tiny_dataset,
+        "--out",
+        copy,
+        check=False,
+    )
     assert r.returncode != 0
     assert "checkpoint/model.bpk" in r.stderr and "--restart" in r.stderr
     assert "panicked" not in r.stderr
@@ -90,12 +149,28 @@ def test_predict_writes_poses_peaks_and_an_overlay(trained, tiny_dataset, boxpos
     instances = pd.read_parquet(tiny_dataset / "instances")
     scene = int(instances.scene_id.iloc[0])
     out = tmp_path / "predict"
-    r = run_boxpose(boxpose_bin, "predict", tiny_dataset, "--scene", scene, "--frame", 0, "--model", run / "model", "--out", out)
-    visible = instances[(instances.scene_id == scene) & (instances.frame_id == 0) & (instances.visible_pixels > 0)]
+    r = run_boxpose(
+        boxpose_bin,
+        "predict",
+        tiny_dataset,
+        "--scene",
+        scene,
+        "--frame",
+        0,
+        "--model",
+        run / "model",
+        "--out",
+        out,
+    )
+    visible = instances[
+        (instances.scene_id == scene) & (instances.frame_id == 0) & (instances.visible_pixels > 0)
+    ]
     table = pd.read_parquet(out / "predictions.parquet")
     assert sorted(table.object_id) == sorted(visible.object_id)
     for row in table.itertuples():
-        assert len(row.peaks_camera_m) == 3 * len(row.peak_scores) and 1 <= len(row.peak_scores) <= 8
+        assert (
+            len(row.peaks_camera_m) == 3 * len(row.peak_scores) and 1 <= len(row.peak_scores) <= 8
+        )
         assert list(row.peak_scores) == sorted(row.peak_scores, reverse=True)
         if row.fit_error is None:
             assert len(row.corners_camera_m) == 24 and np.isfinite(row.corners_camera_m).all()
@@ -109,36 +184,86 @@ def test_predict_writes_poses_peaks_and_an_overlay(trained, tiny_dataset, boxpos
 
 def test_predict_from_files_with_given_boxes(trained, tiny_dataset, boxpose_bin, tmp_path):
     run, _, _ = trained
-    import io
+
     frames = pd.read_parquet(tiny_dataset / "frames")
     instances = pd.read_parquet(tiny_dataset / "instances")
     f = frames.iloc[0]
     (tmp_path / "rgb.png").write_bytes(f.rgb_png)
     depth = np.frombuffer(f.depth_m_f32le, "<f4").reshape(f.height, f.width)
     Image.fromarray((depth * 1000).round().astype(np.uint16)).save(tmp_path / "depth.png")
-    inst = instances[(instances.scene_id == f.scene_id) & (instances.frame_id == f.frame_id) & (instances.visible_pixels > 0)].iloc[0]
+    inst = instances[
+        (instances.scene_id == f.scene_id)
+        & (instances.frame_id == f.frame_id)
+        & (instances.visible_pixels > 0)
+    ].iloc[0]
     bbox = ",".join(str(int(v)) for v in inst.visible_bbox_px)
     out = tmp_path / "out"
     run_boxpose(
-        boxpose_bin, "predict", "--rgb", tmp_path / "rgb.png", "--depth", tmp_path / "depth.png",
-        "--intrinsics", f"{f.fx},{f.fy},{f.cx},{f.cy}", "--bbox", bbox, "--model", run / "model", "--out", out,
+        boxpose_bin,
+        "predict",
+        "--rgb",
+        tmp_path / "rgb.png",
+        "--depth",
+        tmp_path / "depth.png",
+        "--intrinsics",
+        f"{f.fx},{f.fy},{f.cx},{f.cy}",
+        "--bbox",
+        bbox,
+        "--model",
+        run / "model",
+        "--out",
+        out,
     )
     table = pd.read_parquet(out / "predictions.parquet")
     assert len(table) == 1 and table.object_id.isna().all()
     # without ground truth the reference depth comes from the whole box: close to the box's own
     assert abs(table.reference_depth_m.iloc[0] - inst.camera_box_translation_m[2]) < 0.3
-    r = run_boxpose(boxpose_bin, "predict", "--rgb", tmp_path / "rgb.png", "--depth", tmp_path / "rgb.png",
-                    "--intrinsics", "1,1,1,1", "--bbox", bbox, "--model", run / "model", "--out", out, check=False)
+    r = run_boxpose(
+        boxpose_bin,
+        "predict",
+        "--rgb",
+        tmp_path / "rgb.png",
+        "--depth",
+        tmp_path / "rgb.png",
+        "--intrinsics",
+        "1,1,1,1",
+        "--bbox",
+        bbox,
+        "--model",
+        run / "model",
+        "--out",
+        out,
+        check=False,
+    )
     assert r.returncode != 0 and "rgb.png" in r.stderr and "16-bit" in r.stderr
 
 
-def test_eval_writes_metrics_a_summary_and_the_error_histogram(trained, tiny_dataset, boxpose_bin, tmp_path):
+def test_eval_writes_metrics_a_summary_and_the_error_histogram(
+    trained, tiny_dataset, boxpose_bin, tmp_path
+):
     run, _, _ = trained
     out = tmp_path / "eval"
-    r = run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", run / "model", "--out", out, "--min-visible-fraction", "0.05")
+    r = run_boxpose(
+        boxpose_bin,
+        "eval",
+        tiny_dataset,
+        "--model",
+        run / "model",
+        "--out",
+        out,
+        "--min-visible-fraction",
+        "0.05",
+    )
     rows = pd.read_parquet(out / "eval.parquet")
     # the four fits, and the former robust and size fits beside them for comparison
-    methods = {"paper_exact", "fast_exact", "robust", "size_and_pose", "robust_fixed", "size_and_pose_ls"}
+    methods = {
+        "paper_exact",
+        "fast_exact",
+        "robust",
+        "size_and_pose",
+        "robust_fixed",
+        "size_and_pose_ls",
+    }
     assert set(rows.method) == methods
     per_instance = rows.groupby(["scene_id", "frame_id", "object_id"])
     assert (per_instance.size() == len(methods)).all()
@@ -154,11 +279,35 @@ def test_eval_writes_metrics_a_summary_and_the_error_histogram(trained, tiny_dat
 def test_eval_held_out_keeps_only_the_held_out_scenes(trained, tiny_dataset, boxpose_bin, tmp_path):
     everything = tmp_path / "all"
     held_out = tmp_path / "held_out"
-    run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", trained[0] / "model", "--out", everything, "--min-visible-fraction", "0.05")
-    run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", trained[0] / "model", "--out", held_out, "--min-visible-fraction", "0.05", "--held-out", "2")
+    run_boxpose(
+        boxpose_bin,
+        "eval",
+        tiny_dataset,
+        "--model",
+        trained[0] / "model",
+        "--out",
+        everything,
+        "--min-visible-fraction",
+        "0.05",
+    )
+    run_boxpose(
+        boxpose_bin,
+        "eval",
+        tiny_dataset,
+        "--model",
+        trained[0] / "model",
+        "--out",
+        held_out,
+        "--min-visible-fraction",
+        "0.05",
+        "--held-out",
+        "2",
+    )
     all_scenes = set(pd.read_parquet(everything / "eval.parquet").scene_id)
     held_out_scenes = set(pd.read_parquet(held_out / "eval.parquet").scene_id)
-    assert held_out_scenes == {s for s in all_scenes if s % 2 == 0} and held_out_scenes != all_scenes
+    assert (
+        held_out_scenes == {s for s in all_scenes if s % 2 == 0} and held_out_scenes != all_scenes
+    )
 
 
 def test_a_missing_model_is_one_clear_error(tiny_dataset, boxpose_bin, tmp_path):
@@ -169,7 +318,16 @@ def test_a_missing_model_is_one_clear_error(tiny_dataset, boxpose_bin, tmp_path)
 @pytest.fixture(scope="module")
 def segmenter(tiny_dataset, boxpose_bin, tmp_path_factory):
     run = tmp_path_factory.mktemp("seg") / "seg-run"
-    r = run_boxpose(boxpose_bin, "train-segmenter", "--config", REPO / "configs" / "segmenter-tiny.toml", "--dataset", tiny_dataset, "--out", run)
+    r = run_boxpose(
+        boxpose_bin,
+        "train-segmenter",
+        "--config",
+        REPO / "configs" / "segmenter-tiny.toml",
+        "--dataset",
+        tiny_dataset,
+        "--out",
+        run,
+    )
     return run, r
 
 
@@ -179,14 +337,31 @@ def test_the_segmenter_trains_and_reports_average_precision(segmenter):
     assert list(history.step) == [2, 4]
     for column in ("mask_ap50", "mask_ap", "bbox_ap50", "bbox_ap"):
         assert history[column].between(0, 1).all(), column
-    assert (history.mask_ap <= history.mask_ap50 + 1e-12).all()  # AP over 0.50:0.95 never beats AP50
+    assert (
+        history.mask_ap <= history.mask_ap50 + 1e-12
+    ).all()  # AP over 0.50:0.95 never beats AP50
     assert (run / "model" / "segmenter.toml").is_file() and (run / "model" / "model.bpk").is_file()
 
 
-def test_eval_on_predicted_crops_counts_missed_boxes_as_failures(trained, segmenter, tiny_dataset, boxpose_bin, tmp_path):
+def test_eval_on_predicted_crops_counts_missed_boxes_as_failures(
+    trained, segmenter, tiny_dataset, boxpose_bin, tmp_path
+):
     out = tmp_path / "eval"
-    r = run_boxpose(boxpose_bin, "eval", tiny_dataset, "--model", trained[0] / "model", "--crops", "predicted",
-                    "--segmenter", segmenter[0] / "model", "--out", out, "--min-visible-fraction", "0.05")
+    r = run_boxpose(
+        boxpose_bin,
+        "eval",
+        tiny_dataset,
+        "--model",
+        trained[0] / "model",
+        "--crops",
+        "predicted",
+        "--segmenter",
+        segmenter[0] / "model",
+        "--out",
+        out,
+        "--min-visible-fraction",
+        "0.05",
+    )
     seg = json.loads((out / "segmentation.json").read_text())
     assert 0 <= seg["mask_ap50"] <= 1 and seg["true_instances"] > 0
     rows = pd.read_parquet(out / "eval.parquet")

@@ -57,7 +57,9 @@ def test_nms_finds_the_gaussians_of_a_target_heatmap():
 def test_back_projection_inverts_the_pinhole_model():
     # Crop starting at (100, 50) at scale 2: crop pixel (u, v) is image pixel ≈ 100 + 2u, 50 + 2v.
     coords = np.array([[10.0, 20.0, 30.0]])
-    point = boxpose.back_project(coords, (500.0, 500.0, 320.0, 240.0), (100.0, 50.0, 2.0, 2.0), (1.0, -0.5, 0.01))[0]
+    point = boxpose.back_project(
+        coords, (500.0, 500.0, 320.0, 240.0), (100.0, 50.0, 2.0, 2.0), (1.0, -0.5, 0.01)
+    )[0]
     u = 500 * point[0] / point[2] + 320
     v = 500 * point[1] / point[2] + 240
     assert 100 + 2 * 30 - 2 < u < 100 + 2 * 30 + 2 and 50 + 2 * 20 - 2 < v < 50 + 2 * 20 + 2
@@ -146,7 +148,13 @@ def test_adaptive_fit_prefers_four_tight_inliers_to_five_loose_ones():
     # noise-adaptive assessment of its pose as its confidence.
     fixed = boxpose.robust_fit(size, points, method="fixed_threshold")
     assert fixed["method"] == "fixed_threshold"
-    assert {"confidence", "margin_nats", "confidence_inliers", "noise_scale_m", "mirror_ambiguous"} <= fixed.keys()
+    assert {
+        "confidence",
+        "margin_nats",
+        "confidence_inliers",
+        "noise_scale_m",
+        "mirror_ambiguous",
+    } <= fixed.keys()
     if boxpose.mssd(size, fixed["pose"], truth) > 0.1 * diameter:
         assert fixed["confidence"] < fit["confidence"]
 
@@ -211,10 +219,19 @@ def test_metrics_agree_with_their_definitions():
         lambda: boxpose.box_corners([0.1, -0.1, 0.1]),
         lambda: boxpose.mssd(SIZE, np.eye(3), np.eye(4)),
     ],
-    ids=["nan", "too-few", "coincident", "empty-heatmap", "robust-too-few", "unknown-robust-method",
-         "threshold-without-fixed-method", "unknown-size-fit-method", "negative-size", "bad-matrix"],
+    ids=[
+        "nan",
+        "too-few",
+        "coincident",
+        "empty-heatmap",
+        "robust-too-few",
+        "unknown-robust-method",
+        "threshold-without-fixed-method",
+        "unknown-size-fit-method",
+        "negative-size",
+        "bad-matrix",
+    ],
 )
 def test_bad_input_raises_value_error(call):
     with pytest.raises(ValueError):
         call()
-

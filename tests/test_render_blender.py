@@ -21,7 +21,9 @@ REPO = Path(__file__).resolve().parent.parent
 RECIPES = REPO / "datasets" / "recipes"
 
 
-def recipe_text(name: str = "tiny", width: int = 64, height: int = 64, frames: int = 1, **render) -> str:
+def recipe_text(
+    name: str = "tiny", width: int = 64, height: int = 64, frames: int = 1, **render
+) -> str:
     text = (RECIPES / f"{name}.toml").read_text()
     lines = []
     section = None
@@ -89,7 +91,9 @@ def test_label_corners_lie_on_the_top_face():
         look = sampling.draw_appearance(seed, size, True, True)
         corners = look.label.corners_box(size)
         assert np.allclose(corners[:, 2], 0.025)
-        assert np.all(np.abs(corners[:, 0]) <= 0.06 + 1e-12) and np.all(np.abs(corners[:, 1]) <= 0.035 + 1e-12)
+        assert np.all(np.abs(corners[:, 0]) <= 0.06 + 1e-12) and np.all(
+            np.abs(corners[:, 1]) <= 0.035 + 1e-12
+        )
         # corner order: bit0 → +u, bit1 → +v, counter-clockwise seen from +z: 0 → 1 → 3 → 2
         e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
         assert np.cross(e1, e2)[2] > 0
@@ -103,12 +107,16 @@ def test_render_seed_is_deterministic_and_per_frame():
 
 
 def test_silhouette_of_a_box_matches_its_projection():
-    cam = geo.Camera.from_hfov(80, 60, math.radians(60.0), geo.look_at([0.5, 0.0, 0.6], [0.0, 0.0, 0.0]))
+    cam = geo.Camera.from_hfov(
+        80, 60, math.radians(60.0), geo.look_at([0.5, 0.0, 0.6], [0.0, 0.0, 0.0])
+    )
     corners = geo.transform(cam.camera_world, geo.box_corners((0.2, 0.1, 0.1)))
     mask = geo.silhouette_mask(cam, corners)
     assert 0 < mask.sum() < mask.size
     # half of the box behind the camera: clipped, still a sane silhouette
-    cam2 = geo.Camera.from_hfov(80, 60, math.radians(60.0), geo.look_at([0.0, 0.0, 0.0], [1.0, 0.0, 0.0]))
+    cam2 = geo.Camera.from_hfov(
+        80, 60, math.radians(60.0), geo.look_at([0.0, 0.0, 0.0], [1.0, 0.0, 0.0])
+    )
     corners2 = geo.transform(cam2.camera_world, geo.box_corners((1.0, 0.5, 0.5)))
     assert geo.silhouette_mask(cam2, corners2).all()
 
@@ -165,7 +173,9 @@ def decode(frame: dict):
 
 def frame_camera(frame: dict) -> geo.Camera:
     t = geo.pose_matrix(frame["world_camera_quat_wxyz"], frame["world_camera_translation_m"])
-    return geo.Camera(frame["width"], frame["height"], frame["fx"], frame["fy"], frame["cx"], frame["cy"], t)
+    return geo.Camera(
+        frame["width"], frame["height"], frame["fx"], frame["fy"], frame["cx"], frame["cy"], t
+    )
 
 
 CLUTTER_SIZE = 128
@@ -209,7 +219,9 @@ def test_depth_is_planar_z_and_matches_the_intrinsics(session):
         _, depth, mask = decode(frame)
         cam = frame_camera(frame)
         v, u = np.nonzero((mask == 0) & (depth > 0))
-        rays = np.stack([(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u, dtype=float)], axis=1)
+        rays = np.stack(
+            [(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy, np.ones_like(u, dtype=float)], axis=1
+        )
         rays_world = rays @ cam.world_camera[:3, :3].T
         c = cam.centre
         planar = -c[2] / rays_world[:, 2]  # z = 1 along each ray, so the scale is the planar depth
@@ -252,7 +264,9 @@ def test_masks_agree_with_projected_corners(clutter):
             assert inst["visible_pixels"] == int(own.sum())
             assert 0.0 <= inst["visible_fraction"] <= 1.0
             if silhouette.sum():
-                assert inst["visible_fraction"] == pytest.approx(own.sum() / silhouette.sum(), abs=1e-6)
+                assert inst["visible_fraction"] == pytest.approx(
+                    own.sum() / silhouette.sum(), abs=1e-6
+                )
 
 
 def test_masks_partition_the_image(clutter):
@@ -268,14 +282,22 @@ def test_masks_partition_the_image(clutter):
                 continue
             x0, y0, x1, y1 = inst["visible_bbox_px"]
             assert own[y0:y1, x0:x1].sum() == own.sum()
-            assert own[y0, x0:x1].any() and own[y1 - 1, x0:x1].any() and own[y0:y1, x0].any() and own[y0:y1, x1 - 1].any()
+            assert (
+                own[y0, x0:x1].any()
+                and own[y1 - 1, x0:x1].any()
+                and own[y0:y1, x0].any()
+                and own[y0:y1, x1 - 1].any()
+            )
 
 
 def _own_slope(depth: np.ndarray, own: np.ndarray, u: int, v: int) -> float:
     """Largest depth step between neighbouring pixels of the box's own mask in a 5×5 window."""
     ys, xs = slice(max(v - 2, 0), v + 3), slice(max(u - 2, 0), u + 3)
     d, o = depth[ys, xs].astype(float), own[ys, xs]
-    steps = [np.abs(d[:, 1:] - d[:, :-1])[o[:, 1:] & o[:, :-1]], np.abs(d[1:] - d[:-1])[o[1:] & o[:-1]]]
+    steps = [
+        np.abs(d[:, 1:] - d[:, :-1])[o[:, 1:] & o[:, :-1]],
+        np.abs(d[1:] - d[:-1])[o[1:] & o[:-1]],
+    ]
     steps = np.concatenate(steps)
     return float(steps.max()) if steps.size else 0.0
 
@@ -298,7 +320,12 @@ def test_corner_visibility_agrees_with_the_render(clutter):
                 z = corners[k, 2]
                 u, v = int(round(px[k, 0])), int(round(px[k, 1]))
                 if state == OUTSIDE_IMAGE:
-                    assert z <= 0 or not (0 <= u < w and 0 <= v < h) or abs(px[k, 0] - u) > 0.49 or abs(px[k, 1] - v) > 0.49
+                    assert (
+                        z <= 0
+                        or not (0 <= u < w and 0 <= v < h)
+                        or abs(px[k, 0] - u) > 0.49
+                        or abs(px[k, 1] - v) > 0.49
+                    )
                     continue
                 assert 0 <= u < w and 0 <= v < h
                 ys, xs = slice(max(v - 1, 0), v + 2), slice(max(u - 1, 0), u + 2)
@@ -313,16 +340,30 @@ def test_corner_visibility_agrees_with_the_render(clutter):
                         # it: the corner is a vertex of its own silhouette next to a face seen
                         # edge-on, or it peeks out from behind another box by under a pixel.
                         # (A corner hidden behind its own box lies inside its own silhouette.)
-                        own_edge = _distance_to_polygon_edges(px[k : k + 1], geo.convex_hull_2d(px))[0]
-                        edges = [_distance_to_polygon_edges(px[k : k + 1], geo.convex_hull_2d(np.array(o["corners_px"]).reshape(8, 2)))[0] for o in instances if o is not inst]
+                        own_edge = _distance_to_polygon_edges(
+                            px[k : k + 1], geo.convex_hull_2d(px)
+                        )[0]
+                        edges = [
+                            _distance_to_polygon_edges(
+                                px[k : k + 1],
+                                geo.convex_hull_2d(np.array(o["corners_px"]).reshape(8, 2)),
+                            )[0]
+                            for o in instances
+                            if o is not inst
+                        ]
                         other_in_front = in_front and mask[v, u] != own
-                        assert (own_edge < 1e-6 and not other_in_front) or min(edges) < 1.0, (inst["object_id"], k)
+                        assert (own_edge < 1e-6 and not other_in_front) or min(edges) < 1.0, (
+                            inst["object_id"],
+                            k,
+                        )
                         counts["boundary"] += 1
                 elif state == OCCLUDED_BY_OTHER:  # another object (box or support) is in front
                     assert ((m != own) & (d > 0) & (d < z)).any(), (inst["object_id"], k, state)
                 else:  # the box's own faces are in front
                     assert ((m == own) & (d < z - 0.005)).any(), (inst["object_id"], k, state)
-    assert counts[VISIBLE] > 20 and counts[SELF_OCCLUDED] > 5 and counts[OCCLUDED_BY_OTHER] >= 1, counts
+    assert counts[VISIBLE] > 20 and counts[SELF_OCCLUDED] > 5 and counts[OCCLUDED_BY_OTHER] >= 1, (
+        counts
+    )
     assert counts["boundary"] <= 0.1 * counts[VISIBLE], counts
 
 
@@ -330,15 +371,26 @@ def test_pose_matches_the_objects_rows(clutter):
     _, objects, renders = clutter
     for frame, instances in renders:
         cam = frame_camera(frame)
-        for o, inst in zip(objects, instances):
+        for o, inst in zip(objects, instances, strict=True):
             world_box = geo.pose_matrix(o["world_box_quat_wxyz"], o["world_box_translation_m"])
-            camera_box = geo.pose_matrix(inst["camera_box_quat_wxyz"], inst["camera_box_translation_m"])
+            camera_box = geo.pose_matrix(
+                inst["camera_box_quat_wxyz"], inst["camera_box_translation_m"]
+            )
             assert np.allclose(cam.world_camera @ camera_box, world_box, atol=1e-9)
-            assert np.allclose(np.array(inst["corners_camera_m"]).reshape(8, 3), geo.transform(camera_box, geo.box_corners(o["size_m"])), atol=1e-9)
+            assert np.allclose(
+                np.array(inst["corners_camera_m"]).reshape(8, 3),
+                geo.transform(camera_box, geo.box_corners(o["size_m"])),
+                atol=1e-9,
+            )
             if o["has_label"]:
-                assert inst["label_keypoints_camera_m"] is not None and len(inst["label_keypoints_px"]) == 8
+                assert (
+                    inst["label_keypoints_camera_m"] is not None
+                    and len(inst["label_keypoints_px"]) == 8
+                )
             else:
-                assert inst["label_keypoints_camera_m"] is None and inst["label_keypoints_px"] is None
+                assert (
+                    inst["label_keypoints_camera_m"] is None and inst["label_keypoints_px"] is None
+                )
 
 
 def test_rerender_is_identical(session, clutter):
@@ -347,7 +399,14 @@ def test_rerender_is_identical(session, clutter):
     frame, instances = session.render(1)
     first_frame, first_instances = renders[1]
     assert instances == first_instances
-    for key in ("depth_m_f32le", "instance_mask_png", "render_seed", "render_settings", "fx", "world_camera_quat_wxyz"):
+    for key in (
+        "depth_m_f32le",
+        "instance_mask_png",
+        "render_seed",
+        "render_settings",
+        "fx",
+        "world_camera_quat_wxyz",
+    ):
         assert frame[key] == first_frame[key], key
     a, b = decode(frame)[0].astype(int), decode(first_frame)[0].astype(int)
     assert np.abs(a - b).mean() < 2.0
@@ -367,8 +426,11 @@ def test_crop_render_matches_the_full_render(session, clutter):
     assert rgb.shape == (y1 - y0, x1 - x0, 3)
     assert np.array_equal(mask, full_mask[y0:y1, x0:x1])
     assert np.allclose(depth, full_depth[y0:y1, x0:x1], atol=1e-6)
-    for a, b in zip(instances, full_instances):
-        assert np.allclose(np.array(a["corners_px"]).reshape(8, 2), np.array(b["corners_px"]).reshape(8, 2) - [x0, y0])
+    for a, b in zip(instances, full_instances, strict=True):
+        assert np.allclose(
+            np.array(a["corners_px"]).reshape(8, 2),
+            np.array(b["corners_px"]).reshape(8, 2) - [x0, y0],
+        )
         assert a["corners_camera_m"] == b["corners_camera_m"]
 
 
@@ -380,7 +442,9 @@ def test_changed_pose_moves_only_that_box(session, clutter):
     moved[:3, 3] += [0.0, 0.0, 0.05]
     frame, instances = session.render(0, poses={1: moved})
     cam = frame_camera(frame)
-    camera_box = geo.pose_matrix(instances[1]["camera_box_quat_wxyz"], instances[1]["camera_box_translation_m"])
+    camera_box = geo.pose_matrix(
+        instances[1]["camera_box_quat_wxyz"], instances[1]["camera_box_translation_m"]
+    )
     assert np.allclose(cam.world_camera @ camera_box, moved, atol=1e-9)
     assert frame["world_camera_translation_m"] == renders[0][0]["world_camera_translation_m"]
     assert instances[0]["corners_camera_m"] == renders[0][1][0]["corners_camera_m"]
@@ -405,14 +469,20 @@ def test_sensor_depth_channel(session, clutter):
 
 @pytest.mark.parametrize("support", ["bin", "pallet"])
 def test_other_supports_render(session, support):
-    text = recipe_text("tiny").replace('kind = "floor"', f'kind = "{support}"').replace("wall_height_m = 0.0", "wall_height_m = 0.1")
+    text = (
+        recipe_text("tiny")
+        .replace('kind = "floor"', f'kind = "{support}"')
+        .replace("wall_height_m = 0.0", "wall_height_m = 0.1")
+    )
     scene, objects = synthetic_scene(1, text, 2, seed=3)
     session.load(scene, objects)
     frame, instances = session.render(0)
     _, depth, mask = decode(frame)
     assert (depth > 0).all() and len(instances) == 2
     if support == "pallet":  # boxes stand on the pallet's top
-        assert min(o["world_box_translation_m"][2] - o["size_m"][2] / 2 for o in objects) == pytest.approx(0.144)
+        assert min(
+            o["world_box_translation_m"][2] - o["size_m"][2] / 2 for o in objects
+        ) == pytest.approx(0.144)
 
 
 def test_boxes_off_the_image_and_behind_the_camera(session, clutter):
@@ -422,12 +492,18 @@ def test_boxes_off_the_image_and_behind_the_camera(session, clutter):
     far = np.eye(4)
     far[:3, 3] = [5.0, 5.0, 0.1]  # on the floor, far outside the view
     behind = cam.world_camera.copy()
-    behind[:3, 3] = cam.world_camera[:3, 3] - 0.5 * cam.world_camera[:3, 2]  # half a metre behind the camera
+    behind[:3, 3] = (
+        cam.world_camera[:3, 3] - 0.5 * cam.world_camera[:3, 2]
+    )  # half a metre behind the camera
     frame, instances = session.render(0, poses={0: far, 1: behind})
     _, _, mask = decode(frame)
     for oid in (0, 1):
         inst = instances[oid]
         assert inst["corner_visibility"] == [OUTSIDE_IMAGE] * 8
-        assert inst["visible_pixels"] == 0 and inst["visible_bbox_px"] is None and inst["visible_fraction"] == 0.0
+        assert (
+            inst["visible_pixels"] == 0
+            and inst["visible_bbox_px"] is None
+            and inst["visible_fraction"] == 0.0
+        )
         assert not (mask == oid + 1).any()
         assert np.isfinite(inst["corners_px"]).all()

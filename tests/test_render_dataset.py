@@ -7,39 +7,59 @@ import subprocess
 import sys
 from pathlib import Path
 
+import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
 import numpy as np
 import pandas as pd
-import pytest
 from PIL import Image
 
-import bpy  # noqa: E402, F401  (installed by `make setup`: a missing bpy fails, never skips)
-import boxpose_io  # noqa: E402
-
-from blender_scripts.synthetic import synthetic_scene  # noqa: E402
+import boxpose_io
+from blender_scripts.synthetic import synthetic_scene
 
 REPO = Path(__file__).resolve().parent.parent
 DRIVER = [sys.executable, str(REPO / "scripts" / "make_scenes.py")]
 
 
-def write_inputs(dataset: Path, scenes_objects: list[tuple[dict, list[dict]]], shard: int = 0, num_shards: int = 1) -> None:
+def write_inputs(
+    dataset: Path,
+    scenes_objects: list[tuple[dict, list[dict]]],
+    shard: int = 0,
+    num_shards: int = 1,
+) -> None:
     scenes = [s for s, _ in scenes_objects]
     objects = [o for _, objs in scenes_objects for o in objs]
-    boxpose_io.write_shard(boxpose_io.shard_path(dataset, "scenes", shard, num_shards), boxpose_io.table_from_rows("scenes", scenes))
-    boxpose_io.write_shard(boxpose_io.shard_path(dataset, "objects", shard, num_shards), boxpose_io.table_from_rows("objects", objects))
+    boxpose_io.write_shard(
+        boxpose_io.shard_path(dataset, "scenes", shard, num_shards),
+        boxpose_io.table_from_rows("scenes", scenes),
+    )
+    boxpose_io.write_shard(
+        boxpose_io.shard_path(dataset, "objects", shard, num_shards),
+        boxpose_io.table_from_rows("objects", objects),
+    )
 
 
 def tiny_scenes(n: int = 2, first_id: int = 0) -> list[tuple[dict, list[dict]]]:
     text = (REPO / "datasets" / "recipes" / "tiny.toml").read_text()
-    return [synthetic_scene(first_id + k, text, 1 + k % 3, seed=100 + first_id + k) for k in range(n)]
+    return [
+        synthetic_scene(first_id + k, text, 1 + k % 3, seed=100 + first_id + k) for k in range(n)
+    ]
 
 
 def run_driver(dataset: Path, *extra: str, env: dict | None = None) -> subprocess.CompletedProcess:
     cmd = DRIVER + ["--recipe", "tiny", "--dataset", str(dataset), "--no-inspect", *extra]
-    return subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, **(env or {})}, cwd=REPO, timeout=600)
+    return subprocess.run(
+        cmd,
+        capture_output=True,
+        text=True,
+        env={**os.environ, **(env or {})},
+        cwd=REPO,
+        timeout=600,
+    )
 
 
 def no_render_outputs(dataset: Path) -> bool:
-    return not any((dataset / t).glob("*") for t in ("frames", "instances") if (dataset / t).exists())
+    return not any(
+        (dataset / t).glob("*") for t in ("frames", "instances") if (dataset / t).exists()
+    )
 
 
 def test_driver_renders_resumes_and_pandas_reads_it(tmp_path, boxpose_bin):
@@ -84,7 +104,10 @@ def test_render_crash_leaves_no_shard_and_resume_finishes(tmp_path):
     assert "Blender worker crashed (SIGABRT) while rendering shard 0 of 1, scene 1" in r.stderr
     assert no_render_outputs(dataset)
     chunks = sorted(p.name for p in (dataset / ".partial").rglob("*.parquet"))
-    assert chunks == ["frames-000000-000001.parquet", "instances-000000-000001.parquet"]  # scene 0 is kept
+    assert chunks == [
+        "frames-000000-000001.parquet",
+        "instances-000000-000001.parquet",
+    ]  # scene 0 is kept
     r = run_driver(dataset, "--scenes-per-worker", "1")
     assert r.returncode == 0, r.stderr
     assert sorted(pd.read_parquet(dataset / "frames").scene_id) == [0, 1]
@@ -96,7 +119,10 @@ def test_missing_object_is_one_clear_error(tmp_path):
     write_inputs(dataset, [other, (scene, [objects[0], objects[2]])])
     r = run_driver(dataset)
     assert r.returncode == 1
-    assert "scene 2 in shard 0 of 1 (part-00000-of-00001.parquet) declares num_objects=3 but objects holds object_ids [0, 2]; missing [1]" in r.stderr
+    assert (
+        "scene 2 in shard 0 of 1 (part-00000-of-00001.parquet) declares num_objects=3 "
+        "but objects holds object_ids [0, 2]; missing [1]" in r.stderr
+    )
     assert "Traceback" not in r.stderr
     assert no_render_outputs(dataset)
 
@@ -107,10 +133,16 @@ def test_object_of_a_missing_scene_is_one_clear_error(tmp_path):
     _, stray_objects = tiny_scenes(1, first_id=5)[0]
     write_inputs(dataset, good)
     objects = good[0][1] + stray_objects
-    boxpose_io.write_shard(boxpose_io.shard_path(dataset, "objects", 0, 1), boxpose_io.table_from_rows("objects", objects))
+    boxpose_io.write_shard(
+        boxpose_io.shard_path(dataset, "objects", 0, 1),
+        boxpose_io.table_from_rows("objects", objects),
+    )
     r = run_driver(dataset)
     assert r.returncode == 1
-    assert "objects row (scene_id=5, object_id=0) in shard 0 of 1 (part-00000-of-00001.parquet) references scene 5, which is not in the scenes table" in r.stderr
+    assert (
+        "objects row (scene_id=5, object_id=0) in shard 0 of 1 (part-00000-of-00001.parquet) "
+        "references scene 5, which is not in the scenes table" in r.stderr
+    )
     assert no_render_outputs(dataset)
 
 
@@ -129,7 +161,17 @@ def test_missing_bpy_is_one_clear_error(tmp_path):
 def test_worker_alone_writes_the_shard(tmp_path):
     dataset = tmp_path / "tiny"
     write_inputs(dataset, tiny_scenes(1, first_id=3), shard=1, num_shards=2)
-    cmd = [sys.executable, "-m", "blender_scripts.worker", "--dataset", str(dataset), "--shard", "1", "--num-shards", "2"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "blender_scripts.worker",
+        "--dataset",
+        str(dataset),
+        "--shard",
+        "1",
+        "--num-shards",
+        "2",
+    ]
     r = subprocess.run(cmd, capture_output=True, text=True, cwd=REPO, timeout=300)
     assert r.returncode == 0, r.stderr
     frames = pd.read_parquet(dataset / "frames" / "part-00001-of-00002.parquet")

@@ -7,14 +7,14 @@ import os
 import subprocess
 from pathlib import Path
 
+import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
 import numpy as np
 import pandas as pd
 import pytest
 from PIL import Image
 
-import bpy  # noqa: E402, F401  (installed by `make setup`: a missing bpy fails, never skips)
+from conftest import render_synthetic_dataset
 
-from conftest import REPO, render_synthetic_dataset  # noqa: E402
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory) -> Path:
@@ -23,7 +23,13 @@ def dataset(tmp_path_factory) -> Path:
 
 
 def boxpose(boxpose_bin: Path, *args, env: dict | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([str(boxpose_bin), *map(str, args)], capture_output=True, text=True, timeout=300, env={**os.environ, **(env or {})})
+    return subprocess.run(
+        [str(boxpose_bin), *map(str, args)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env={**os.environ, **(env or {})},
+    )
 
 
 def rgb(png: bytes) -> np.ndarray:
@@ -32,27 +38,53 @@ def rgb(png: bytes) -> np.ndarray:
 
 def test_rust_rerender_reproduces_the_dataset(dataset, boxpose_bin, tmp_path):
     out = tmp_path / "out"
-    r = boxpose(boxpose_bin, "render", dataset, "--scene", 1, "--frame", 0, "--frame", 1, "--out", out)
+    r = boxpose(
+        boxpose_bin, "render", dataset, "--scene", 1, "--frame", 0, "--frame", 1, "--out", out
+    )
     assert r.returncode == 0, r.stderr
     # Blender's noise (CUDA probe, leak report at exit) is filtered out
     assert "Not freed memory" not in r.stderr and "CUEW" not in r.stdout + r.stderr
     assert (out / "scene-000001-frame-001-rgb.png").is_file()
 
-    want_f = pd.read_parquet(dataset / "frames").query("scene_id == 1").sort_values("frame_id").reset_index(drop=True)
+    want_f = (
+        pd.read_parquet(dataset / "frames")
+        .query("scene_id == 1")
+        .sort_values("frame_id")
+        .reset_index(drop=True)
+    )
     got_f = pd.read_parquet(out / "frames").sort_values("frame_id").reset_index(drop=True)
-    for col in ("width", "height", "fx", "fy", "cx", "cy", "render_seed", "samples", "denoise", "blender_version", "render_settings", "depth_m_f32le", "instance_mask_png"):
+    for col in (
+        "width",
+        "height",
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "render_seed",
+        "samples",
+        "denoise",
+        "blender_version",
+        "render_settings",
+        "depth_m_f32le",
+        "instance_mask_png",
+    ):
         assert list(got_f[col]) == list(want_f[col]), col
     for col in ("world_camera_quat_wxyz", "world_camera_translation_m"):
         assert np.array_equal(np.stack(got_f[col]), np.stack(want_f[col])), col
-    for a, b in zip(got_f.rgb_png, want_f.rgb_png):
+    for a, b in zip(got_f.rgb_png, want_f.rgb_png, strict=True):
         assert np.abs(rgb(a) - rgb(b)).mean() < 2.0
 
     key = ["frame_id", "object_id"]
-    want_i = pd.read_parquet(dataset / "instances").query("scene_id == 1").sort_values(key).reset_index(drop=True)
+    want_i = (
+        pd.read_parquet(dataset / "instances")
+        .query("scene_id == 1")
+        .sort_values(key)
+        .reset_index(drop=True)
+    )
     got_i = pd.read_parquet(out / "instances").sort_values(key).reset_index(drop=True)
     assert len(got_i) == len(want_i) == 2 * 3
     for col in want_i.columns:
-        for a, b in zip(got_i[col], want_i[col]):
+        for a, b in zip(got_i[col], want_i[col], strict=True):
             if isinstance(b, np.ndarray) or b is None:
                 assert (a is None and b is None) or np.array_equal(a, b), col
             else:
@@ -69,7 +101,19 @@ def test_rust_output_is_a_valid_dataset(dataset, boxpose_bin, tmp_path):
 
 def test_rust_crop_and_samples(dataset, boxpose_bin, tmp_path):
     out = tmp_path / "crop"
-    r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--crop", "10,8,74,56", "--samples", 2, "--out", out)
+    r = boxpose(
+        boxpose_bin,
+        "render",
+        dataset,
+        "--scene",
+        0,
+        "--crop",
+        "10,8,74,56",
+        "--samples",
+        2,
+        "--out",
+        out,
+    )
     assert r.returncode == 0, r.stderr
     f = pd.read_parquet(out / "frames").iloc[0]
     assert (f.width, f.height, f.samples) == (64, 48, 2)
@@ -88,11 +132,33 @@ def test_rust_crop_and_samples(dataset, boxpose_bin, tmp_path):
 def test_rust_errors_are_clear(dataset, boxpose_bin, tmp_path):
     r = boxpose(boxpose_bin, "render", dataset, "--scene", 9, "--out", tmp_path / "x")
     assert r.returncode != 0 and "scene 9 is not in" in r.stderr
-    r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--crop", "0,0,500,10", "--out", tmp_path / "x")
-    assert r.returncode != 0 and "crop (0, 0, 500, 10) is not a non-empty region of the 96×72 image" in r.stderr
+    r = boxpose(
+        boxpose_bin,
+        "render",
+        dataset,
+        "--scene",
+        0,
+        "--crop",
+        "0,0,500,10",
+        "--out",
+        tmp_path / "x",
+    )
+    assert (
+        r.returncode != 0
+        and "crop (0, 0, 500, 10) is not a non-empty region of the 96×72 image" in r.stderr
+    )
     fake = tmp_path / "nobpy" / "bpy"
     fake.mkdir(parents=True)
     (fake / "__init__.py").write_text("raise ImportError('No module named bpy (simulated)')\n")
-    r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--out", tmp_path / "x", env={"PYTHONPATH": str(fake.parent)})
+    r = boxpose(
+        boxpose_bin,
+        "render",
+        dataset,
+        "--scene",
+        0,
+        "--out",
+        tmp_path / "x",
+        env={"PYTHONPATH": str(fake.parent)},
+    )
     assert r.returncode != 0 and "bpy is not importable by the embedded Python" in r.stderr
     assert not (tmp_path / "x" / "frames").exists()

@@ -28,7 +28,11 @@ TABLES = ("scenes", "objects")
 
 def run_cli(*args, module="drake_scenes") -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", module, *map(str, args)], cwd=REPO, capture_output=True, text=True, timeout=300
+        [sys.executable, "-m", module, *map(str, args)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
     )
 
 
@@ -40,7 +44,7 @@ def tiny_variant(tmp_path: Path, name: str, **replacements) -> Path:
     """The tiny recipe with some lines replaced, e.g. count="count = [40, 40]"."""
     text = TINY.read_text()
     for key, line in replacements.items():
-        old = next(l for l in text.splitlines() if l.split("=")[0].strip() == key)
+        old = next(t for t in text.splitlines() if t.split("=")[0].strip() == key)
         text = text.replace(old, line)
     path = tmp_path / f"{name}.toml"
     path.write_text(text.replace('name = "tiny"', f'name = "{name}"'))
@@ -73,8 +77,13 @@ def recipe():
 def box_bodies(objects: pd.DataFrame, pose: str) -> list[BoxBody]:
     prefix = "initial_world_box" if pose == "initial" else "world_box"
     return [
-        BoxBody(np.asarray(o.size_m), o.mass_kg, o.friction, np.asarray(o[f"{prefix}_quat_wxyz"]),
-                np.asarray(o[f"{prefix}_translation_m"]))
+        BoxBody(
+            np.asarray(o.size_m),
+            o.mass_kg,
+            o.friction,
+            np.asarray(o[f"{prefix}_quat_wxyz"]),
+            np.asarray(o[f"{prefix}_translation_m"]),
+        )
         for _, o in objects.sort_values("object_id").iterrows()
     ]
 
@@ -88,7 +97,12 @@ def signed_distance_of(boxes: list[BoxBody], recipe: Recipe) -> float:
 def test_cli_reports_what_it_wrote(tiny_runs, tiny, recipe):
     out, stdout = tiny_runs[0]
     assert f"{recipe.num_scenes} scenes, {len(tiny['scenes'])} accepted" in stdout
-    for reason in ("solver failure", "not settled in time", "penetration", "box left the support region"):
+    for reason in (
+        "solver failure",
+        "not settled in time",
+        "penetration",
+        "box left the support region",
+    ):
         assert f"{reason}: " in stdout
     for table in TABLES:
         assert str(boxpose_io.shard_path(out, table, 0, 1)) in stdout
@@ -99,10 +113,13 @@ def test_cli_reports_what_it_wrote(tiny_runs, tiny, recipe):
 def same_schema(read_back: pa.Schema, contract: pa.Schema) -> bool:
     """Equal up to the name of a list's child field: Parquet stores lists with the child
     `element`, and pyarrow reads that name back instead of the contract's `item`."""
+
     def plain(t: pa.DataType):
         return ("list", plain(t.value_type), t.list_size) if pa.types.is_fixed_size_list(t) else t
 
-    fields = lambda s: [(f.name, plain(f.type), f.nullable) for f in s]
+    def fields(s: pa.Schema):
+        return [(f.name, plain(f.type), f.nullable) for f in s]
+
     return fields(read_back) == fields(contract) and read_back.metadata == contract.metadata
 
 
@@ -153,11 +170,18 @@ def test_projection_separates_overlapping_boxes(recipe):
     assert signed_distance_of(boxes, recipe) < -0.01  # really overlapping before
     result = project(boxes, recipe, np.random.default_rng(0))
     assert result.success, result.status
-    assert result.solver in ("SNOPT", "IPOPT") and 1 <= result.attempts <= recipe.drop.max_solve_attempts
+    assert (
+        result.solver in ("SNOPT", "IPOPT")
+        and 1 <= result.attempts <= recipe.drop.max_solve_attempts
+    )
     assert signed_distance_of(result.boxes, recipe) >= recipe.drop.min_separation_m - 1e-4
     hx, hy = recipe.support.half_extent_m
     for box in result.boxes:
-        assert abs(box.translation_m[0]) <= hx and abs(box.translation_m[1]) <= hy and box.translation_m[2] > 0
+        assert (
+            abs(box.translation_m[0]) <= hx
+            and abs(box.translation_m[1]) <= hy
+            and box.translation_m[2] > 0
+        )
 
 
 def test_every_written_scene_is_certified_within_the_recipe(tiny, recipe):
@@ -168,11 +192,16 @@ def test_every_written_scene_is_certified_within_the_recipe(tiny, recipe):
         assert row.max_angular_speed_radps <= s.max_angular_speed_radps
         assert row.min_signed_distance_m >= -s.max_penetration_m
         assert s.window_s <= row.settle_time_s <= s.max_time_s
-        assert row.solver in ("SNOPT", "IPOPT") and 1 <= row.solve_attempts <= recipe.drop.max_solve_attempts
+        assert (
+            row.solver in ("SNOPT", "IPOPT")
+            and 1 <= row.solve_attempts <= recipe.drop.max_solve_attempts
+        )
         objects = tiny["objects"][tiny["objects"].scene_id == row.scene_id]
         settled = box_bodies(objects, "settled")
         # The recorded distance is what the settled poses give, recomputed independently.
-        assert signed_distance_of(settled, recipe) == pytest.approx(row.min_signed_distance_m, abs=1e-6)
+        assert signed_distance_of(settled, recipe) == pytest.approx(
+            row.min_signed_distance_m, abs=1e-6
+        )
         hx, hy = recipe.support.half_extent_m
         for box in settled:
             x, y, z = box.translation_m
@@ -189,7 +218,9 @@ def test_runs_are_deterministic(tiny_runs):
 
 
 def test_rows_do_not_depend_on_the_shard_count(tiny, tmp_path):
-    result = run_cli("--recipe", TINY, "--out", tmp_path, "--shard", 1, "--num-shards", 2, "--no-progress")
+    result = run_cli(
+        "--recipe", TINY, "--out", tmp_path, "--shard", 1, "--num-shards", 2, "--no-progress"
+    )
     assert result.returncode == 0, result.stderr
     scenes = read(tmp_path, "scenes", 1, 2).to_pandas()
     assert list(scenes.scene_id) == [1]
@@ -211,11 +242,16 @@ def test_existing_shards_are_skipped(tiny_runs):
 
 def test_too_many_boxes_for_the_support_fails_up_front(tmp_path):
     # 40 boxes of at least 10 × 10 cm footprint: 0.4 m² on a 0.5 × 0.5 m floor.
-    recipe = tiny_variant(tmp_path, "crowded", count="count = [40, 40]", size_min_m="size_min_m = [0.1, 0.1, 0.1]")
+    recipe = tiny_variant(
+        tmp_path, "crowded", count="count = [40, 40]", size_min_m="size_min_m = [0.1, 0.1, 0.1]"
+    )
     out = tmp_path / "out"
     result = run_cli("--recipe", recipe, "--out", out, "--no-progress")
     assert result.returncode == 2
-    assert "recipe 'crowded'" in result.stderr and "covers more than the support region" in result.stderr
+    assert (
+        "recipe 'crowded'" in result.stderr
+        and "covers more than the support region" in result.stderr
+    )
     assert "Traceback" not in result.stderr
     assert not list(out.rglob("*.parquet")) and not list(out.rglob("*.tmp"))
 
@@ -224,13 +260,18 @@ def test_recipe_whose_solve_always_fails_is_reported_without_a_shard(tmp_path):
     """Passes the up-front checks, but no box can be 0.5 m from the floor while its lowest
     point stays within drop.height_m (at most 0.15 m) of it: every solve fails."""
     recipe = tiny_variant(
-        tmp_path, "unreachable", min_separation_m="min_separation_m = 0.5",
-        count="count = [1, 1]", max_solve_attempts="max_solve_attempts = 1",
+        tmp_path,
+        "unreachable",
+        min_separation_m="min_separation_m = 0.5",
+        count="count = [1, 1]",
+        max_solve_attempts="max_solve_attempts = 1",
     )
     out = tmp_path / "out"
     result = run_cli("--recipe", recipe, "--out", out, "--no-progress")
     assert result.returncode == 2, result.stdout + result.stderr
-    assert "recipe 'unreachable'" in result.stderr and "non-penetration solve failed" in result.stderr
+    assert (
+        "recipe 'unreachable'" in result.stderr and "non-penetration solve failed" in result.stderr
+    )
     assert "Traceback" not in result.stderr
     assert not list(out.rglob("*.parquet"))
 
@@ -249,7 +290,9 @@ def test_checked_in_recipes_load(recipe_file):
 
 
 def test_bin_support_keeps_boxes_inside(tmp_path):
-    recipe = Recipe.load(tiny_variant(tmp_path, "tiny_bin", kind='kind = "bin"', wall_height_m="wall_height_m = 0.1"))
+    recipe = Recipe.load(
+        tiny_variant(tmp_path, "tiny_bin", kind='kind = "bin"', wall_height_m="wall_height_m = 0.1")
+    )
     summary = run_shard(recipe, tmp_path / "out", num_scenes=1, progress=False)
     assert summary.accepted == 1, summary.report()
     objects = read(tmp_path / "out", "objects").to_pandas()
@@ -258,8 +301,17 @@ def test_bin_support_keeps_boxes_inside(tmp_path):
 
 
 def test_bench_settle_writes_initial_states_that_settle_reproduces(tmp_path):
-    result = run_cli("--recipe", TINY, "--boxes", 2, "--scenes", 1, "--out", tmp_path,
-                     module="drake_scenes.bench_settle")
+    result = run_cli(
+        "--recipe",
+        TINY,
+        "--boxes",
+        2,
+        "--scenes",
+        1,
+        "--out",
+        tmp_path,
+        module="drake_scenes.bench_settle",
+    )
     assert result.returncode == 0, result.stderr
     line = json.loads(result.stdout.strip().splitlines()[-1])
     assert line["boxes"] == 2 and line["scene"] == 0 and line["drake_settle_s"] > 0
@@ -269,7 +321,7 @@ def test_bench_settle_writes_initial_states_that_settle_reproduces(tmp_path):
     # The public settle() from the objects rows gives the same settled poses as the bench did.
     rows = [row for _, row in objects.sort_values("object_id").iterrows()]
     again = settle(rows, TINY)
-    for (quat, translation), row in zip(again.poses, rows):
+    for (quat, translation), row in zip(again.poses, rows, strict=True):
         np.testing.assert_allclose(quat, row.world_box_quat_wxyz, atol=1e-12)
         np.testing.assert_allclose(translation, row.world_box_translation_m, atol=1e-12)
     assert again.certificate.stable == line["stable"] and again.wall_time_s > 0

@@ -60,8 +60,14 @@ def rgb(png: bytes) -> np.ndarray:
 
 def recipe(base: str) -> str:
     text = (REPO / "datasets" / "recipes" / f"{base}.toml").read_text()
-    for old, new in (("width = 640", "width = 96"), ("height = 480", "height = 96"), ("width = 256", "width = 96"), ("height = 256", "height = 96"),
-                     ("samples = 4", "samples = 1"), ("denoise = true", "denoise = false")):
+    for old, new in (
+        ("width = 640", "width = 96"),
+        ("height = 480", "height = 96"),
+        ("width = 256", "width = 96"),
+        ("height = 256", "height = 96"),
+        ("samples = 4", "samples = 1"),
+        ("denoise = true", "denoise = false"),
+    ):
         text = text.replace(old, new)
     return text
 
@@ -72,12 +78,21 @@ def spaces(tmp_path_factory) -> dict[str, Path]:
     (root / "floor.toml").write_text(recipe("single_box"))
     (root / "bin.toml").write_text(recipe("clutter"))
     (root / "single.toml").write_text(SPACE.format(recipe=root / "floor.toml"))
-    (root / "clutter.toml").write_text(SPACE.format(recipe=root / "bin.toml").replace("test_single_box", "test_clutter") + NEIGHBOURS)
+    (root / "clutter.toml").write_text(
+        SPACE.format(recipe=root / "bin.toml").replace("test_single_box", "test_clutter")
+        + NEIGHBOURS
+    )
     return {"single": root / "single.toml", "clutter": root / "clutter.toml"}
 
 
 def search(boxpose_bin: Path, *args, check=True, timeout=600) -> subprocess.CompletedProcess:
-    r = subprocess.run([str(boxpose_bin), "search", *map(str, args)], capture_output=True, text=True, cwd=REPO, timeout=timeout)
+    r = subprocess.run(
+        [str(boxpose_bin), "search", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=timeout,
+    )
     if check:
         assert r.returncode == 0, r.stdout + r.stderr
     return r
@@ -108,24 +123,49 @@ def test_monte_carlo_run_writes_its_tables_estimate_and_report(mc_run, boxpose_b
 
     summary = json.loads((mc_run / "summary.json").read_text())
     e = summary["estimate"]
-    assert e["samples"] == 6 and e["valid"] == len(valid) and e["failures"] == int(samples.failed.sum())
+    assert (
+        e["samples"] == 6
+        and e["valid"] == len(valid)
+        and e["failures"] == int(samples.failed.sum())
+    )
     assert e["ci_method"] == "clopper_pearson"
     lo, hi = e["ci95"]
     assert lo <= e["p_hat"] <= hi and 0.0 <= lo and hi <= 1.0
     assert (mc_run / "report" / "index.html").is_file()
     if samples.failed.any():
-        r = subprocess.run([str(boxpose_bin), "inspect", mc_run / "counterexamples"], capture_output=True, text=True)
+        r = subprocess.run(
+            [str(boxpose_bin), "inspect", mc_run / "counterexamples"],
+            capture_output=True,
+            text=True,
+        )
         assert r.returncode == 0, r.stderr
-        assert set(pd.read_parquet(mc_run / "counterexamples" / "scenes").scene_id) == set(samples.sample_id[samples.failed])
+        assert set(pd.read_parquet(mc_run / "counterexamples" / "scenes").scene_id) == set(
+            samples.sample_id[samples.failed]
+        )
 
 
 def test_a_killed_run_resumes_to_identical_samples(mc_run, spaces, boxpose_bin, tmp_path):
     out = tmp_path / "run"
-    args = [str(boxpose_bin), "search", spaces["single"], "--out", out, "--fail-when", "mssd:0.05", *map(str, MC)]
-    process = subprocess.Popen(args, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    args = [
+        str(boxpose_bin),
+        "search",
+        spaces["single"],
+        "--out",
+        out,
+        "--fail-when",
+        "mssd:0.05",
+        *map(str, MC),
+    ]
+    process = subprocess.Popen(
+        args, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
     batches = out / "batches" / "samples"
     deadline = time.time() + 300
-    while not (batches.is_dir() and any(batches.glob("*.parquet"))) and time.time() < deadline and process.poll() is None:
+    while (
+        not (batches.is_dir() and any(batches.glob("*.parquet")))
+        and time.time() < deadline
+        and process.poll() is None
+    ):
         time.sleep(0.2)
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
@@ -140,7 +180,13 @@ def test_a_killed_run_resumes_to_identical_samples(mc_run, spaces, boxpose_bin, 
 def test_two_shards_merge_to_the_single_process_table(mc_run, spaces, boxpose_bin, tmp_path):
     out = tmp_path / "run"
     args = [spaces["single"], "--out", out, "--fail-when", "mssd:0.05", *MC, "--num-shards", 2]
-    first = subprocess.Popen([str(boxpose_bin), "search", *map(str, args), "--shard", "1"], cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = subprocess.Popen(
+        [str(boxpose_bin), "search", *map(str, args), "--shard", "1"],
+        cwd=REPO,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     search(boxpose_bin, *args, "--shard", 0)
     assert first.wait(timeout=600) == 0, first.stderr.read()
     search(boxpose_bin, "merge", out)
@@ -148,7 +194,21 @@ def test_two_shards_merge_to_the_single_process_table(mc_run, spaces, boxpose_bi
 
 
 def test_a_resumed_run_with_other_settings_is_refused(mc_run, spaces, boxpose_bin):
-    r = search(boxpose_bin, spaces["single"], "--out", mc_run, "--fail-when", "mssd:0.05", "--samples", 6, "--batch-size", 2, "--seed", 4, check=False)
+    r = search(
+        boxpose_bin,
+        spaces["single"],
+        "--out",
+        mc_run,
+        "--fail-when",
+        "mssd:0.05",
+        "--samples",
+        6,
+        "--batch-size",
+        2,
+        "--seed",
+        4,
+        check=False,
+    )
     assert r.returncode != 0 and "another search" in r.stderr, r.stderr
 
 
@@ -156,7 +216,20 @@ def test_a_resumed_run_with_other_settings_is_refused(mc_run, spaces, boxpose_bi
 def failing_run(spaces, boxpose_bin, tmp_path_factory) -> Path:
     """A run where every sample fails (a threshold nothing meets), so it has counterexamples."""
     out = tmp_path_factory.mktemp("failing") / "run"
-    search(boxpose_bin, spaces["single"], "--out", out, "--samples", 2, "--batch-size", 2, "--fail-when", "mssd:0.000001", "--threads", 1)
+    search(
+        boxpose_bin,
+        spaces["single"],
+        "--out",
+        out,
+        "--samples",
+        2,
+        "--batch-size",
+        2,
+        "--fail-when",
+        "mssd:0.000001",
+        "--threads",
+        1,
+    )
     return out
 
 
@@ -168,27 +241,82 @@ def test_counterexamples_re_render_exactly(failing_run, boxpose_bin, tmp_path):
     sample = int(failed.sample_id.iloc[0])
     out = tmp_path / "rerender"
     # ground-truth-crop searches render the region around the target: render_settings say which
-    frame = pd.read_parquet(mc_run / "counterexamples" / "frames").query(f"scene_id == {sample}").iloc[0]
+    frame = (
+        pd.read_parquet(mc_run / "counterexamples" / "frames")
+        .query(f"scene_id == {sample}")
+        .iloc[0]
+    )
     crop = json.loads(frame.render_settings)["crop"]
     region = ["--crop", ",".join(map(str, crop))] if crop else []
-    r = subprocess.run([str(boxpose_bin), "render", mc_run / "counterexamples", "--scene", str(sample), *region, "--out", out, "--threads", "1"], capture_output=True, text=True, cwd=REPO, timeout=300)
+    r = subprocess.run(
+        [
+            str(boxpose_bin),
+            "render",
+            mc_run / "counterexamples",
+            "--scene",
+            str(sample),
+            *region,
+            "--out",
+            out,
+            "--threads",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=300,
+    )
     assert r.returncode == 0, r.stderr
     again = pd.read_parquet(out / "frames").iloc[0]
-    for column in ("width", "height", "cx", "cy", "render_seed", "depth_m_f32le", "instance_mask_png"):
+    for column in (
+        "width",
+        "height",
+        "cx",
+        "cy",
+        "render_seed",
+        "depth_m_f32le",
+        "instance_mask_png",
+    ):
         assert again[column] == frame[column], column
     # Cycles at 1 sample is the same image within its noise, not bit for bit
     difference = np.abs(rgb(again.rgb_png) - rgb(frame.rgb_png))
     assert difference.mean() < 2.0, difference.mean()
-    want = pd.read_parquet(mc_run / "counterexamples" / "instances").query(f"scene_id == {sample}").sort_values("object_id")
+    want = (
+        pd.read_parquet(mc_run / "counterexamples" / "instances")
+        .query(f"scene_id == {sample}")
+        .sort_values("object_id")
+    )
     got = pd.read_parquet(out / "instances").sort_values("object_id")
     for column in ("corners_px", "visible_pixels", "visible_fraction"):
-        assert [list(v) if hasattr(v, "__len__") else v for v in want[column]] == [list(v) if hasattr(v, "__len__") else v for v in got[column]]
+        assert [list(v) if hasattr(v, "__len__") else v for v in want[column]] == [
+            list(v) if hasattr(v, "__len__") else v for v in got[column]
+        ]
 
 
 def test_cross_entropy_tunes_then_estimates_from_a_frozen_proposal(spaces, boxpose_bin, tmp_path):
     out = tmp_path / "ce"
-    search(boxpose_bin, spaces["single"], "--out", out, "--sampler", "ce", "--samples", 4, "--batch-size", 4, "--ce-samples-per-iteration", 6,
-           "--ce-max-iterations", 2, "--ce-rho", 0.5, "--fail-when", "mssd:0.02", "--threads", 1)
+    search(
+        boxpose_bin,
+        spaces["single"],
+        "--out",
+        out,
+        "--sampler",
+        "ce",
+        "--samples",
+        4,
+        "--batch-size",
+        4,
+        "--ce-samples-per-iteration",
+        6,
+        "--ce-max-iterations",
+        2,
+        "--ce-rho",
+        0.5,
+        "--fail-when",
+        "mssd:0.02",
+        "--threads",
+        1,
+    )
     samples = pd.read_parquet(out / "samples.parquet")
     tune, final = samples[samples.stage == "tune"], samples[samples.stage == "final"]
     assert len(final) == 4 and len(tune) in (6, 12)
@@ -196,14 +324,33 @@ def test_cross_entropy_tunes_then_estimates_from_a_frozen_proposal(spaces, boxpo
     # the frozen proposal mixes in the nominal with λ = 0.1: every weight is below 1/λ
     assert (final.log_weight <= math.log(10.0) + 1e-9).all()
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["sampler"] == "ce" and summary["samples_spent"] == len(samples) and summary["tuning_samples"] == len(tune)
+    assert (
+        summary["sampler"] == "ce"
+        and summary["samples_spent"] == len(samples)
+        and summary["tuning_samples"] == len(tune)
+    )
     assert len(summary["ce_levels"]) == tune.iteration.nunique()
     assert summary["estimate"]["samples"] == 4
 
 
 def test_clutter_on_the_segmenters_crops(spaces, boxpose_bin, tmp_path):
     out = tmp_path / "clutter"
-    search(boxpose_bin, spaces["clutter"], "--out", out, "--crops", "predicted", "--fit", "robust", "--samples", 3, "--batch-size", 3, "--threads", 1)
+    search(
+        boxpose_bin,
+        spaces["clutter"],
+        "--out",
+        out,
+        "--crops",
+        "predicted",
+        "--fit",
+        "robust",
+        "--samples",
+        3,
+        "--batch-size",
+        3,
+        "--threads",
+        1,
+    )
     samples = pd.read_parquet(out / "samples.parquet")
     assert set(samples.stratum) <= {1, 2}
     scored = samples[samples.valid]
@@ -219,13 +366,27 @@ def test_clutter_on_the_segmenters_crops(spaces, boxpose_bin, tmp_path):
     "edit, key",
     [
         (lambda t: t.replace("[camera]", "[camera]\nzoom = 2.0"), "zoom"),
-        (lambda t: t.replace("distance_m = [0.45, 0.55]", "distance_m = [0.55, 0.45]"), "camera.distance_m"),
-        (lambda t: t.replace("distance_m = [0.45, 0.55]", "distance_m = { normal = [9.0, 0.01], within = [0.45, 0.55] }"), "camera.distance_m"),
+        (
+            lambda t: t.replace("distance_m = [0.45, 0.55]", "distance_m = [0.55, 0.45]"),
+            "camera.distance_m",
+        ),
+        (
+            lambda t: t.replace(
+                "distance_m = [0.45, 0.55]",
+                "distance_m = { normal = [9.0, 0.01], within = [0.45, 0.55] }",
+            ),
+            "camera.distance_m",
+        ),
         (lambda t: t.replace('orientation = "so3"', 'orientation = "yaw"'), "target.yaw_deg"),
-        (lambda t: t.replace("size_m = { x = [0.10, 0.20]", "size_m = { x = [-0.10, 0.20]"), "target.size_m.x"),
+        (
+            lambda t: t.replace("size_m = { x = [0.10, 0.20]", "size_m = { x = [-0.10, 0.20]"),
+            "target.size_m.x",
+        ),
     ],
 )
-def test_a_bad_search_space_is_one_clear_error_before_any_work(edit, key, spaces, boxpose_bin, tmp_path):
+def test_a_bad_search_space_is_one_clear_error_before_any_work(
+    edit, key, spaces, boxpose_bin, tmp_path
+):
     bad = tmp_path / "bad.toml"
     bad.write_text(edit(spaces["single"].read_text()))
     out = tmp_path / "run"
@@ -236,12 +397,34 @@ def test_a_bad_search_space_is_one_clear_error_before_any_work(edit, key, spaces
 
 def test_cross_entropy_tilts_only_the_named_parameters(spaces, boxpose_bin, tmp_path):
     out = tmp_path / "tilt"
-    search(boxpose_bin, spaces["single"], "--out", out, "--sampler", "ce", "--samples", 2, "--batch-size", 4, "--ce-samples-per-iteration", 4,
-           "--ce-max-iterations", 1, "--ce-rho", 0.5, "--ce-tilt", "target.size_m", "--fail-when", "mssd:0.02", "--threads", 1)
+    search(
+        boxpose_bin,
+        spaces["single"],
+        "--out",
+        out,
+        "--sampler",
+        "ce",
+        "--samples",
+        2,
+        "--batch-size",
+        4,
+        "--ce-samples-per-iteration",
+        4,
+        "--ce-max-iterations",
+        1,
+        "--ce-rho",
+        0.5,
+        "--ce-tilt",
+        "target.size_m",
+        "--fail-when",
+        "mssd:0.02",
+        "--threads",
+        1,
+    )
     names = json.loads((out / "run.json").read_text())["dimensions"]
     plan = json.loads((out / "proposals" / "iter-0001.json").read_text())
     for component in plan["proposal"]["components"]:
-        for name, mean, std in zip(names, component["mean"], component["std"]):
+        for name, mean, std in zip(names, component["mean"], component["std"], strict=True):
             if not name.startswith("target.size_m"):
                 assert (mean, std) == (0.0, 1.0), name
     final = pd.read_parquet(out / "samples.parquet").query("stage == 'final'")
@@ -251,31 +434,79 @@ def test_cross_entropy_tilts_only_the_named_parameters(spaces, boxpose_bin, tmp_
 
 def test_an_unknown_tilt_is_refused_before_any_work(spaces, boxpose_bin, tmp_path):
     out = tmp_path / "run"
-    r = search(boxpose_bin, spaces["single"], "--out", out, "--sampler", "ce", "--ce-tilt", "target.colour", check=False)
-    assert r.returncode != 0 and "target.colour" in r.stderr and "target.size_m.x" in r.stderr, r.stderr
+    r = search(
+        boxpose_bin,
+        spaces["single"],
+        "--out",
+        out,
+        "--sampler",
+        "ce",
+        "--ce-tilt",
+        "target.colour",
+        check=False,
+    )
+    assert r.returncode != 0 and "target.colour" in r.stderr and "target.size_m.x" in r.stderr, (
+        r.stderr
+    )
     assert not out.exists()
 
 
 def test_cross_entropy_on_clutter_pools_its_strata(spaces, boxpose_bin, tmp_path):
     out = tmp_path / "clutter-ce"
-    search(boxpose_bin, spaces["clutter"], "--out", out, "--sampler", "ce", "--samples", 4, "--batch-size", 4, "--ce-samples-per-iteration", 4,
-           "--ce-max-iterations", 1, "--ce-rho", 0.5, "--fail-when", "mssd:0.02", "--threads", 1)
+    search(
+        boxpose_bin,
+        spaces["clutter"],
+        "--out",
+        out,
+        "--sampler",
+        "ce",
+        "--samples",
+        4,
+        "--batch-size",
+        4,
+        "--ce-samples-per-iteration",
+        4,
+        "--ce-max-iterations",
+        1,
+        "--ce-rho",
+        0.5,
+        "--fail-when",
+        "mssd:0.02",
+        "--threads",
+        1,
+    )
     samples = pd.read_parquet(out / "samples.parquet")
     final = samples[samples.stage == "final"]
     # both strata in every stage, each with its nominal share, and never tilted: the neighbour
     # count is not part of z, so it never enters the weights
-    assert sorted(final.stratum) == [1, 1, 2, 2] and sorted(samples[samples.stage == "tune"].stratum) == [1, 1, 2, 2]
+    assert sorted(final.stratum) == [1, 1, 2, 2] and sorted(
+        samples[samples.stage == "tune"].stratum
+    ) == [1, 1, 2, 2]
     summary = json.loads((out / "summary.json").read_text())
-    assert [s["neighbours"] for s in summary["strata"]] == [1, 2] and summary["estimate"]["samples"] == 4
+    assert [s["neighbours"] for s in summary["strata"]] == [1, 2] and summary["estimate"][
+        "samples"
+    ] == 4
 
 
 def test_a_sample_replays_to_its_recorded_outcome(mc_run, boxpose_bin, tmp_path):
     samples = pd.read_parquet(mc_run / "samples.parquet")
     failed = samples[samples.failed]
     row = (failed if not failed.empty else samples[samples.valid]).iloc[0]
-    r = search(boxpose_bin, "replay", mc_run, "--sample", int(row.sample_id), "--out", tmp_path, "--threads", 1)
+    r = search(
+        boxpose_bin,
+        "replay",
+        mc_run,
+        "--sample",
+        int(row.sample_id),
+        "--out",
+        tmp_path,
+        "--threads",
+        1,
+    )
     assert "reproduced" in r.stdout, r.stdout
-    recorded, replayed = [line for line in r.stdout.splitlines() if line.strip().startswith(("recorded", "replayed"))]
+    recorded, replayed = [
+        line for line in r.stdout.splitlines() if line.strip().startswith(("recorded", "replayed"))
+    ]
     assert recorded.split(maxsplit=1)[1] == replayed.split(maxsplit=1)[1]
     if row.score == row.score:  # scored: the printed score is the stored one
         assert f"score {row.score:.4f}" in recorded
@@ -284,12 +515,28 @@ def test_a_sample_replays_to_its_recorded_outcome(mc_run, boxpose_bin, tmp_path)
     assert missing.returncode != 0 and "no sample 999" in missing.stderr
 
 
-def test_ground_truth_crops_render_a_region_unless_whole_frames_are_asked_for(spaces, boxpose_bin, tmp_path):
+def test_ground_truth_crops_render_a_region_unless_whole_frames_are_asked_for(
+    spaces, boxpose_bin, tmp_path
+):
     widths = {}
     for name, extra in (("region", []), ("whole", ["--whole-frames"])):
         out = tmp_path / name
         # a threshold nothing meets: every sample fails, so every frame is kept as a counterexample
-        search(boxpose_bin, spaces["single"], "--out", out, "--samples", 2, "--batch-size", 2, "--fail-when", "mssd:0.000001", "--threads", 1, *extra)
+        search(
+            boxpose_bin,
+            spaces["single"],
+            "--out",
+            out,
+            "--samples",
+            2,
+            "--batch-size",
+            2,
+            "--fail-when",
+            "mssd:0.000001",
+            "--threads",
+            1,
+            *extra,
+        )
         frames = pd.read_parquet(out / "counterexamples" / "frames")
         widths[name] = set(frames.width) | set(frames.height)
     assert widths["whole"] == {96} and max(widths["region"]) < 96, widths

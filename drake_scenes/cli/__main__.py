@@ -6,7 +6,6 @@ import argparse
 import sys
 from pathlib import Path
 
-
 DESCRIPTION = """\
 Generate physically stable box scenes with Drake and write them as the `scenes` and `objects`
 tables of a boxpose dataset (Parquet shards, see docs/dataset.md).
@@ -29,7 +28,7 @@ examples:
   python -m drake_scenes --recipe datasets/recipes/clutter.toml --out datasets/generated/clutter --shard 1 --num-shards 4
 
 exit status: 0 on success (or shard already present), 2 for a bad or impossible recipe.
-"""
+"""  # noqa: E501  (printed verbatim by --help: the example stays one copyable line)
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -39,15 +38,27 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--recipe", required=True, type=Path, help="recipe TOML, e.g. datasets/recipes/tiny.toml")
-    parser.add_argument("--out", required=True, type=Path, help="dataset folder (created if missing)")
-    parser.add_argument("--shard", type=int, default=0, help="index of this shard, 0 <= i < N (default 0)")
-    parser.add_argument("--num-shards", type=int, default=1, metavar="N", help="number of shards (default 1)")
-    parser.add_argument("--num-scenes", type=int, metavar="K", help="override the recipe's num_scenes")
+    parser.add_argument(
+        "--recipe", required=True, type=Path, help="recipe TOML, e.g. datasets/recipes/tiny.toml"
+    )
+    parser.add_argument(
+        "--out", required=True, type=Path, help="dataset folder (created if missing)"
+    )
+    parser.add_argument(
+        "--shard", type=int, default=0, help="index of this shard, 0 <= i < N (default 0)"
+    )
+    parser.add_argument(
+        "--num-shards", type=int, default=1, metavar="N", help="number of shards (default 1)"
+    )
+    parser.add_argument(
+        "--num-scenes", type=int, metavar="K", help="override the recipe's num_scenes"
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     if args.num_shards < 1 or not 0 <= args.shard < args.num_shards:
-        parser.error(f"need 0 <= --shard < --num-shards, got shard {args.shard} of {args.num_shards}")
+        parser.error(
+            f"need 0 <= --shard < --num-shards, got shard {args.shard} of {args.num_shards}"
+        )
     if args.num_scenes is not None and args.num_scenes < 0:
         parser.error("--num-scenes must be >= 0")
     return args
@@ -61,7 +72,14 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         recipe = Recipe.load(args.recipe)
-        summary = run_shard(recipe, args.out, args.shard, args.num_shards, args.num_scenes, progress=not args.no_progress)
+        summary = run_shard(
+            recipe,
+            args.out,
+            args.shard,
+            args.num_shards,
+            args.num_scenes,
+            progress=not args.no_progress,
+        )
     except RecipeError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -34,14 +34,20 @@ def _check_finite(table: str, rows: list[dict]) -> None:
 
 
 def _check_lengths(table: str, rows: list[dict]) -> None:
-    sized = [(c["name"], c["list_size"], c["nullable"]) for c in TABLES[table]["columns"] if c["list_size"]]
+    sized = [
+        (c["name"], c["list_size"], c["nullable"])
+        for c in TABLES[table]["columns"]
+        if c["list_size"]
+    ]
     for i, row in enumerate(rows):
         for name, size, nullable in sized:
             value = row[name]
             if value is None and nullable:
                 continue
             if value is None or len(value) != size:
-                raise ShardError(f"table {table}, row {i}, column {name}: expected {size} values, got {value!r}")
+                raise ShardError(
+                    f"table {table}, row {i}, column {name}: expected {size} values, got {value!r}"
+                )
 
 
 def table_from_rows(table: str, rows: list[dict]) -> pa.Table:
@@ -51,7 +57,10 @@ def table_from_rows(table: str, rows: list[dict]) -> pa.Table:
     for i, row in enumerate(rows):
         missing, extra = set(names) - row.keys(), row.keys() - set(names)
         if missing or extra:
-            raise ShardError(f"table {table}, row {i}: missing columns {sorted(missing)}, unknown columns {sorted(extra)}")
+            raise ShardError(
+                f"table {table}, row {i}: missing columns {sorted(missing)}, "
+                f"unknown columns {sorted(extra)}"
+            )
     _check_lengths(table, rows)
     _check_finite(table, rows)
     schema = arrow_schema(table)
