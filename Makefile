@@ -16,7 +16,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search fuzz clean
+.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search lint fuzz clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -123,6 +123,12 @@ PROPTEST_SEED ?= 20261201
 test: setup ## Run every test: Rust unit/property tests, then the Python/Rust end-to-end tests
 	PROPTEST_RNG_SEED=$(PROPTEST_SEED) cargo test --release --workspace
 	$(PY) -m pytest -q tests
+
+lint: $(VENV)/.stamp ## Style and lint gates that CI runs before the tests: rustfmt, clippy (-D warnings), ruff
+	cargo fmt --all --check
+	cargo clippy --release --workspace --all-targets -- -D warnings
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
 
 fuzz: rust ## Property tests on fresh random seeds with many cases (FUZZ_CASES, default 2000)
 	PROPTEST_CASES=$(or $(FUZZ_CASES),2000) PROPTEST_MAX_GLOBAL_REJECTS=1000000 \

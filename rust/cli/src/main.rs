@@ -81,8 +81,21 @@ enum Command {
     EvalResults(eval_results::Args),
 }
 
-fn main() -> anyhow::Result<()> {
-    match Cli::parse().command {
+/// Prints a failure as one line, its causes joined by ": ", and never a backtrace: anyhow's
+/// default report appends one whenever RUST_BACKTRACE is set, as it often is on developer
+/// machines, burying the message a user needs under 20 frames.
+fn main() -> std::process::ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(error) => {
+            eprintln!("error: {error:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
         Command::Schema { markdown: true } => print!("{}", boxpose_data::schema::to_markdown()),
         Command::Schema { markdown: false } => {
             println!(
