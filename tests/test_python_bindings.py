@@ -1,5 +1,8 @@
 """The `boxpose` extension module (rust/python, built by maturin into .venv) on numpy arrays."""
 
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 
@@ -218,6 +221,11 @@ def test_metrics_agree_with_their_definitions():
         lambda: boxpose.fit_pose_and_size(np.eye(4, 3), method="icp"),
         lambda: boxpose.box_corners([0.1, -0.1, 0.1]),
         lambda: boxpose.mssd(SIZE, np.eye(3), np.eye(4)),
+        lambda: boxpose.mssd(SIZE, np.eye(4) * 2.0, np.eye(4)),
+        lambda: boxpose.add_s(SIZE, np.diag([1.0, 1.0, -1.0, 1.0]), np.eye(4)),
+        lambda: boxpose.mssd(SIZE, np.eye(4), np.vstack([np.eye(4)[:3], [0.0, 0.0, 1.0, 1.0]])),
+        lambda: boxpose.nms(np.ones((4, 4, 4), np.float32), count=10**18),
+        lambda: boxpose.render_target_heatmap((10**6, 10**6, 10**6), np.zeros((1, 3)), 2.0),
     ],
     ids=[
         "nan",
@@ -230,8 +238,33 @@ def test_metrics_agree_with_their_definitions():
         "unknown-size-fit-method",
         "negative-size",
         "bad-matrix",
+        "scaled-pose",
+        "mirrored-pose",
+        "bad-last-row",
+        "huge-nms-count",
+        "huge-heatmap",
     ],
 )
 def test_bad_input_raises_value_error(call):
     with pytest.raises(ValueError):
         call()
+
+
+def test_huge_inputs_return_quickly_instead_of_hanging_or_aborting():
+    """Each call ran forever (a pose of 1e200 entries, with the GIL held) or aborted the
+    interpreter (capacity overflow) before; in a subprocess, so that a regression fails rather
+    than hangs the suite."""
+    calls = [
+        "boxpose.mssd([0.1, 0.2, 0.3], np.eye(4) * 1e200, np.eye(4))",
+        "boxpose.nms(np.arange(64, dtype=np.float32).reshape(4, 4, 4), sigma=1e300)",
+        "boxpose.nms(np.arange(64, dtype=np.float32).reshape(4, 4, 4), refine_radius=2**63)",
+    ]
+    for call in calls:
+        script = (
+            "import numpy as np, boxpose\n"
+            f"try:\n    {call}\nexcept ValueError as e:\n    print('ValueError', e)\n"
+        )
+        result = subprocess.run(
+            [sys.executable, "-c", script], capture_output=True, text=True, timeout=30
+        )
+        assert result.returncode == 0, (call, result.stderr)

@@ -64,19 +64,29 @@ impl Default for NmsParams {
 }
 
 impl HeatmapDims {
-    /// Number of voxels, or an error if it overflows or any dimension is zero.
+    /// Number of voxels, or an error if any dimension is zero or there are more than
+    /// [`HeatmapDims::MAX_VOXELS`] (a shape typo must be an error, not a 4-exabyte allocation
+    /// that aborts the process).
     pub fn voxel_count(&self) -> Result<usize> {
         let count = self
             .depth
             .checked_mul(self.height)
             .and_then(|n| n.checked_mul(self.width));
         match count {
-            Some(n) if n > 0 => Ok(n),
+            Some(n) if n > 0 && n <= Self::MAX_VOXELS => Ok(n),
             _ => Err(GeometryError::InvalidParameter {
                 name: "dims",
-                reason: "every dimension must be positive and their product must fit in usize",
+                reason: "every dimension must be positive and there may be at most 2^30 voxels",
             }),
         }
+    }
+
+    /// 2^30 voxels, 4 GiB of f32: far above any network's heatmap (64³ = 2^18).
+    pub const MAX_VOXELS: usize = 1 << 30;
+
+    /// The longest axis: no kernel or window needs to reach further than this.
+    fn longest_axis(&self) -> usize {
+        self.depth.max(self.height).max(self.width)
     }
 
     fn index(&self, z: usize, v: usize, u: usize) -> usize {
@@ -105,10 +115,10 @@ pub fn non_maximum_suppression(
         });
     }
     ensure_positive("sigma", params.sigma)?;
-    if params.count == 0 {
+    if params.count == 0 || params.count > voxel_count {
         return Err(GeometryError::InvalidParameter {
             name: "count",
-            reason: "must be at least 1",
+            reason: "must be at least 1 and at most the number of voxels",
         });
     }
 
@@ -125,7 +135,10 @@ pub fn non_maximum_suppression(
         row_max.push(max);
     }
 
-    let radius = (GAUSSIAN_TRUNCATION_SIGMAS * params.sigma).ceil() as usize;
+    // A kernel wider than the volume is cut at its longest axis: nothing beyond is ever indexed.
+    let radius = (GAUSSIAN_TRUNCATION_SIGMAS * params.sigma)
+        .ceil()
+        .min(dims.longest_axis() as f64) as usize;
     let kernel: Vec<f32> = (0..=radius)
         .map(|d| (-((d * d) as f64) / (2.0 * params.sigma * params.sigma)).exp() as f32)
         .collect();
@@ -221,6 +234,7 @@ fn soft_argmax_around(
     voxel: [usize; 3],
     radius: usize,
 ) -> VoxelCoord {
+    let radius = radius.min(dims.longest_axis());
     let span =
         |centre: usize, len: usize| centre.saturating_sub(radius)..(centre + radius + 1).min(len);
     let (mut total, mut sum) = (0.0f64, [0.0f64; 3]);

@@ -223,6 +223,41 @@ fn bad_heatmaps_are_errors() {
     ));
 }
 
+/// Resource arguments are bounded: an absurd shape or count is an error, and a kernel or window
+/// wider than the volume is cut at it, giving what the widest useful one gives.
+#[test]
+fn absurd_sizes_are_errors_or_clipped() {
+    let dims = HeatmapDims {
+        depth: 4,
+        height: 4,
+        width: 4,
+    };
+    let volume: Vec<f32> = (0..64).map(|i| i as f32).collect();
+    let huge = HeatmapDims {
+        depth: 1 << 20,
+        height: 1 << 20,
+        width: 1 << 20,
+    };
+    assert!(huge.voxel_count().is_err());
+    assert!(render_target_heatmap(huge, &[], 2.0).is_err());
+    let too_many = NmsParams {
+        count: 65,
+        ..NmsParams::default()
+    };
+    assert!(non_maximum_suppression(&volume, dims, &too_many).is_err());
+    let peaks = |sigma: f64, refine_radius: usize| {
+        let params = NmsParams {
+            count: 8,
+            sigma,
+            refine_radius,
+        };
+        non_maximum_suppression(&volume, dims, &params).unwrap()
+    };
+    // A flat kernel over the whole volume subtracts the first peak's value everywhere.
+    assert_eq!(peaks(1e300, 0).len(), 1);
+    assert_eq!(peaks(2.0, usize::MAX), peaks(2.0, 4));
+}
+
 #[test]
 fn crop_convention_maps_pixel_centres() {
     let g = VoxelGrid {

@@ -6,12 +6,15 @@
 //! too few or degenerate points, empty heatmaps) raises `ValueError` with the reason.
 
 use boxpose_geometry::adaptive::FitConfidence;
+use boxpose_geometry::align::nearest_rotation;
 use boxpose_geometry::heatmap::{
     self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord,
     VoxelGrid,
 };
 use boxpose_geometry::{BoxModel, GeometryError, align, correspondence, metrics, robust, size_fit};
-use nalgebra::{Isometry3, Matrix4, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Matrix3, Matrix4, Point3, RowVector4, Translation3, UnitQuaternion, Vector3,
+};
 use numpy::{
     IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
 };
@@ -59,12 +62,36 @@ fn isometry(matrix: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Isometry3<f6
             "{what} has non-finite entries"
         )));
     }
-    let rotation = Rotation3::from_matrix(&m.fixed_view::<3, 3>(0, 0).into_owned());
+    // A rigid transform or nothing: a scaled or sheared "pose" would be silently re-interpreted,
+    // and nalgebra's iterative projection never returns on entries of 1e200.
+    let block = m.fixed_view::<3, 3>(0, 0).into_owned();
+    let orthonormality = (block.transpose() * block - Matrix3::identity())
+        .abs()
+        .max();
+    let bottom = (m.fixed_view::<1, 4>(3, 0) - RowVector4::new(0.0, 0.0, 0.0, 1.0))
+        .abs()
+        .max();
+    if !(orthonormality <= RIGID_TOLERANCE
+        && bottom <= RIGID_TOLERANCE
+        && block.determinant() > 0.0)
+    {
+        return Err(PyValueError::new_err(format!(
+            "{what} is not a rigid transform: its 3 × 3 block must be a rotation (|RᵀR − I| = \
+             {orthonormality:.1e}, det = {:.3e}) and its last row [0, 0, 0, 1], within \
+             {RIGID_TOLERANCE:.0e}",
+            block.determinant()
+        )));
+    }
+    let rotation = nearest_rotation(&block)
+        .ok_or_else(|| PyValueError::new_err(format!("{what} has no nearest rotation")))?;
     Ok(Isometry3::from_parts(
         Translation3::new(m[(0, 3)], m[(1, 3)], m[(2, 3)]),
         UnitQuaternion::from_rotation_matrix(&rotation),
     ))
 }
+
+/// How far a pose's rotation block may be from orthonormal (float32 round trips stay ~1e-7).
+const RIGID_TOLERANCE: f64 = 1e-5;
 
 fn matrix<'py>(py: Python<'py>, pose: &Isometry3<f64>) -> Bound<'py, PyArray2<f64>> {
     let m = pose.to_homogeneous();
