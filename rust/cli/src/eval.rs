@@ -10,6 +10,7 @@ use arrow::array::{ArrayRef, Float64Array, Int32Array};
 use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::Dataset;
+use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::data::{self, Sample};
@@ -170,11 +171,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let summary_path = args.out.join("summary.json");
     std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)?)
         .with_context(|| summary_path.display().to_string())?;
+    // Normalised by the box's d²/3, so that the paper's unit-box threshold marks the
+    // counterexamples for every box size.
     let errors = |method: Method| -> Vec<f64> {
         fit_rows
             .iter()
             .filter(|r| r.method == method)
-            .filter_map(|r| r.outcome.as_ref().ok().map(|s| s.paper_error))
+            .filter_map(|r| {
+                let scores = r.outcome.as_ref().ok()?;
+                Some(normalized_paper_error(scores.paper_error, r.diameter_m))
+            })
             .collect()
     };
     let series = [
@@ -193,7 +199,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 .to_string_lossy(),
             evals.len()
         );
-        plots::error_histogram(&histogram, &title, &series)?;
+        plots::error_histogram(&histogram, &title, &series, PAPER_ERROR_THRESHOLD)?;
     }
 
     let crops = match args.crops {

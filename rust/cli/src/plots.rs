@@ -26,11 +26,13 @@ const SERIES_COLORS: [RGBColor; 3] = [
     RGBColor(44, 160, 44),
 ];
 
-/// Histogram of `log10(error)` per series, counts on a log scale (the paper's Fig. 6).
+/// Histogram of `log10(error)` per series, counts on a log scale (the paper's Fig. 6), the errors
+/// normalised by the box's d²/3 and a dashed line at the counterexample `threshold`.
 pub fn error_histogram(
     path: &Path,
     title: &str,
     series: &[(&str, Vec<f64>)],
+    threshold: f64,
 ) -> anyhow::Result<()> {
     register_font();
     let logs: Vec<Vec<f64>> = series
@@ -43,11 +45,12 @@ pub fn error_histogram(
         "no positive error to plot in {}",
         path.display()
     );
-    let lo = all.iter().copied().fold(f64::INFINITY, f64::min).floor();
+    let log_threshold = threshold.log10();
+    let lo = all.iter().copied().fold(log_threshold, f64::min).floor();
     let hi = all
         .iter()
         .copied()
-        .fold(f64::NEG_INFINITY, f64::max)
+        .fold(log_threshold, f64::max)
         .ceil()
         .max(lo + 1.0);
     let bins_per_decade = 8.0;
@@ -77,7 +80,7 @@ pub fn error_histogram(
             .build_cartesian_2d(lo..hi, (0.8..max_count * 1.5).log_scale())?;
         chart
             .configure_mesh()
-            .x_desc("log10(paper's error)  [m²]")
+            .x_desc("log10(paper's error / (d²/3)),  d the box's diagonal")
             .y_desc("instances")
             .y_label_formatter(&|y| format!("{y:.0}"))
             .draw()?;
@@ -94,6 +97,15 @@ pub fn error_histogram(
                     Rectangle::new([(x, y - 5), (x + 12, y + 5)], color.filled())
                 });
         }
+        chart
+            .draw_series(DashedLineSeries::new(
+                vec![(log_threshold, 0.8), (log_threshold, max_count * 1.5)],
+                6,
+                4,
+                BLACK.stroke_width(2),
+            ))?
+            .label(format!("counterexample above {threshold}"))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 12, y)], BLACK.stroke_width(2)));
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.8))

@@ -7,6 +7,17 @@ use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 use crate::box_model::{BoxModel, CORNER_COUNT};
 use crate::error::{GeometryError, Result, ensure_finite, ensure_finite_points};
 
+/// The paper's counterexample threshold on [`paper_error`] for its unit box; for other boxes it
+/// applies to [`normalized_paper_error`].
+pub const PAPER_ERROR_THRESHOLD: f64 = 0.005;
+
+/// [`paper_error`] / (d² / 3), d the box's diagonal: a unit cube's d²/3 is 1, and the error of a
+/// box scaled by s grows by s², so the paper's [`PAPER_ERROR_THRESHOLD`] keeps its meaning for
+/// any box.
+pub fn normalized_paper_error(paper_error: f64, diagonal_m: f64) -> f64 {
+    paper_error / (diagonal_m * diagonal_m / 3.0)
+}
+
 /// The paper's error (its section III-E, step 7):
 ///
 /// error = (1/8) Σ_{i=0}^{7} ‖R·m_{c_i} + t − s_i‖²

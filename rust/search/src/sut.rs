@@ -7,6 +7,7 @@ use std::time::Instant;
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Frame, Instance, Object, Scene};
 use boxpose_geometry::BoxModel;
+use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::{self, Method, Scores};
 use boxpose_learn::data;
 use boxpose_learn::evaluation;
@@ -43,7 +44,9 @@ pub enum Predicate {
 
 impl Default for Predicate {
     fn default() -> Self {
-        Predicate::PaperError { threshold: 0.005 }
+        Predicate::PaperError {
+            threshold: PAPER_ERROR_THRESHOLD,
+        }
     }
 }
 
@@ -79,7 +82,7 @@ impl Predicate {
         };
         match metric {
             "paper" => Ok(Predicate::PaperError {
-                threshold: number(value, 0.005)?,
+                threshold: number(value, PAPER_ERROR_THRESHOLD)?,
             }),
             "mssd" => Ok(Predicate::Mssd {
                 fraction: number(value, 0.1)?,
@@ -133,11 +136,11 @@ pub struct Metrics {
 
 impl Metrics {
     fn of(scores: &Scores, size: [f64; 3]) -> Self {
-        let diag2: f64 = size.iter().map(|s| s * s).sum();
+        let diagonal = size.iter().map(|s| s * s).sum::<f64>().sqrt();
         Metrics {
             paper_error: scores.paper_error,
-            paper_error_normalized: scores.paper_error / (diag2 / 3.0),
-            mssd_over_diameter: scores.mssd_m / diag2.sqrt(),
+            paper_error_normalized: normalized_paper_error(scores.paper_error, diagonal),
+            mssd_over_diameter: scores.mssd_m / diagonal,
             add_s_m: scores.add_s_m,
             rotation_error_deg: scores.rotation_error_deg,
             translation_error_m: scores.translation_error_m,
