@@ -124,7 +124,7 @@ test: setup ## Run every test: Rust unit/property tests, then the Python/Rust en
 	PROPTEST_RNG_SEED=$(PROPTEST_SEED) cargo test --release --workspace
 	$(PY) -m pytest -q tests
 
-lint: $(VENV)/.stamp ## Style and lint gates that CI runs before the tests: rustfmt, clippy (-D warnings), ruff
+lint: $(VENV)/.stamp $(MUJOCO_LINK_DIR)/.stamp ## Style and lint gates that CI runs before the tests: rustfmt, clippy (-D warnings), ruff
 	cargo fmt --all --check
 	cargo clippy --release --workspace --all-targets -- -D warnings
 	$(VENV)/bin/ruff check .
