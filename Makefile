@@ -21,12 +21,14 @@ export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
 
-$(VENV)/.stamp: requirements.txt
+$(VENV)/.stamp: requirements.txt pyproject.toml
 	@$(PYTHON_BOOTSTRAP) -c 'import sys; assert sys.version_info[:2] == (3, 11), "boxpose needs Python 3.11 (bpy 5.0.1); found " + sys.version' 
 	test -x $(PY) || $(PYTHON_BOOTSTRAP) -m venv $(VENV)
 	$(PY) -m pip install --quiet -r requirements.txt
-	# boxpose_io (python/) and the stage packages (drake_scenes, blender_scripts) import from this tree.
-	printf '%s\n' $(CURDIR)/python $(CURDIR) > $$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/boxpose.pth
+	# boxpose_io (python/) and the stage packages (drake_scenes, blender_scripts): an editable
+	# install (pyproject.toml), so they import from this tree. A venv made before it had a .pth.
+	rm -f $$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/boxpose.pth
+	$(PY) -m pip install --quiet --no-deps -e .
 	touch $@
 
 $(MUJOCO_LINK_DIR)/.stamp: $(VENV)/.stamp

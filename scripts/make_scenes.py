@@ -32,14 +32,13 @@ import tomllib
 from collections import deque
 from pathlib import Path
 
+import pyarrow as pa
+import pyarrow.parquet as pq
+from tqdm import tqdm
+
+from blender_scripts.worker import PROGRESS  # no bpy needed
+
 REPO = Path(__file__).resolve().parent.parent
-sys.path[:0] = [str(REPO / "python"), str(REPO)]
-
-import pyarrow as pa  # noqa: E402
-import pyarrow.parquet as pq  # noqa: E402
-from tqdm import tqdm  # noqa: E402
-
-from blender_scripts.worker import PROGRESS  # noqa: E402 (no bpy needed)
 
 PARTIAL = ".partial"
 

@@ -1,0 +1,138 @@
+"""Type stub of `boxpose`, the geometry core on numpy arrays (rust/python/src/lib.rs).
+
+maturin ships this file in the wheel as `boxpose/__init__.pyi`, with a `py.typed` marker.
+tests/test_packaging.py fails when a function's name, parameters, their kinds or defaults here
+disagree with the compiled module's; the types follow the Rust extraction rules:
+
+- point sets, poses and coordinates are float64 ndarrays exactly (rust-numpy converts nothing:
+  a list or a float32 array raises TypeError); a pose is a 4 × 4 rigid transform;
+- heatmaps are (D, H, W) float32 ndarrays;
+- sizes and the small fixed-length parameters are any sequence of floats of that length
+  (list, tuple or 1-d array).
+"""
+
+from collections.abc import Sequence
+from typing import Any, Literal, TypedDict
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = [
+    "box_corners",
+    "nms",
+    "render_target_heatmap",
+    "back_project",
+    "kabsch",
+    "umeyama",
+    "paper_exact_search",
+    "fast_exact_search",
+    "robust_fit",
+    "fit_pose_and_size",
+    "paper_error",
+    "add_s",
+    "mssd",
+    "rotation_error_deg",
+    "translation_error",
+    "iou_3d",
+]
+
+_F64 = NDArray[np.float64]
+_F32 = NDArray[np.float32]
+# (dx, dy, dz) in metres; any length-3 sequence of floats.
+_Size = Sequence[float] | NDArray[np.floating[Any]]
+_Params = Sequence[float] | NDArray[np.floating[Any]]
+
+class _CorrespondenceFit(TypedDict):
+    pose: _F64  # 4 × 4, maps box-frame points into the camera frame
+    peaks: list[int]  # indices into `points` of the peaks used, highest score first
+    corners: list[int]  # corners[k]: the box corner matched to points[peaks[k]]
+    sum_squared_error: float  # m²
+
+class _Confidence(TypedDict):
+    confidence: float  # in [0, 1)
+    margin_nats: float  # to the best different pose; inf when there is none
+    confidence_inliers: int
+    noise_scale_m: float
+    mirror_ambiguous: bool
+
+class _RobustFit(_Confidence):
+    method: Literal["adaptive", "fixed_threshold"]
+    pose: _F64
+    inliers: list[bool]
+    nearest_corners: list[int]
+    residuals: list[float]
+    inlier_count: int
+    inlier_rms: float
+    cost: float  # nats for "adaptive", Σ min(r², τ²) for "fixed_threshold"
+
+class _SizedFit(_Confidence):
+    method: Literal["robust", "least_squares"]
+    size: list[float]  # (dx, dy, dz), metres
+    pose: _F64
+    nearest_corners: list[int]
+    residuals: list[float]
+    inliers: list[bool]
+    inlier_count: int
+    inlier_rms: float
+
+def box_corners(size: _Size) -> _F64:
+    """The 8 corners (8, 3) of a box of `size` in its own frame, in boxpose corner order."""
+
+def nms(
+    heatmap: _F32, count: int = 8, sigma: float = 2.0, refine_radius: int = 0
+) -> tuple[_F64, _F32]:
+    """Peaks of a (D, H, W) heatmap: (coords (N, 3) as (z_bin, v, u), scores (N,))."""
+
+def render_target_heatmap(shape: tuple[int, int, int], centres: _F64, sigma: float) -> _F32:
+    """A (D, H, W) training target: a 3D Gaussian at each (z_bin, v, u) centre, max-combined."""
+
+def back_project(coords: _F64, intrinsics: _Params, crop: _Params, depth_bins: _Params) -> _F64:
+    """Camera-frame points (N, 3) of voxel coordinates (N, 3) as (z_bin, v, u) in a crop.
+
+    `intrinsics` = (fx, fy, cx, cy), `crop` = (x0, y0, sx, sy), `depth_bins` = (z_ref, z_min,
+    bin_size).
+    """
+
+def kabsch(source: _F64, target: _F64) -> _F64:
+    """Least-squares rigid transform (4 × 4) mapping `source` onto `target`."""
+
+def umeyama(source: _F64, target: _F64) -> tuple[float, _F64]:
+    """Least-squares similarity transform: (scale, 4 × 4 rigid part)."""
+
+def paper_exact_search(size: _Size, points: _F64, scores: _F64, m: int = 5) -> _CorrespondenceFit:
+    """The paper's search over every assignment of the `m` best points to the 8 corners."""
+
+def fast_exact_search(size: _Size, points: _F64, scores: _F64, m: int = 5) -> _CorrespondenceFit:
+    """Same optimum as `paper_exact_search`, by symmetry reduction and branch-and-bound."""
+
+def robust_fit(
+    size: _Size,
+    points: _F64,
+    inlier_threshold: float | None = None,
+    *,
+    method: Literal["adaptive", "fixed_threshold"] = "adaptive",
+) -> _RobustFit:
+    """Pose of a box of known size that survives up to half the points being outliers."""
+
+def fit_pose_and_size(
+    points: _F64, *, method: Literal["robust", "least_squares"] = "robust"
+) -> _SizedFit:
+    """Pose and box size together, for boxes of unknown size."""
+
+def paper_error(size: _Size, estimate: _F64, truth_corners: _F64) -> float:
+    """The paper's error (m²) of a pose against the (8, 3) ground-truth corners."""
+
+def add_s(size: _Size, estimate: _F64, truth: _F64) -> float:
+    """ADD-S as bop_toolkit's `adi` (metres)."""
+
+def mssd(size: _Size, estimate: _F64, truth: _F64) -> float:
+    """MSSD: maximum corner distance, minimised over the box's symmetry group (metres)."""
+
+def rotation_error_deg(size: _Size, estimate: _F64, truth: _F64) -> float:
+    """Rotation error in degrees, minimised over the box's symmetry group."""
+
+def translation_error(estimate: _F64, truth: _F64) -> float:
+    """Distance between the two box centres (metres)."""
+
+def iou_3d(size_a: _Size, pose_a: _F64, size_b: _Size, pose_b: _F64) -> float:
+    """Intersection over union of two oriented boxes."""
