@@ -392,6 +392,57 @@ def test_leftover_tmp_file_is_not_a_shard(dataset, boxpose_bin):
     assert "all shards valid" in run_boxpose(boxpose_bin, "inspect", root).stdout
 
 
+def test_shards_of_two_shard_counts_are_refused(dataset, boxpose_bin):
+    """`make scenes SHARDS=2` then `SHARDS=1` into one folder: every row would be read twice."""
+    root, tables = dataset
+    for name, rows in tables.items():
+        path = boxpose_io.shard_path(root, name, 0, 1)
+        boxpose_io.write_shard(path, boxpose_io.table_from_rows(name, rows))
+    expect_error(
+        boxpose_bin, root, "part-00000-of-00001.parquet", "part-00000-of-00002.parquet", "mixed"
+    )
+
+
+def test_a_copied_shard_is_a_duplicate_key(dataset, boxpose_bin):
+    """A shard copied under another index of the same count: its scenes appear twice."""
+    root, _ = dataset
+    scenes = root / "scenes"
+    extra = scenes / "part-00003-of-00004.parquet"
+    for i in range(NUM_SHARDS):
+        (scenes / f"part-{i:05d}-of-00002.parquet").rename(
+            scenes / f"part-{i:05d}-of-00004.parquet"
+        )
+    extra.write_bytes((scenes / "part-00000-of-00004.parquet").read_bytes())
+    expect_error(boxpose_bin, root, extra, "row 0", "scenes key", "also at", "part-00000-of-00004")
+
+
+def test_an_instance_of_no_frame_is_refused(dataset, boxpose_bin):
+    root, _ = dataset
+    shard = boxpose_io.shard_path(root, "instances", 1, NUM_SHARDS)
+    frame_ids = pq.read_table(shard).column("frame_id").to_pylist()
+
+    def move_to_a_missing_frame(table):
+        index = table.schema.get_field_index("frame_id")
+        moved = [f + 100 for f in frame_ids]
+        return table.set_column(index, table.schema.field(index), pa.array(moved, pa.int32()))
+
+    rewrite(shard, move_to_a_missing_frame)
+    expect_error(boxpose_bin, root, shard, "row 0", "which is not in frames/")
+
+
+def test_a_copy_under_a_foreign_name_is_a_duplicate_key(dataset, boxpose_bin):
+    root, _ = dataset
+    foreign = root / "objects" / "extra.parquet"
+    foreign.write_bytes(boxpose_io.shard_path(root, "objects", 0, NUM_SHARDS).read_bytes())
+    expect_error(boxpose_bin, root, foreign, "objects key", "also at")
+
+
+def test_a_missing_shard_fails_inspect(dataset, boxpose_bin):
+    root, _ = dataset
+    boxpose_io.shard_path(root, "frames", 1, NUM_SHARDS).unlink()
+    expect_error(boxpose_bin, root, "part-00001-of-00002.parquet is missing", "resume")
+
+
 def test_python_writer_rejects_nan_and_unknown_columns(tmp_path):
     rows = synthetic_rows(np.random.default_rng(1))["objects"]
     rows[0]["mass_kg"] = math.nan

@@ -162,3 +162,7 @@ def test_rust_errors_are_clear(dataset, boxpose_bin, tmp_path):
     )
     assert r.returncode != 0 and "bpy is not importable by the embedded Python" in r.stderr
     assert not (tmp_path / "x" / "frames").exists()
+    before = sorted(p.name for p in (dataset / "frames").iterdir())
+    r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--out", dataset)
+    assert r.returncode != 0 and "is the input dataset" in r.stderr
+    assert sorted(p.name for p in (dataset / "frames").iterdir()) == before

@@ -1,18 +1,23 @@
 use std::path::Path;
 
-use boxpose_data::schema::{FRAMES, INSTANCES, OBJECTS, SCENES};
+use boxpose_data::schema::{FRAMES, INSTANCES, OBJECTS, SCENES, Table};
 use boxpose_data::{Dataset, Visibility};
 use indicatif::{ProgressBar, ProgressStyle};
 
 pub fn run(path: &Path) -> anyhow::Result<()> {
     let dataset = Dataset::open(path)?;
-    let scenes = dataset.count(&SCENES)?;
-    let objects = dataset.count(&OBJECTS)?;
+    // Decoding the rows checks their keys: no scene or object twice, no object of no scene.
+    let scenes = dataset.scenes()?.len();
+    let objects = dataset.objects()?.len();
+    ensure_complete(&dataset, &SCENES)?;
+    ensure_complete(&dataset, &OBJECTS)?;
     println!("{}: {scenes} scenes, {objects} objects", path.display());
     if dataset.shards(&FRAMES).is_err() {
         println!("no rendered frames yet");
         return Ok(());
     }
+    ensure_complete(&dataset, &FRAMES)?;
+    ensure_complete(&dataset, &INSTANCES)?;
     let frames = dataset.count(&FRAMES)?;
     let bar = ProgressBar::new(frames as u64).with_style(ProgressStyle::with_template(
         "decoding frames {bar:30} {pos}/{len} [{elapsed_precise}<{eta_precise}]",
@@ -41,6 +46,23 @@ pub fn run(path: &Path) -> anyhow::Result<()> {
     );
     println!(
         "{frames} frames, {instances} instances, {visible}/{corners} corners visible — all shards valid"
+    );
+    Ok(())
+}
+
+/// A valid dataset has every shard of N: one missing is a generation that did not finish.
+fn ensure_complete(dataset: &Dataset, table: &'static Table) -> anyhow::Result<()> {
+    let (missing, count) = dataset.missing_shards(table)?;
+    anyhow::ensure!(
+        missing.is_empty(),
+        "{} is missing ({} of {count} shards missing): the job that writes them did not \
+         finish; resume it (e.g. `make scenes` with the same arguments)",
+        dataset
+            .root()
+            .join(table.name)
+            .join(boxpose_data::shard_file_name(missing[0], count))
+            .display(),
+        missing.len()
     );
     Ok(())
 }

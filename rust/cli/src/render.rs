@@ -91,6 +91,15 @@ fn parse_pose(s: &str) -> Result<(i32, Pose), String> {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    // Writing part-00000-of-00001 shards into the input would replace or duplicate its shards.
+    if let (Ok(input), Ok(output)) = (args.dataset.canonicalize(), args.out.canonicalize()) {
+        anyhow::ensure!(
+            input != output,
+            "--out {} is the input dataset; its shards would be overwritten or duplicated: \
+             choose another folder",
+            args.out.display()
+        );
+    }
     let (scenes, objects) = scene_rows(&args.dataset, args.scene)
         .with_context(|| format!("reading scene {} of {}", args.scene, args.dataset.display()))?;
     let start = Instant::now();

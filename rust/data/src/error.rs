@@ -54,6 +54,33 @@ pub enum DataError {
         found: String,
         expected: String,
     },
+    #[error(
+        "{dir}: shards of runs with different shard counts are mixed ({first} is one of {first_count}, {second} one of {second_count}), so their rows would be read twice; delete the shards of one run"
+    )]
+    MixedShardCounts {
+        dir: PathBuf,
+        first: String,
+        first_count: usize,
+        second: String,
+        second_count: usize,
+    },
+    #[error(
+        "{path}: row {row}: {table} {key} is also at {first_path} row {first_row}; a shard was copied or written twice, delete the duplicate"
+    )]
+    DuplicateKey {
+        path: PathBuf,
+        row: usize,
+        table: &'static str,
+        key: String,
+        first_path: PathBuf,
+        first_row: usize,
+    },
+    #[error("{path}: row {row}: {what}")]
+    BrokenJoin {
+        path: PathBuf,
+        row: usize,
+        what: String,
+    },
     #[error("{path}: row {row}, column `{column}`: {problem}")]
     BadValue {
         path: PathBuf,

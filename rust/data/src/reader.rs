@@ -1,9 +1,9 @@
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::fs;
 use std::path::{Path, PathBuf};
 
 use arrow::array::{Array, AsArray};
-use arrow::datatypes::{DataType, Float32Type, Float64Type};
+use arrow::datatypes::{DataType, Float32Type, Float64Type, Int32Type, Int64Type};
 use arrow::record_batch::RecordBatch;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
@@ -40,7 +40,11 @@ impl Dataset {
         &self.root
     }
 
-    /// Complete shards of `table`, sorted by name. Unfinished `.tmp` files are not shards.
+    /// Complete shards of `table`, sorted by name: its `*.parquet` files (unfinished `.tmp` files
+    /// are not shards). Files named `part-IIIII-of-NNNNN.parquet` of runs with different shard
+    /// counts N side by side, whose rows would be read twice, are an error. (Other writers, like
+    /// the search's per-batch counterexamples, use other names; a copy under any name is caught
+    /// by the key checks of [`Dataset::frames`], [`Dataset::scenes`] and [`Dataset::objects`].)
     pub fn shards(&self, table: &Table) -> Result<Vec<PathBuf>> {
         let dir = self.root.join(table.name);
         if !dir.is_dir() {
@@ -66,7 +70,42 @@ impl Dataset {
             return Err(DataError::MissingTable(self.root.clone(), table.name));
         }
         shards.sort();
+        let mut first: Option<(&PathBuf, usize)> = None;
+        for path in &shards {
+            let Some((_, count)) = shard_position(path) else {
+                continue;
+            };
+            match first {
+                None => first = Some((path, count)),
+                Some((first_path, first_count)) if first_count != count => {
+                    let name =
+                        |p: &Path| p.file_name().unwrap_or_default().to_string_lossy().into();
+                    return Err(DataError::MixedShardCounts {
+                        dir,
+                        first: name(first_path),
+                        first_count,
+                        second: name(path),
+                        second_count: count,
+                    });
+                }
+                Some(_) => {}
+            }
+        }
         Ok(shards)
+    }
+
+    /// Indices i of the `part-i-of-N` shards of `table` that are not there yet, e.g. of an
+    /// unfinished `make scenes`, and N.
+    pub fn missing_shards(&self, table: &Table) -> Result<(Vec<usize>, usize)> {
+        let mut present = Vec::new();
+        let mut count = 0;
+        for path in self.shards(table)? {
+            if let Some((index, of)) = shard_position(&path) {
+                present.push(index);
+                count = of;
+            }
+        }
+        Ok(((0..count).filter(|i| !present.contains(i)).collect(), count))
     }
 
     /// Every row of `table`, validated: schema version, table name, column types, finite
@@ -93,25 +132,71 @@ impl Dataset {
             .sum())
     }
 
-    /// Every scene, in shard order.
+    /// Every scene, in shard order; a scene id twice is an error.
     pub fn scenes(&self) -> Result<Vec<Scene>> {
-        self.rows(&schema::SCENES, Scene::from_row)
+        let mut keys = UniqueKeys::new(schema::SCENES.name);
+        self.rows(&schema::SCENES, Scene::from_row, |scene, at| {
+            keys.insert(scene.scene_id, at)
+        })
     }
 
-    /// Every object, in shard order.
+    /// Every object, in shard order; an object id twice in a scene, or (where the dataset has
+    /// a `scenes` table) an object of a scene that it does not have, is an error.
     pub fn objects(&self) -> Result<Vec<Object>> {
-        self.rows(&schema::OBJECTS, Object::from_row)
+        let scenes = self.scene_ids()?;
+        let mut keys = UniqueKeys::new(schema::OBJECTS.name);
+        self.rows(&schema::OBJECTS, Object::from_row, |object, at| {
+            keys.insert((object.scene_id, object.object_id), at)?;
+            if scenes
+                .as_ref()
+                .is_some_and(|s| !s.contains(&object.scene_id))
+            {
+                return Err(at.broken(format!(
+                    "object {} of scene {}, which is not in scenes/",
+                    object.object_id, object.scene_id
+                )));
+            }
+            Ok(())
+        })
     }
 
+    /// Scene ids, or None when the dataset has no `scenes` table (e.g. frames alone).
+    fn scene_ids(&self) -> Result<Option<HashSet<i64>>> {
+        if !self.has_table(&schema::SCENES)? {
+            return Ok(None);
+        }
+        Ok(Some(self.scenes()?.iter().map(|s| s.scene_id).collect()))
+    }
+
+    fn has_table(&self, table: &Table) -> Result<bool> {
+        match self.shards(table) {
+            Ok(_) => Ok(true),
+            Err(DataError::MissingTable(..)) => Ok(false),
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Rows of `table` decoded by `from_row`, each passed with its location to `check`.
     fn rows<T>(
         &self,
         table: &'static Table,
         from_row: fn(&Path, &RecordBatch, usize) -> Result<T>,
+        mut check: impl FnMut(&T, RowAt) -> Result<()>,
     ) -> Result<Vec<T>> {
         let mut out = Vec::new();
+        let mut offsets = ShardRowOffsets::default();
         for sb in self.read_table(table)? {
+            let first = offsets.next(&sb);
             for row in 0..sb.batch.num_rows() {
-                out.push(from_row(&sb.path, &sb.batch, row)?);
+                let value = from_row(&sb.path, &sb.batch, row)?;
+                check(
+                    &value,
+                    RowAt {
+                        path: &sb.path,
+                        row: first + row,
+                    },
+                )?;
+                out.push(value);
             }
         }
         Ok(out)
@@ -119,24 +204,183 @@ impl Dataset {
 
     /// Decoded frames, each with its instances, shard by shard. Instances are loaded up front
     /// (they are small); images are decoded one frame at a time.
+    ///
+    /// The keys are checked first: a frame or an instance twice, an instance of no frame, and
+    /// (where the dataset has those tables) a frame of no scene or an instance of no object are
+    /// errors naming the row.
     pub fn frames(&self) -> Result<FrameIter> {
-        let mut instances: HashMap<(i64, i32), Vec<Instance>> = HashMap::new();
-        for instance in self.rows(&schema::INSTANCES, Instance::from_row)? {
-            instances
+        let batches = self.read_table(&schema::FRAMES)?;
+        let mut frame_keys = UniqueKeys::new(schema::FRAMES.name);
+        let mut offsets = ShardRowOffsets::default();
+        let scenes = self.scene_ids()?;
+        for sb in &batches {
+            let first = offsets.next(sb);
+            let scene_ids = key_column::<Int64Type>(sb, "scene_id")?;
+            let frame_ids = key_column::<Int32Type>(sb, "frame_id")?;
+            for (row, (scene, frame)) in scene_ids.iter().zip(frame_ids.iter()).enumerate() {
+                let at = RowAt {
+                    path: &sb.path,
+                    row: first + row,
+                };
+                frame_keys.insert((*scene, *frame), at)?;
+                if scenes.as_ref().is_some_and(|s| !s.contains(scene)) {
+                    return Err(at.broken(format!(
+                        "frame {frame} of scene {scene}, which is not in scenes/"
+                    )));
+                }
+            }
+        }
+        let objects: Option<HashSet<(i64, i32)>> = if self.has_table(&schema::OBJECTS)? {
+            Some(
+                self.objects()?
+                    .iter()
+                    .map(|o| (o.scene_id, o.object_id))
+                    .collect(),
+            )
+        } else {
+            None
+        };
+        let mut instance_keys = UniqueKeys::new(schema::INSTANCES.name);
+        let instances = self.rows(&schema::INSTANCES, Instance::from_row, |i, at| {
+            instance_keys.insert((i.scene_id, i.frame_id, i.object_id), at)?;
+            if !frame_keys.contains(&(i.scene_id, i.frame_id)) {
+                return Err(at.broken(format!(
+                    "instance of object {} in frame {} of scene {}, which is not in frames/",
+                    i.object_id, i.frame_id, i.scene_id
+                )));
+            }
+            if objects
+                .as_ref()
+                .is_some_and(|o| !o.contains(&(i.scene_id, i.object_id)))
+            {
+                return Err(at.broken(format!(
+                    "instance of object {} of scene {}, which is not in objects/",
+                    i.object_id, i.scene_id
+                )));
+            }
+            Ok(())
+        })?;
+        let mut by_frame: HashMap<(i64, i32), Vec<Instance>> = HashMap::new();
+        for instance in instances {
+            by_frame
                 .entry((instance.scene_id, instance.frame_id))
                 .or_default()
                 .push(instance);
         }
-        for list in instances.values_mut() {
+        for list in by_frame.values_mut() {
             list.sort_by_key(|i| i.object_id);
         }
         Ok(FrameIter {
-            batches: self.read_table(&schema::FRAMES)?,
+            batches,
             batch: 0,
             row: 0,
-            instances,
+            instances: by_frame,
         })
     }
+}
+
+/// `part-IIIII-of-NNNNN.parquet` → (I, N); None for any other name.
+fn shard_position(path: &Path) -> Option<(usize, usize)> {
+    let numbers = path
+        .file_name()?
+        .to_str()?
+        .strip_prefix("part-")?
+        .strip_suffix(".parquet")?
+        .split_once("-of-")?;
+    let parse = |digits: &str| {
+        (digits.len() >= 5 && digits.bytes().all(|b| b.is_ascii_digit()))
+            .then(|| digits.parse::<usize>().ok())
+            .flatten()
+    };
+    Some((parse(numbers.0)?, parse(numbers.1)?))
+}
+
+/// A row's place, for messages: the shard and the row within it.
+#[derive(Debug, Clone, Copy)]
+struct RowAt<'a> {
+    path: &'a Path,
+    row: usize,
+}
+
+impl RowAt<'_> {
+    fn broken(self, what: String) -> DataError {
+        DataError::BrokenJoin {
+            path: self.path.to_path_buf(),
+            row: self.row,
+            what,
+        }
+    }
+}
+
+/// Keys seen so far in one table, with where each was first seen.
+struct UniqueKeys<K> {
+    table: &'static str,
+    seen: HashMap<K, (PathBuf, usize)>,
+}
+
+impl<K: std::hash::Hash + Eq + std::fmt::Debug> UniqueKeys<K> {
+    fn new(table: &'static str) -> Self {
+        Self {
+            table,
+            seen: HashMap::new(),
+        }
+    }
+
+    fn insert(&mut self, key: K, at: RowAt) -> Result<()> {
+        if let Some((first_path, first_row)) = self.seen.get(&key) {
+            return Err(DataError::DuplicateKey {
+                path: at.path.to_path_buf(),
+                row: at.row,
+                table: self.table,
+                key: format!("key {key:?}"),
+                first_path: first_path.clone(),
+                first_row: *first_row,
+            });
+        }
+        self.seen.insert(key, (at.path.to_path_buf(), at.row));
+        Ok(())
+    }
+
+    fn contains(&self, key: &K) -> bool {
+        self.seen.contains_key(key)
+    }
+}
+
+/// Row numbers within a shard across its record batches, which arrive in order.
+#[derive(Default)]
+struct ShardRowOffsets {
+    path: PathBuf,
+    next_row: usize,
+}
+
+impl ShardRowOffsets {
+    /// The shard row of `sb`'s first row.
+    fn next(&mut self, sb: &ShardBatch) -> usize {
+        if sb.path != self.path {
+            self.path = sb.path.clone();
+            self.next_row = 0;
+        }
+        let first = self.next_row;
+        self.next_row += sb.batch.num_rows();
+        first
+    }
+}
+
+/// A non-null key column of a validated batch.
+fn key_column<'a, T: arrow::datatypes::ArrowPrimitiveType>(
+    sb: &'a ShardBatch,
+    name: &'static str,
+) -> Result<&'a [T::Native]> {
+    let column = sb
+        .batch
+        .column_by_name(name)
+        .and_then(|c| c.as_primitive_opt::<T>())
+        .ok_or(DataError::MissingColumn {
+            path: sb.path.clone(),
+            table: schema::FRAMES.name,
+            column: name,
+        })?;
+    Ok(column.values())
 }
 
 /// Iterator over decoded frames; see [`Dataset::frames`].

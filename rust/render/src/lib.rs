@@ -11,7 +11,7 @@
 //! The binary links pyenv's `libpython3.11.so` (rpath set by this crate's build script and, for
 //! binaries, by `rpath_build.rs`). At run time the interpreter is initialized as if it were the
 //! boxpose virtual environment's `python` (its `pyvenv.cfg` selects the base installation and
-//! the venv's site-packages, whose `boxpose.pth` adds the repository): the venv is
+//! the venv's site-packages, where `make setup` installs the stage packages editable): the venv is
 //! `$BOXPOSE_VENV`, else `$VIRTUAL_ENV`, else the `.venv` of the repository holding the binary or
 //! this crate. The repository root and `python/` are also put on `sys.path` directly.
 
@@ -176,7 +176,8 @@ fn check_python(py: Python<'_>) -> Result<()> {
             venv.display()
         )));
     }
-    // The repository (blender_scripts) and python/ (boxpose_io) on sys.path, even without the .pth.
+    // The repository (blender_scripts) and python/ (boxpose_io) on sys.path, even in a venv
+    // without the editable install.
     let repo = venv.parent().map(Path::to_path_buf);
     if let Some(repo) = repo.filter(|r| r.join("blender_scripts").is_dir()) {
         let path = sys.getattr("path").map_err(|e| py_err(py, e))?;
