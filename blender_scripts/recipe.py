@@ -7,6 +7,7 @@ Optional keys (added for rendering, documented in the recipes) have defaults lis
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import asdict, dataclass
 
@@ -77,6 +78,8 @@ def _get(data: dict, key: str, kind, source: str):
     ok = isinstance(node, kind) or (kind is float and isinstance(node, int))
     if (isinstance(node, bool) and kind is not bool) or not ok:
         raise RecipeError(f"recipe {source}: key '{key}' must be a {kind.__name__}, got {node!r}")
+    if kind is float and not math.isfinite(node):
+        raise RecipeError(f"recipe {source}: key '{key}' must be finite, got {node!r}")
     return kind(node)
 
 
@@ -90,6 +93,8 @@ def _pair(data: dict, key: str, kind, source: str) -> tuple:
             f"recipe {source}: key '{key}' must be a list of 2 {kind.__name__}s, got {node!r}"
         )
     lo, hi = kind(node[0]), kind(node[1])
+    if kind is float and not (math.isfinite(lo) and math.isfinite(hi)):
+        raise RecipeError(f"recipe {source}: key '{key}' must be finite, got {node!r}")
     if lo > hi:
         raise RecipeError(f"recipe {source}: key '{key}' must be a range [min, max], got {node!r}")
     return lo, hi

@@ -7,6 +7,7 @@ recipe fails at start-up, not after an hour of generation.
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -193,6 +194,10 @@ class _Reader:
             raise RecipeError(
                 f"recipe {self.source}: key '{key}' must be a {kind.__name__}, got {value!r}"
             )
+        # TOML spells inf and nan; no recipe quantity may be either (an infinite
+        # settle.max_time_s would simulate forever).
+        if kind is float and not math.isfinite(value):
+            raise RecipeError(f"recipe {self.source}: key '{key}' must be finite, got {value!r}")
         return kind(value)
 
     def _list(self, key: str, n: int, kind: type) -> tuple:
@@ -207,6 +212,8 @@ class _Reader:
                 f"recipe {self.source}: key '{key}' must be a list of {n} {kind.__name__}s, "
                 f"got {value!r}"
             )
+        if kind is float and not all(math.isfinite(v) for v in value):
+            raise RecipeError(f"recipe {self.source}: key '{key}' must be finite, got {value!r}")
         return tuple(kind(v) for v in value)
 
     def pair(self, key: str, kind: type) -> tuple:

@@ -15,18 +15,24 @@ For each shard i of N:
      deleted.
 Interrupted runs resume: complete shards and complete chunks are skipped. A failure (bpy missing,
 scene/object rows that do not fit, a crashed or failing render) stops with one error message and
-leaves no partial shard in the dataset's tables.
+leaves no partial shard in the dataset's tables. A worker that reports no progress for
+--worker-timeout seconds, or a scene stage that runs past --scene-stage-timeout, is stopped as
+hung. Ctrl-C, SIGTERM and SIGHUP stop the stage processes (each runs in its own process group)
+before the driver exits, so none is left running.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import queue
 import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 import tomllib
 from collections import deque
@@ -82,6 +88,27 @@ def _tail(path: Path, n: int = 15) -> str:
     return "\n".join("    " + line for line in lines[-n:])
 
 
+def stop_group(proc: subprocess.Popen) -> None:
+    """Stops a stage process and everything it started (its own session): SIGTERM, then SIGKILL
+    after 5 s (a stopped or hung process does not act on SIGTERM)."""
+    with contextlib.suppress(ProcessLookupError):
+        os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=5)
+    except subprocess.TimeoutExpired:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM or SIGHUP to the driver: unwinds like Ctrl-C, so that its workers are stopped."""
+
+
+def raise_terminated(signum, _frame) -> None:
+    raise Terminated(signal.Signals(signum))
+
+
 def run_scene_stage(args, shard: int, log: Path) -> None:
     cmd = [
         args.python,
@@ -101,10 +128,25 @@ def run_scene_stage(args, shard: int, log: Path) -> None:
         cmd += ["--num-scenes", str(args.num_scenes)]
     log.parent.mkdir(parents=True, exist_ok=True)
     with open(log, "ab") as out:
-        r = subprocess.run(cmd, stdout=out, stderr=subprocess.STDOUT, cwd=REPO)
-    if r.returncode != 0:
+        # Its own process group, so that an interrupted driver can stop it and its children.
+        proc = subprocess.Popen(
+            cmd, stdout=out, stderr=subprocess.STDOUT, cwd=REPO, start_new_session=True
+        )
+        try:
+            returncode = proc.wait(timeout=args.scene_stage_timeout)
+        except subprocess.TimeoutExpired:
+            stop_group(proc)
+            raise DriverError(
+                f"scene stage on shard {shard} of {args.num_shards} ran past "
+                f"--scene-stage-timeout {args.scene_stage_timeout:g} s and was stopped; "
+                f"raise the limit or lower the recipe's settle.max_time_s. Log: {log}"
+            ) from None
+        except BaseException:
+            stop_group(proc)
+            raise
+    if returncode != 0:
         raise DriverError(
-            f"scene stage failed on shard {shard} of {args.num_shards} (exit {r.returncode}): "
+            f"scene stage failed on shard {shard} of {args.num_shards} (exit {returncode}): "
             f"{' '.join(cmd)}\n{_tail(log)}"
         )
     for table in ("scenes", "objects"):
@@ -127,9 +169,32 @@ def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: t
         proc = subprocess.Popen(
             cmd, stdout=subprocess.PIPE, stderr=err, cwd=REPO, text=True, start_new_session=True
         )
+        # A thread reads the worker's lines so that the watchdog can wait on them with a timeout.
+        lines: queue.Queue[str | None] = queue.Queue()
+
+        def pump() -> None:
+            for line in proc.stdout:
+                lines.put(line)
+            lines.put(None)
+
+        threading.Thread(target=pump, daemon=True).start()
         recent = deque(maxlen=20)
         try:
-            for line in proc.stdout:
+            while True:
+                try:
+                    line = lines.get(timeout=args.worker_timeout)
+                except queue.Empty:
+                    stop_group(proc)
+                    where = f"shard {shard} of {args.num_shards}" + (
+                        f", scene {current_scene}" if current_scene is not None else ""
+                    )
+                    raise DriverError(
+                        f"Blender worker made no progress for {args.worker_timeout:g} s "
+                        f"(--worker-timeout) while rendering {where} and was stopped; "
+                        f"run the same command again to resume. Log: {log}"
+                    ) from None
+                if line is None:
+                    break
                 if not line.startswith(PROGRESS):
                     recent.append(line.rstrip())
                     continue
@@ -140,8 +205,7 @@ def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: t
                     pbar.update(1)
             proc.wait()
         except BaseException:
-            os.killpg(proc.pid, signal.SIGTERM)
-            proc.wait()
+            stop_group(proc)
             raise
     if recent:
         with open(log, "a") as f:
@@ -256,19 +320,39 @@ def main(argv: list[str] | None = None) -> int:
         help="boxpose binary for the final `inspect`",
     )
     ap.add_argument("--no-inspect", action="store_true", help="skip `boxpose inspect` at the end")
+    ap.add_argument(
+        "--worker-timeout",
+        type=float,
+        default=600.0,
+        help="seconds a Blender worker may go without rendering a frame or starting a scene "
+        "before it is stopped as hung (default 600)",
+    )
+    ap.add_argument(
+        "--scene-stage-timeout",
+        type=float,
+        default=3600.0,
+        help="seconds the Drake scene stage may take per shard (default 3600)",
+    )
     args = ap.parse_args(argv)
+    for name in ("worker_timeout", "scene_stage_timeout"):
+        if not getattr(args, name) > 0:
+            ap.error(f"--{name.replace('_', '-')} must be positive")
+    # SIGTERM (a scheduler, `kill`) and SIGHUP (a closed terminal) stop the workers too.
+    for signum in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, raise_terminated)
     try:
         return run(args)
     except DriverError as e:
         tqdm.write(f"error: {e}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as e:
+        signum = e.args[0] if isinstance(e, Terminated) else signal.SIGINT
         tqdm.write(
-            "interrupted: run the same command again to resume "
+            f"stopped by {signum.name}: run the same command again to resume "
             "(complete shards and chunks are kept)",
             file=sys.stderr,
         )
-        return 130
+        return 128 + signum
 
 
 def run(args) -> int:

@@ -3,8 +3,10 @@ Inputs are synthetic `scenes` / `objects` shards (no Drake needed); renders are 
 
 import io
 import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
@@ -177,3 +179,62 @@ def test_worker_alone_writes_the_shard(tmp_path):
     frames = pd.read_parquet(dataset / "frames" / "part-00001-of-00002.parquet")
     assert list(frames.scene_id) == [3]
     assert (dataset / "instances" / "part-00001-of-00002.parquet").is_file()
+
+
+def worker_pids(dataset: Path) -> list[int]:
+    """Blender worker processes rendering `dataset` (from /proc: no psutil needed)."""
+    pids = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            args = cmdline.read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if b"blender_scripts.worker" in args and str(dataset).encode() in args:
+            pids.append(int(cmdline.parent.name))
+    return pids
+
+
+def alive(pid: int) -> bool:
+    """Running and not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def start_driver(dataset: Path, *extra: str) -> tuple[subprocess.Popen, int]:
+    """The driver on two tiny scenes, and the pid of its first worker once that has started."""
+    write_inputs(dataset, tiny_scenes(2))
+    cmd = DRIVER + ["--recipe", "tiny", "--dataset", str(dataset), "--no-inspect", *extra]
+    driver = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (pids := worker_pids(dataset)):
+        assert time.monotonic() < deadline and driver.poll() is None, "no worker started"
+        time.sleep(0.05)
+    return driver, pids[0]
+
+
+def test_a_hung_worker_is_stopped_by_the_watchdog(tmp_path):
+    """A worker that stops reporting progress (here: SIGSTOP, as a deadlock would) is killed
+    after --worker-timeout, with a message that says so, and resume finishes the shard."""
+    dataset = tmp_path / "tiny"
+    driver, worker = start_driver(dataset, "--worker-timeout", "3", "--scenes-per-worker", "1")
+    os.kill(worker, signal.SIGSTOP)
+    _, stderr = driver.communicate(timeout=60)
+    assert driver.returncode == 1, stderr
+    assert "made no progress for 3 s (--worker-timeout)" in stderr
+    assert not alive(worker)
+    assert no_render_outputs(dataset)
+    r = run_driver(dataset)
+    assert r.returncode == 0, r.stderr
+    assert sorted(pd.read_parquet(dataset / "frames").scene_id) == [0, 1]
+
+
+def test_sigterm_to_the_driver_stops_its_workers(tmp_path):
+    dataset = tmp_path / "tiny"
+    driver, worker = start_driver(dataset)
+    driver.send_signal(signal.SIGTERM)
+    _, stderr = driver.communicate(timeout=60)
+    assert driver.returncode == 128 + signal.SIGTERM, stderr
+    assert "stopped by SIGTERM: run the same command again to resume" in stderr
+    assert not alive(worker) and not worker_pids(dataset)

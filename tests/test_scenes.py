@@ -282,6 +282,18 @@ def test_bad_recipe_key_names_the_key(tmp_path):
     assert result.returncode == 2 and "support.kind 'trampoline'" in result.stderr
 
 
+@pytest.mark.parametrize(
+    "key, line",
+    [("max_time_s", "max_time_s = inf"), ("height_m", "height_m = [0.05, nan]")],
+)
+def test_non_finite_recipe_values_are_refused_up_front(tmp_path, key, line):
+    """An infinite settle.max_time_s simulated forever; a NaN range passed every comparison."""
+    recipe = tiny_variant(tmp_path, "nonfinite", **{key: line})
+    result = run_cli("--recipe", recipe, "--out", tmp_path / "out")
+    assert result.returncode == 2 and "must be finite" in result.stderr and key in result.stderr
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("recipe_file", sorted(RECIPES.glob("*.toml")), ids=lambda p: p.stem)
 def test_checked_in_recipes_load(recipe_file):
     recipe = Recipe.load(recipe_file)
