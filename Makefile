@@ -10,7 +10,8 @@ RECIPE ?= clutter
 DATASET ?= datasets/generated/$(RECIPE)
 SHARDS ?= 1
 JOBS ?= 2
-# MuJoCo: mujoco-rs links against the libmujoco inside the pinned `mujoco` wheel (DESIGN.md).
+# MuJoCo: mujoco-rs links against the libmujoco inside the pinned `mujoco` wheel
+# (docs/design.md, "Toolchain facts").
 MUJOCO_LINK_DIR := $(CURDIR)/build/mujoco
 export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)

@@ -1,6 +1,6 @@
 """Camera and box geometry in numpy (no bpy): poses, the pinhole model, corners, silhouettes.
 
-Conventions (DESIGN.md, docs/dataset.md): metres; `T_a_b` is a 4×4 matrix mapping points in
+Conventions (docs/dataset.md, docs/design.md): metres; `T_a_b` is a 4×4 matrix mapping points in
 frame b into frame a; quaternions are (w, x, y, z); the camera frame is OpenCV (x right, y down,
 z forward); pixel coordinates put the centre of the top-left pixel at (0, 0); box corner i has
 sign pattern bit0 → x, bit1 → y, bit2 → z (0 = −, 1 = +).

@@ -33,7 +33,8 @@ from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 from drake_scenes.recipe import SupportSpec
 
 # The ground is a thick box, not a HalfSpace: Drake has no Box–HalfSpace signed distance, which
-# the projection's minimum-distance constraint and the certificate both need (DESIGN.md).
+# the projection's minimum-distance constraint and the certificate both need (docs/design.md,
+# "Toolchain facts").
 GROUND_THICKNESS_M = 0.2
 # The ground reaches this far beyond the support region, so that a box that slides out of the
 # region stays on it and is rejected by the region check instead of falling forever.
