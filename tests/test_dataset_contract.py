@@ -443,6 +443,37 @@ def test_a_missing_shard_fails_inspect(dataset, boxpose_bin):
     expect_error(boxpose_bin, root, "part-00001-of-00002.parquet is missing", "resume")
 
 
+@pytest.mark.parametrize(
+    "table, column, value, shown",
+    [
+        ("instances", "object_id", 65535, "65535 is outside [0, 65534]"),
+        ("objects", "object_id", -1, "-1 is outside [0, 65534]"),
+        ("instances", "visible_fraction", 1.5, "1.5 is outside [0, 1]"),
+        ("instances", "corner_visibility", [0, 1, 2, 3, 4, 0, 0, 0], "element 4 is outside [0, 3]"),
+    ],
+)
+def test_values_outside_their_range_are_refused(dataset, boxpose_bin, table, column, value, shown):
+    """An object id of 65535 or -1 wrapped to the mask's background label; a visibility code or
+    fraction outside its range was read as if it meant something. Written with pyarrow alone,
+    as a foreign tool would; the Python writer refuses the same row."""
+    root, tables = dataset
+    shard = boxpose_io.shard_path(root, table, 0, NUM_SHARDS)
+
+    def poison(t):
+        values = t.column(column).to_pylist()
+        values[0] = value
+        index = t.schema.get_field_index(column)
+        field = t.schema.field(index)
+        return t.set_column(index, field, pa.array(values, field.type))
+
+    rewrite(shard, poison)
+    expect_error(boxpose_bin, root, shard, "row 0", column, shown)
+    rows = [dict(r) for r in tables[table]]
+    rows[0][column] = value
+    with pytest.raises(boxpose_io.ShardError, match=f"row 0, column {column}"):
+        boxpose_io.table_from_rows(table, rows)
+
+
 def test_python_writer_rejects_nan_and_unknown_columns(tmp_path):
     rows = synthetic_rows(np.random.default_rng(1))["objects"]
     rows[0]["mass_kg"] = math.nan

@@ -33,6 +33,20 @@ def _check_finite(table: str, rows: list[dict]) -> None:
                 raise ShardError(f"table {table}, row {i}, column {name}: non-finite value {value}")
 
 
+def _check_ranges(table: str, rows: list[dict]) -> None:
+    """The schema's value ranges (ids that index masks, visibility codes, fractions), as the Rust
+    reader checks them."""
+    ranged = [(c["name"], c["range"]) for c in TABLES[table]["columns"] if c.get("range")]
+    for i, row in enumerate(rows):
+        for name, (lo, hi) in ranged:
+            value = row.get(name)
+            values = value if isinstance(value, (list, tuple)) else [value]
+            if value is not None and not all(lo <= v <= hi for v in values):
+                raise ShardError(
+                    f"table {table}, row {i}, column {name}: {value} is outside [{lo:g}, {hi:g}]"
+                )
+
+
 def _check_lengths(table: str, rows: list[dict]) -> None:
     sized = [
         (c["name"], c["list_size"], c["nullable"])
@@ -52,7 +66,8 @@ def _check_lengths(table: str, rows: list[dict]) -> None:
 
 def table_from_rows(table: str, rows: list[dict]) -> pa.Table:
     """Builds a pyarrow Table of `table` from dicts keyed by column name, checking every column
-    is present (no extras), every list has its length and every float is finite."""
+    is present (no extras), every list has its length, every float is finite and every value
+    lies in its column's range."""
     names = [c["name"] for c in TABLES[table]["columns"]]
     for i, row in enumerate(rows):
         missing, extra = set(names) - row.keys(), row.keys() - set(names)
@@ -63,6 +78,7 @@ def table_from_rows(table: str, rows: list[dict]) -> pa.Table:
             )
     _check_lengths(table, rows)
     _check_finite(table, rows)
+    _check_ranges(table, rows)
     schema = arrow_schema(table)
     try:
         return pa.Table.from_pylist(rows, schema=schema)

@@ -594,6 +594,17 @@ fn check_values(
                     format!("non-finite value {}", values[row]),
                 ));
             }
+            if let Some((lo, hi)) = column.range
+                && let Some(values) = numbers(array.as_ref())
+                && let Some(row) = (0..values.len())
+                    .find(|&r| array.is_valid(r) && !(lo..=hi).contains(&values[r]))
+            {
+                return Err(bad(
+                    row,
+                    column.name,
+                    format!("{} is outside [{lo}, {hi}]", values[row]),
+                ));
+            }
             continue;
         };
         let list = array.as_list::<i32>();
@@ -601,6 +612,7 @@ fn check_values(
         let elements = list.values();
         let offsets = list.value_offsets();
         let floats = floats(elements.as_ref());
+        let ranged = column.range.zip(numbers(elements.as_ref()));
         for row in (0..list.len()).filter(|&r| list.is_valid(r)) {
             let (start, end) = (offsets[row] as usize, offsets[row + 1] as usize);
             if width != schema::ANY_LENGTH as usize && end - start != width {
@@ -612,6 +624,17 @@ fn check_values(
             }
             if (start..end).any(|i| elements.is_null(i)) {
                 return Err(bad(row, column.name, "null element inside a list".into()));
+            }
+            if let Some(((lo, hi), values)) = &ranged
+                && let Some(v) = values[start..end]
+                    .iter()
+                    .find(|v| !(*lo..=*hi).contains(*v))
+            {
+                return Err(bad(
+                    row,
+                    column.name,
+                    format!("element {v} is outside [{lo}, {hi}]"),
+                ));
             }
             let Some(values) = &floats else { continue };
             let item = &values[start..end];
@@ -638,6 +661,15 @@ fn check_values(
 }
 
 /// The values of a float array widened to f64 (`None` for other types).
+/// Any numeric array as float64 (exact for every integer the schema's ranges can hold).
+fn numbers(array: &dyn Array) -> Option<Vec<f64>> {
+    if !array.data_type().is_numeric() {
+        return None;
+    }
+    let cast = arrow::compute::cast(array, &DataType::Float64).ok()?;
+    Some(cast.as_primitive::<Float64Type>().values().to_vec())
+}
+
 fn floats(array: &dyn Array) -> Option<Vec<f64>> {
     match array.data_type() {
         DataType::Float64 => Some(array.as_primitive::<Float64Type>().values().to_vec()),

@@ -74,6 +74,9 @@ pub struct Column {
     /// Unit and frame, e.g. "m, camera frame"; empty where none applies.
     pub unit: &'static str,
     pub doc: &'static str,
+    /// Closed interval every value (every element, for a list) must lie in, where the column has
+    /// one: ids that index masks, visibility codes, fractions.
+    pub range: Option<(f64, f64)>,
 }
 
 impl Column {
@@ -126,8 +129,20 @@ const fn col(name: &'static str, scalar: Scalar, unit: &'static str, doc: &'stat
         nullable: false,
         unit,
         doc,
+        range: None,
     }
 }
+
+/// `column` whose values must lie in [min, max].
+const fn within(column: Column, min: f64, max: f64) -> Column {
+    Column {
+        range: Some((min, max)),
+        ..column
+    }
+}
+
+/// Largest object id: the instance mask stores object_id + 1 in 16 bits, 0 being the background.
+pub const MAX_OBJECT_ID: i32 = u16::MAX as i32 - 1;
 
 const fn list(
     name: &'static str,
@@ -143,6 +158,7 @@ const fn list(
         nullable: false,
         unit,
         doc,
+        range: None,
     }
 }
 
@@ -158,23 +174,35 @@ const fn nullable(c: Column) -> Column {
 
 use Scalar::*;
 
-const SCENE_ID: Column = col(
-    "scene_id",
-    Int64,
-    "",
-    "Scene index within the dataset (0-based, unique across shards).",
+const SCENE_ID: Column = within(
+    col(
+        "scene_id",
+        Int64,
+        "",
+        "Scene index within the dataset (0-based, unique across shards).",
+    ),
+    0.0,
+    1e12, // far above any dataset; short enough that every JSON parser reads it exactly
 );
-const FRAME_ID: Column = col(
-    "frame_id",
-    Int32,
-    "",
-    "View index within the scene (0-based).",
+const FRAME_ID: Column = within(
+    col(
+        "frame_id",
+        Int32,
+        "",
+        "View index within the scene (0-based).",
+    ),
+    0.0,
+    i32::MAX as f64,
 );
-const OBJECT_ID: Column = col(
-    "object_id",
-    Int32,
-    "",
-    "Box index within the scene (0-based). Its pixels in `instance_mask_png` hold object_id + 1.",
+const OBJECT_ID: Column = within(
+    col(
+        "object_id",
+        Int32,
+        "",
+        "Box index within the scene (0-based). Its pixels in `instance_mask_png` hold object_id + 1.",
+    ),
+    0.0,
+    MAX_OBJECT_ID as f64,
 );
 const SIZE: Column = list(
     "size_m",
@@ -367,8 +395,8 @@ pub const FRAMES: Table = Table {
     columns: &[
         SCENE_ID,
         FRAME_ID,
-        col("width", Int32, "px", "Image width."),
-        col("height", Int32, "px", "Image height."),
+        within(col("width", Int32, "px", "Image width."), 1.0, 65535.0),
+        within(col("height", Int32, "px", "Image height."), 1.0, 65535.0),
         col(
             "fx",
             Float64,
@@ -482,12 +510,16 @@ pub const INSTANCES: Table = Table {
             "px",
             "The 8 corners projected, 8 × (u, v) row-major.",
         ),
-        list(
-            "corner_visibility",
-            Int8,
-            8,
-            "",
-            "Per corner: 0 visible, 1 occluded by another object, 2 self-occluded, 3 outside the image (or behind the camera).",
+        within(
+            list(
+                "corner_visibility",
+                Int8,
+                8,
+                "",
+                "Per corner: 0 visible, 1 occluded by another object, 2 self-occluded, 3 outside the image (or behind the camera).",
+            ),
+            0.0,
+            3.0,
         ),
         nullable(list(
             "label_keypoints_camera_m",
@@ -516,11 +548,15 @@ pub const INSTANCES: Table = Table {
             "px",
             "Pixels of this box in the instance mask.",
         ),
-        col(
-            "visible_fraction",
-            Float32,
-            "",
-            "visible_pixels / pixels the box would cover in the image were nothing in front of it.",
+        within(
+            col(
+                "visible_fraction",
+                Float32,
+                "",
+                "visible_pixels / pixels the box would cover in the image were nothing in front of it.",
+            ),
+            0.0,
+            1.0,
         ),
     ],
 };
@@ -754,6 +790,7 @@ pub fn to_json() -> serde_json::Value {
                         "nullable": c.nullable,
                         "unit": c.unit,
                         "doc": c.doc,
+                        "range": c.range.map(|(lo, hi)| [lo, hi]),
                     })
                 })
                 .collect::<Vec<_>>();
@@ -789,12 +826,16 @@ pub fn to_markdown() -> String {
             } else {
                 ty
             };
+            let doc = match c.range {
+                Some((lo, hi)) => format!("{} Within [{lo}, {hi}].", c.doc),
+                None => c.doc.to_string(),
+            };
             out += &format!(
                 "| `{}` | {} | {} | {} |\n",
                 c.name,
                 ty,
                 c.unit,
-                c.doc.replace('|', "\\|")
+                doc.replace('|', "\\|")
             );
         }
     }
