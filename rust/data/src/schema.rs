@@ -4,7 +4,7 @@
 //! writers, the JSON definition the Python writers load (`python/boxpose_io/schema.json`), and
 //! the column reference in `docs/dataset.md`. Tests fail when either generated file drifts.
 //!
-//! Conventions (see DESIGN.md): metres, radians, seconds; poses `T_a_b` map points in frame b
+//! Conventions (docs/dataset.md, docs/design.md): metres, radians, seconds; poses `T_a_b` map points in frame b
 //! into frame a and are stored as a unit quaternion (w, x, y, z) plus a translation; camera
 //! frames follow OpenCV (x right, y down, z forward); pixel coordinates put the centre of the
 //! top-left pixel at (0, 0); box corner i has sign pattern bit0 → x, bit1 → y, bit2 → z
