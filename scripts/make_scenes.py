@@ -42,6 +42,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 from tqdm import tqdm
 
+import boxpose_io
 from blender_scripts.worker import PROGRESS  # no bpy needed
 
 REPO = Path(__file__).resolve().parent.parent
@@ -51,11 +52,6 @@ PARTIAL = ".partial"
 
 class DriverError(RuntimeError):
     pass
-
-
-def shard_file(dataset: Path, table: str, shard: int, num_shards: int) -> Path:
-    # Same naming as boxpose_io.shard_path / the Rust writer (imported lazily there).
-    return dataset / table / f"part-{shard:05d}-of-{num_shards:05d}.parquet"
 
 
 def resolve_recipe(recipe: str) -> Path:
@@ -150,7 +146,7 @@ def run_scene_stage(args, shard: int, log: Path) -> None:
             f"{' '.join(cmd)}\n{_tail(log)}"
         )
     for table in ("scenes", "objects"):
-        if not shard_file(args.dataset, table, shard, args.num_shards).is_file():
+        if not boxpose_io.shard_path(args.dataset, table, shard, args.num_shards).is_file():
             raise DriverError(
                 f"scene stage exited 0 but wrote no {table} shard {shard} of {args.num_shards} "
                 f"under {args.dataset}"
@@ -230,9 +226,7 @@ def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: t
 
 def render_shard(args, shard: int, pbar: tqdm) -> int:
     """Renders shard `shard` through chunked worker processes, then writes its two tables."""
-    import boxpose_io
-
-    scenes_path = shard_file(args.dataset, "scenes", shard, args.num_shards)
+    scenes_path = boxpose_io.shard_path(args.dataset, "scenes", shard, args.num_shards)
     num_scenes = pq.ParquetFile(scenes_path).metadata.num_rows
     chunk_dir = args.dataset / PARTIAL / f"shard-{shard:05d}-of-{args.num_shards:05d}"
     chunk_dir.mkdir(parents=True, exist_ok=True)
@@ -268,7 +262,7 @@ def render_shard(args, shard: int, pbar: tqdm) -> int:
 
 def shard_complete(args, shard: int) -> bool:
     return all(
-        shard_file(args.dataset, t, shard, args.num_shards).is_file()
+        boxpose_io.shard_path(args.dataset, t, shard, args.num_shards).is_file()
         for t in ("frames", "instances")
     )
 
@@ -393,7 +387,7 @@ def run(args) -> int:
         def known(table: str, shard: int, per_row: int) -> int:
             rows = (
                 pq.ParquetFile(
-                    shard_file(args.dataset, table, shard, args.num_shards)
+                    boxpose_io.shard_path(args.dataset, table, shard, args.num_shards)
                 ).metadata.num_rows
                 * per_row
             )
@@ -406,7 +400,7 @@ def run(args) -> int:
                 pbar.update(known("frames", shard, 1))
                 continue
             if not all(
-                shard_file(args.dataset, t, shard, args.num_shards).is_file()
+                boxpose_io.shard_path(args.dataset, t, shard, args.num_shards).is_file()
                 for t in ("scenes", "objects")
             ):
                 pbar.set_postfix_str(f"shard {shard + 1}/{args.num_shards}: scenes (Drake)")
