@@ -5,6 +5,8 @@ clear error naming the file and the problem."""
 import io
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -472,6 +474,80 @@ def test_values_outside_their_range_are_refused(dataset, boxpose_bin, table, col
     rows[0][column] = value
     with pytest.raises(boxpose_io.ShardError, match=f"row 0, column {column}"):
         boxpose_io.table_from_rows(table, rows)
+
+
+def test_a_frame_claiming_a_huge_image_is_refused_before_decoding(dataset, boxpose_bin):
+    """A decompression bomb: a frame whose size claims 10000 × 10000 is refused from its
+    `width` and `height` before any PNG is inflated."""
+    root, _ = dataset
+    shard = boxpose_io.shard_path(root, "frames", 0, NUM_SHARDS)
+
+    def enlarge(t):
+        for name in ("width", "height"):
+            index = t.schema.get_field_index(name)
+            field = t.schema.field(index)
+            t = t.set_column(index, field, pa.array([10000] * t.num_rows, field.type))
+        return t
+
+    rewrite(shard, enlarge)
+    expect_error(boxpose_bin, root, shard, "10000 × 10000 is over the limit")
+
+
+def peak_rss_mb(*command) -> float:
+    """Peak resident memory of `command`, measured by a fresh Python process whose only child
+    it is (this test process has had other children)."""
+    probe = (
+        "import resource, subprocess, sys; "
+        "r = subprocess.run(sys.argv[1:], capture_output=True, text=True); "
+        "assert r.returncode == 0, r.stderr; "
+        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe, *map(str, command)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return int(out.stdout) / 1024
+
+
+def test_readers_stream_frames_instead_of_holding_the_dataset(tmp_path, boxpose_bin):
+    """200 frames of 640 × 480 with incompressible depth (~200 MB on disk): `inspect` holds one
+    row group of frames at a time, not the whole table (it peaked at ~500 MB before; 89 MB now)."""
+    rng = np.random.default_rng(7)
+    tables = synthetic_rows(rng)
+    width, height, count = 640, 480, 200
+    frame, instances = tables["frames"][0], [i for i in tables["instances"] if i["frame_id"] == 0]
+    instances = [i for i in instances if i["scene_id"] == 0]
+    rgb = png_bytes(np.zeros((height, width, 3), np.uint8))
+    mask = mask_png(np.zeros((height, width), np.int64))
+    tables["frames"], tables["instances"] = [], []
+    for frame_id in range(count):
+        tables["frames"].append(
+            {
+                **frame,
+                "scene_id": 0,
+                "frame_id": frame_id,
+                "width": width,
+                "height": height,
+                "cx": (width - 1) / 2,
+                "cy": (height - 1) / 2,
+                "rgb_png": rgb,
+                "depth_m_f32le": rng.uniform(0.3, 2, (height, width)).astype("<f4").tobytes(),
+                "instance_mask_png": mask,
+                "sensor_depth_m_f32le": None,
+            }
+        )
+        tables["instances"] += [{**i, "frame_id": frame_id} for i in instances]
+    root = tmp_path / "big"
+    for name, rows in tables.items():
+        path = boxpose_io.shard_path(root, name, 0, 1)
+        boxpose_io.write_shard(path, boxpose_io.table_from_rows(name, rows))
+    on_disk_mb = (root / "frames" / "part-00000-of-00001.parquet").stat().st_size / 2**20
+    assert on_disk_mb > 200
+    inspect = peak_rss_mb(boxpose_bin, "inspect", root)
+    print(f"frames {on_disk_mb:.0f} MB; peak RSS of inspect {inspect:.0f} MB")
+    assert inspect < 150  # the frames alone are 200 MB
 
 
 def test_python_writer_rejects_nan_and_unknown_columns(tmp_path):

@@ -2,6 +2,7 @@
 
 import math
 import os
+import secrets
 from pathlib import Path
 
 import pyarrow as pa
@@ -93,8 +94,11 @@ def write_shard(path: Path, table: pa.Table) -> Path:
     if not table.schema.equals(expected, check_metadata=True):
         raise ShardError(f"{path}: table schema differs from the contract of `{path.parent.name}`")
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    pq.write_table(table, tmp, compression="zstd")
+    # A name of its own per writer, so that two writers of one shard never share a temporary.
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
+    # Small row groups where the schema asks for them (frames): a reader holds a whole row group.
+    row_group_rows = TABLES[path.parent.name].get("row_group_rows")
+    pq.write_table(table, tmp, compression="zstd", row_group_size=row_group_rows)
     with open(tmp, "rb") as f:
         os.fsync(f.fileno())
     os.replace(tmp, path)

@@ -9,7 +9,7 @@ use anyhow::Context;
 use arrow::array::{ArrayRef, Float64Array, Int32Array};
 use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
-use boxpose_data::Dataset;
+use boxpose_data::{Dataset, Frame};
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;
@@ -64,18 +64,27 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         Crops::Gt => None,
     };
     let dataset = Dataset::open(&args.dataset)?;
-    let mut frames: Vec<_> = dataset.frames()?.collect::<Result<_, _>>()?;
-    if let Some(modulus) = args.held_out {
-        frames.retain(|frame| data::is_held_out(frame.scene_id, i64::from(modulus)));
-    }
+    let evaluated = |scene_id: i64| {
+        args.held_out
+            .is_none_or(|modulus| data::is_held_out(scene_id, i64::from(modulus)))
+    };
+    // Frames stream through one at a time; only the segmenter's scoring keeps each frame's
+    // instance mask (its images dropped) for the AP at the end.
+    let frames = dataset.frames()?;
+    let mut scored_frames = Vec::new();
     let mut all_detections = Vec::new();
-    let total: usize = frames.iter().map(|f| f.instances.len()).sum();
+    let total = frames.instance_count(evaluated);
     let bar = ProgressBar::new(total as u64).with_style(ProgressStyle::with_template(
         "evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
     )?);
     let mut fit_rows = Vec::new();
     let mut evals = Vec::new();
-    for frame in &frames {
+    for frame in frames {
+        let owned = frame?;
+        if !evaluated(owned.scene_id) {
+            continue;
+        }
+        let frame = &owned;
         let chosen: Vec<_> = frame
             .instances
             .iter()
@@ -156,6 +165,14 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             evals.push(eval);
         }
         bar.inc(frame.instances.len() as u64);
+        if segmenter.is_some() {
+            scored_frames.push(Frame {
+                rgb: Vec::new(),
+                depth: Vec::new(),
+                sensor_depth: None,
+                ..owned
+            });
+        }
     }
     bar.finish_and_clear();
     anyhow::ensure!(
@@ -213,7 +230,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         evals.len()
     );
     if segmenter.is_some() {
-        let frame_refs: Vec<_> = frames.iter().collect();
+        let frame_refs: Vec<_> = scored_frames.iter().collect();
         let s = segmentation::score_detections(&frame_refs, &all_detections);
         println!(
             "segmenter {}: mask AP {:.3} (AP50 {:.3}), bbox AP {:.3} (AP50 {:.3}); {} detections for {} visible boxes; {} of {} evaluated boxes found",

@@ -65,14 +65,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.resolution
     );
     let dataset = Dataset::open(&args.dataset)?;
-    let frames: Vec<_> = dataset.frames()?.collect::<Result<_, _>>()?;
-    let total: usize = frames.iter().map(|f| f.instances.len()).sum();
+    let frames = dataset.frames()?;
+    let total = frames.instance_count(|_| true);
     let bar = ProgressBar::new(total as u64).with_style(ProgressStyle::with_template(
         "fitting {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
     )?);
     let mut rng = ChaCha8Rng::seed_from_u64(args.seed);
     let mut rows = Vec::new();
-    for frame in &frames {
+    for frame in frames {
+        let frame = &frame?;
         for instance in &frame.instances {
             bar.inc(1);
             if instance.visible_fraction < args.min_visible_fraction {

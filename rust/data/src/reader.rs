@@ -5,6 +5,7 @@ use std::path::{Path, PathBuf};
 use arrow::array::{Array, AsArray};
 use arrow::datatypes::{DataType, Float32Type, Float64Type, Int32Type, Int64Type};
 use arrow::record_batch::RecordBatch;
+use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
 use crate::error::{DataError, Result};
@@ -123,13 +124,17 @@ impl Dataset {
         Ok(out)
     }
 
-    /// Total number of rows of `table`.
+    /// Total number of rows of `table`, from the shards' footers (their version and table
+    /// checked; the rows themselves are validated where they are read).
     pub fn count(&self, table: &'static Table) -> Result<usize> {
-        Ok(self
-            .read_table(table)?
-            .iter()
-            .map(|b| b.batch.num_rows())
-            .sum())
+        let mut total = 0;
+        for path in self.shards(table)? {
+            total += shard_builder(&path, table)?
+                .metadata()
+                .file_metadata()
+                .num_rows() as usize;
+        }
+        Ok(total)
     }
 
     /// Every scene, in shard order; a scene id twice is an error.
@@ -209,11 +214,21 @@ impl Dataset {
     /// (where the dataset has those tables) a frame of no scene or an instance of no object are
     /// errors naming the row.
     pub fn frames(&self) -> Result<FrameIter> {
-        let batches = self.read_table(&schema::FRAMES)?;
+        let shards = self.shards(&schema::FRAMES)?;
         let mut frame_keys = UniqueKeys::new(schema::FRAMES.name);
         let mut offsets = ShardRowOffsets::default();
         let scenes = self.scene_ids()?;
-        for sb in &batches {
+        // Only the key columns: the images are read later, one batch at a time.
+        let mut key_batches = Vec::new();
+        for path in &shards {
+            for batch in read_columns(path, &schema::FRAMES, &["scene_id", "frame_id"])? {
+                key_batches.push(ShardBatch {
+                    path: path.clone(),
+                    batch,
+                });
+            }
+        }
+        for sb in &key_batches {
             let first = offsets.next(sb);
             let scene_ids = key_column::<Int64Type>(sb, "scene_id")?;
             let frame_ids = key_column::<Int32Type>(sb, "frame_id")?;
@@ -271,9 +286,8 @@ impl Dataset {
             list.sort_by_key(|i| i.object_id);
         }
         Ok(FrameIter {
-            batches,
-            batch: 0,
-            row: 0,
+            shards: shards.into_iter(),
+            current: None,
             instances: by_frame,
         })
     }
@@ -383,28 +397,77 @@ fn key_column<'a, T: arrow::datatypes::ArrowPrimitiveType>(
     Ok(column.values())
 }
 
-/// Iterator over decoded frames; see [`Dataset::frames`].
+/// Iterator over decoded frames; see [`Dataset::frames`]. Streams: it holds one record batch
+/// of [`FRAME_BATCH_ROWS`] frames at a time, so memory does not grow with the dataset.
 pub struct FrameIter {
-    batches: Vec<ShardBatch>,
-    batch: usize,
-    row: usize,
+    shards: std::vec::IntoIter<PathBuf>,
+    current: Option<(ShardReader, RecordBatch, usize)>,
     instances: HashMap<(i64, i32), Vec<Instance>>,
+}
+
+/// Frames per record batch read: a frame is about a megabyte of images.
+pub const FRAME_BATCH_ROWS: usize = 8;
+
+impl FrameIter {
+    /// Instances of the frames not yet yielded whose scene passes `keep` (e.g. for a progress
+    /// bar's total before streaming).
+    pub fn instance_count(&self, keep: impl Fn(i64) -> bool) -> usize {
+        self.instances
+            .iter()
+            .filter(|((scene, _), _)| keep(*scene))
+            .map(|(_, list)| list.len())
+            .sum()
+    }
+
+    /// Moves to the next frame row, opening shards and reading batches as needed.
+    fn advance(&mut self) -> Result<Option<(&Path, &RecordBatch, usize)>> {
+        loop {
+            let exhausted = match &mut self.current {
+                Some((_, batch, row)) if *row < batch.num_rows() => break,
+                Some((reader, batch, row)) => match reader.next_batch()? {
+                    Some(next) => {
+                        *batch = next;
+                        *row = 0;
+                        false
+                    }
+                    None => true,
+                },
+                None => true,
+            };
+            if exhausted {
+                let Some(path) = self.shards.next() else {
+                    self.current = None;
+                    return Ok(None);
+                };
+                let mut reader = ShardReader::open(&path, &schema::FRAMES, FRAME_BATCH_ROWS)?;
+                self.current = match reader.next_batch()? {
+                    Some(batch) => Some((reader, batch, 0)),
+                    None => None,
+                };
+            }
+        }
+        let (reader, batch, row) = self.current.as_mut().expect("a batch with rows left");
+        let at = *row;
+        *row += 1;
+        Ok(Some((&reader.path, batch, at)))
+    }
 }
 
 impl Iterator for FrameIter {
     type Item = Result<Frame>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        while self.batch < self.batches.len()
-            && self.row >= self.batches[self.batch].batch.num_rows()
-        {
-            self.batch += 1;
-            self.row = 0;
-        }
-        let sb = self.batches.get(self.batch)?;
-        let row = self.row;
-        self.row += 1;
-        Some(Frame::from_row(&sb.path, &sb.batch, row).map(|mut frame| {
+        let (path, batch, row) = match self.advance() {
+            Ok(Some(at)) => at,
+            Ok(None) => return None,
+            Err(e) => {
+                self.shards = Vec::new().into_iter();
+                self.current = None;
+                return Some(Err(e));
+            }
+        };
+        let frame = Frame::from_row(path, batch, row);
+        Some(frame.map(|mut frame| {
             frame.instances = self
                 .instances
                 .remove(&(frame.scene_id, frame.frame_id))
@@ -449,41 +512,137 @@ pub fn decode_frames(
 
 /// Reads and validates one shard of `table`.
 pub fn read_shard(path: &Path, table: &'static Table) -> Result<Vec<RecordBatch>> {
+    let mut reader = ShardReader::open(path, table, DEFAULT_BATCH_ROWS)?;
+    let mut batches = Vec::new();
+    while let Some(batch) = reader.next_batch()? {
+        batches.push(batch);
+    }
+    Ok(batches)
+}
+
+/// Rows per record batch where nothing else is asked for (arrow-rs's default).
+const DEFAULT_BATCH_ROWS: usize = 1024;
+
+/// The validated record batches of one shard, read one at a time.
+struct ShardReader {
+    path: PathBuf,
+    table: &'static Table,
+    batches: parquet::arrow::arrow_reader::ParquetRecordBatchReader,
+    next_row: usize,
+    expected_rows: usize,
+}
+
+impl ShardReader {
+    fn open(path: &Path, table: &'static Table, batch_rows: usize) -> Result<Self> {
+        let builder = shard_builder(path, table)?;
+        check_columns(path, table, builder.schema())?;
+        let expected_rows = builder.metadata().file_metadata().num_rows() as usize;
+        let batches = builder
+            .with_batch_size(batch_rows)
+            .build()
+            .map_err(|source| DataError::Parquet {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            table,
+            batches,
+            next_row: 0,
+            expected_rows,
+        })
+    }
+
+    /// The next batch, validated; None after the last, once the row count matched the footer.
+    fn next_batch(&mut self) -> Result<Option<RecordBatch>> {
+        match self.batches.next() {
+            Some(batch) => {
+                let batch = batch.map_err(|source| DataError::Arrow {
+                    path: self.path.clone(),
+                    source,
+                })?;
+                check_values(&self.path, self.table, &batch, self.next_row)?;
+                self.next_row += batch.num_rows();
+                Ok(Some(batch))
+            }
+            None if self.next_row != self.expected_rows => Err(DataError::BadValue {
+                path: self.path.clone(),
+                row: self.next_row,
+                column: "*",
+                problem: format!(
+                    "read {} rows but the footer declares {}",
+                    self.next_row, self.expected_rows
+                ),
+            }),
+            None => Ok(None),
+        }
+    }
+}
+
+/// A shard's Parquet reader, after checking its version and table metadata.
+fn shard_builder(
+    path: &Path,
+    table: &'static Table,
+) -> Result<ParquetRecordBatchReaderBuilder<fs::File>> {
     let file = fs::File::open(path).map_err(|source| DataError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    let parquet = |source| DataError::Parquet {
-        path: path.to_path_buf(),
-        source,
-    };
-    let builder = ParquetRecordBatchReaderBuilder::try_new(file).map_err(parquet)?;
+    let builder =
+        ParquetRecordBatchReaderBuilder::try_new(file).map_err(|source| DataError::Parquet {
+            path: path.to_path_buf(),
+            source,
+        })?;
     check_metadata(
         path,
         table,
         builder.metadata().file_metadata().key_value_metadata(),
     )?;
-    check_columns(path, table, builder.schema())?;
-    let expected_rows = builder.metadata().file_metadata().num_rows() as usize;
-    let reader = builder.build().map_err(parquet)?;
+    Ok(builder)
+}
+
+/// Only `columns` (scalars) of a shard of `table`, with their types and values checked.
+fn read_columns(
+    path: &Path,
+    table: &'static Table,
+    columns: &[&'static str],
+) -> Result<Vec<RecordBatch>> {
+    let builder = shard_builder(path, table)?;
+    let mask = ProjectionMask::columns(builder.parquet_schema(), columns.iter().copied());
+    let parquet = |source| DataError::Parquet {
+        path: path.to_path_buf(),
+        source,
+    };
+    let reader = builder.with_projection(mask).build().map_err(parquet)?;
     let mut batches = Vec::new();
-    let mut first_row = 0;
     for batch in reader {
         let batch = batch.map_err(|source| DataError::Arrow {
             path: path.to_path_buf(),
             source,
         })?;
-        check_values(path, table, &batch, first_row)?;
-        first_row += batch.num_rows();
+        for &name in columns {
+            let column = table.column(name).expect("a column of the table");
+            let found = batch.column_by_name(name).ok_or(DataError::MissingColumn {
+                path: path.to_path_buf(),
+                table: table.name,
+                column: column.name,
+            })?;
+            if !same_type(found.data_type(), &column.arrow_type()) {
+                return Err(DataError::WrongType {
+                    path: path.to_path_buf(),
+                    column: column.name,
+                    found: found.data_type().to_string(),
+                    expected: column.arrow_type().to_string(),
+                });
+            }
+        }
+        let first_row = batches.iter().map(RecordBatch::num_rows).sum();
+        for &name in columns {
+            let column = table.column(name).expect("a column of the table");
+            let array = batch.column_by_name(name).expect("checked above");
+            check_scalar_values(path, column, array.as_ref(), first_row)?;
+        }
         batches.push(batch);
-    }
-    if first_row != expected_rows {
-        return Err(DataError::BadValue {
-            path: path.to_path_buf(),
-            row: first_row,
-            column: "*",
-            problem: format!("read {first_row} rows but the footer declares {expected_rows}"),
-        });
     }
     Ok(batches)
 }
@@ -576,6 +735,10 @@ fn check_values(
         let array = batch
             .column_by_name(column.name)
             .expect("columns were checked");
+        let Some(width) = column.list_size else {
+            check_scalar_values(path, column, array.as_ref(), first_row)?;
+            continue;
+        };
         if !column.nullable && array.null_count() > 0 {
             let row = (0..array.len()).find(|&r| array.is_null(r)).unwrap_or(0);
             return Err(bad(
@@ -584,29 +747,6 @@ fn check_values(
                 "null in a column that must have a value".into(),
             ));
         }
-        let Some(width) = column.list_size else {
-            if let Some(values) = floats(array.as_ref())
-                && let Some(row) = values.iter().position(|v| !v.is_finite())
-            {
-                return Err(bad(
-                    row,
-                    column.name,
-                    format!("non-finite value {}", values[row]),
-                ));
-            }
-            if let Some((lo, hi)) = column.range
-                && let Some(values) = numbers(array.as_ref())
-                && let Some(row) = (0..values.len())
-                    .find(|&r| array.is_valid(r) && !(lo..=hi).contains(&values[r]))
-            {
-                return Err(bad(
-                    row,
-                    column.name,
-                    format!("{} is outside [{lo}, {hi}]", values[row]),
-                ));
-            }
-            continue;
-        };
         let list = array.as_list::<i32>();
         let width = width as usize;
         let elements = list.values();
@@ -661,6 +801,39 @@ fn check_values(
 }
 
 /// The values of a float array widened to f64 (`None` for other types).
+/// A scalar column's values: no null where the schema says it must have a value, finite floats,
+/// and values within the column's range.
+fn check_scalar_values(
+    path: &Path,
+    column: &'static schema::Column,
+    array: &dyn Array,
+    first_row: usize,
+) -> Result<()> {
+    let bad = |row: usize, problem: String| DataError::BadValue {
+        path: path.to_path_buf(),
+        row: first_row + row,
+        column: column.name,
+        problem,
+    };
+    if !column.nullable && array.null_count() > 0 {
+        let row = (0..array.len()).find(|&r| array.is_null(r)).unwrap_or(0);
+        return Err(bad(row, "null in a column that must have a value".into()));
+    }
+    if let Some(values) = floats(array)
+        && let Some(row) = values.iter().position(|v| !v.is_finite())
+    {
+        return Err(bad(row, format!("non-finite value {}", values[row])));
+    }
+    if let Some((lo, hi)) = column.range
+        && let Some(values) = numbers(array)
+        && let Some(row) =
+            (0..values.len()).find(|&r| array.is_valid(r) && !(lo..=hi).contains(&values[r]))
+    {
+        return Err(bad(row, format!("{} is outside [{lo}, {hi}]", values[row])));
+    }
+    Ok(())
+}
+
 /// Any numeric array as float64 (exact for every integer the schema's ranges can hold).
 fn numbers(array: &dyn Array) -> Option<Vec<f64>> {
     if !array.data_type().is_numeric() {

@@ -305,6 +305,9 @@ impl Instance {
     }
 }
 
+/// Largest frame the reader decodes, 2^26 pixels (8192 × 8192): about 450 MB of decoded images.
+pub const MAX_FRAME_PIXELS: u64 = 1 << 26;
+
 impl Frame {
     pub(crate) fn from_row(path: &Path, batch: &RecordBatch, row: usize) -> Result<Self> {
         let r = Row { path, batch, row };
@@ -314,6 +317,15 @@ impl Frame {
         );
         if width <= 0 || height <= 0 {
             return Err(r.bad("width", format!("image size {width} × {height} is empty")));
+        }
+        // Refused before any PNG is inflated: a few kilobytes of PNG can claim gigabytes.
+        if width as u64 * height as u64 > MAX_FRAME_PIXELS {
+            return Err(r.bad(
+                "width",
+                format!(
+                    "image size {width} × {height} is over the limit of {MAX_FRAME_PIXELS} pixels"
+                ),
+            ));
         }
         let (width, height) = (width as usize, height as usize);
         let rgb_png = r.bytes("rgb_png").unwrap_or_default();

@@ -101,6 +101,9 @@ pub struct Table {
     pub doc: &'static str,
     /// Columns that identify a row; rows of other tables join on them.
     pub key: &'static [&'static str],
+    /// Rows per Parquet row group where it must be small: a reader holds a whole row group in
+    /// memory, and a frame is about a megabyte of images. None: the writer's default.
+    pub row_group_rows: Option<usize>,
     pub columns: &'static [Column],
 }
 
@@ -216,6 +219,7 @@ pub const SCENES: Table = Table {
     name: "scenes",
     doc: "One row per physically stable scene, with everything needed to regenerate it.",
     key: &["scene_id"],
+    row_group_rows: None,
     columns: &[
         SCENE_ID,
         col(
@@ -315,6 +319,7 @@ pub const OBJECTS: Table = Table {
     name: "objects",
     doc: "One row per box per scene: its size, settled pose, physical and material parameters.",
     key: &["scene_id", "object_id"],
+    row_group_rows: None,
     columns: &[
         SCENE_ID,
         OBJECT_ID,
@@ -392,6 +397,7 @@ pub const FRAMES: Table = Table {
     name: "frames",
     doc: "One row per rendered view: camera, render settings and the images themselves.",
     key: &["scene_id", "frame_id"],
+    row_group_rows: Some(16),
     columns: &[
         SCENE_ID,
         FRAME_ID,
@@ -477,6 +483,7 @@ pub const INSTANCES: Table = Table {
     name: "instances",
     doc: "One row per box per frame, including boxes that are fully hidden or outside the image.",
     key: &["scene_id", "frame_id", "object_id"],
+    row_group_rows: None,
     columns: &[
         SCENE_ID,
         FRAME_ID,
@@ -574,6 +581,7 @@ pub const SEARCH_SAMPLES: Table = Table {
     name: "samples",
     doc: "One row per sample of a `boxpose search` run, in sample_id order (the run folder's `samples.parquet`).",
     key: &["sample_id"],
+    row_group_rows: None,
     columns: &[
         SAMPLE_ID,
         col(
@@ -740,6 +748,7 @@ pub const SEARCH_TIMINGS: Table = Table {
     name: "timings",
     doc: "Seconds per stage of each `boxpose search` sample (the run folder's `timings.parquet`).",
     key: &["sample_id"],
+    row_group_rows: None,
     columns: &[
         SAMPLE_ID,
         col(
@@ -794,7 +803,13 @@ pub fn to_json() -> serde_json::Value {
                     })
                 })
                 .collect::<Vec<_>>();
-            serde_json::json!({ "name": t.name, "doc": t.doc, "key": t.key, "columns": columns })
+            serde_json::json!({
+                "name": t.name,
+                "doc": t.doc,
+                "key": t.key,
+                "row_group_rows": t.row_group_rows,
+                "columns": columns,
+            })
         })
         .collect::<Vec<_>>();
     serde_json::json!({ "schema_version": SCHEMA_VERSION, "version_key": VERSION_KEY, "table_key": TABLE_KEY, "tables": tables })

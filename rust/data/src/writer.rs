@@ -26,7 +26,12 @@ pub fn write_shard(
     batches: &[RecordBatch],
 ) -> Result<PathBuf> {
     let path = dataset.join(table.name).join(file_name);
-    write_parquet(&path, std::sync::Arc::new(table.arrow_schema()), batches)?;
+    write_parquet_in_row_groups(
+        &path,
+        std::sync::Arc::new(table.arrow_schema()),
+        batches,
+        table.row_group_rows,
+    )?;
     Ok(path)
 }
 
@@ -34,6 +39,16 @@ pub fn write_shard(
 /// then renames the file once complete and
 /// synced, so an interrupted job never leaves a half file that looks valid.
 pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) -> Result<()> {
+    write_parquet_in_row_groups(path, schema, batches, None)
+}
+
+/// [`write_parquet`] with at most `row_group_rows` rows per row group (None: the default).
+fn write_parquet_in_row_groups(
+    path: &Path,
+    schema: SchemaRef,
+    batches: &[RecordBatch],
+    row_group_rows: Option<usize>,
+) -> Result<()> {
     let tmp = temporary_beside(path)?;
     let io = |source| DataError::Io {
         path: tmp.clone(),
@@ -51,10 +66,13 @@ pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) ->
         .iter()
         .map(|(k, v)| KeyValue::new(k.clone(), v.clone()))
         .collect();
-    let props = WriterProperties::builder()
+    let mut props = WriterProperties::builder()
         .set_compression(Compression::ZSTD(ZstdLevel::try_new(3).map_err(parquet)?))
-        .set_key_value_metadata(Some(metadata))
-        .build();
+        .set_key_value_metadata(Some(metadata));
+    if row_group_rows.is_some() {
+        props = props.set_max_row_group_row_count(row_group_rows);
+    }
+    let props = props.build();
     let file = fs::File::create(&tmp).map_err(io)?;
     let mut writer = ArrowWriter::try_new(file, schema.clone(), Some(props)).map_err(parquet)?;
     for batch in batches {
