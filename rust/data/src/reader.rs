@@ -440,10 +440,7 @@ impl FrameIter {
                     return Ok(None);
                 };
                 let mut reader = ShardReader::open(&path, &schema::FRAMES, FRAME_BATCH_ROWS)?;
-                self.current = match reader.next_batch()? {
-                    Some(batch) => Some((reader, batch, 0)),
-                    None => None,
-                };
+                self.current = reader.next_batch()?.map(|batch| (reader, batch, 0));
             }
         }
         let (reader, batch, row) = self.current.as_mut().expect("a batch with rows left");
