@@ -585,17 +585,48 @@ fn shard_builder(
         path: path.to_path_buf(),
         source,
     })?;
+    let file_len = file.metadata().map(|m| m.len()).unwrap_or(0);
     let builder =
         ParquetRecordBatchReaderBuilder::try_new(file).map_err(|source| DataError::Parquet {
             path: path.to_path_buf(),
             source,
         })?;
+    check_column_chunks(path, builder.metadata(), file_len)?;
     check_metadata(
         path,
         table,
         builder.metadata().file_metadata().key_value_metadata(),
     )?;
     Ok(builder)
+}
+
+/// Every column chunk the footer declares lies inside the file: the parquet crate panics on a
+/// negative offset or length (found by the damaged-shard property test).
+fn check_column_chunks(
+    path: &Path,
+    metadata: &parquet::file::metadata::ParquetMetaData,
+    file_len: u64,
+) -> Result<()> {
+    for row_group in metadata.row_groups() {
+        for chunk in row_group.columns() {
+            let start = chunk
+                .dictionary_page_offset()
+                .unwrap_or(chunk.data_page_offset());
+            let len = chunk.compressed_size();
+            let inside =
+                start >= 0 && len >= 0 && (start as u64).saturating_add(len as u64) <= file_len;
+            if !inside {
+                return Err(DataError::Parquet {
+                    path: path.to_path_buf(),
+                    source: parquet::errors::ParquetError::General(format!(
+                        "column chunk of `{}` at offset {start}, {len} bytes, is not inside the {file_len}-byte file",
+                        chunk.column_path()
+                    )),
+                });
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Only `columns` (scalars) of a shard of `table`, with their types and values checked.

@@ -8,7 +8,8 @@ use arrow::array::{
 use arrow::datatypes::{Float32Type, Float64Type};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::schema::OBJECTS;
-use boxpose_data::{DataError, Dataset, shard_file_name, write_shard};
+use boxpose_data::{DataError, Dataset, read_shard, shard_file_name, write_shard};
+use proptest::prelude::*;
 
 fn list_f64(rows: &[Vec<f64>]) -> ArrayRef {
     Arc::new(ListArray::from_iter_primitive::<Float64Type, _, _>(
@@ -154,4 +155,53 @@ fn typed_rows_round_trip_through_a_shard() {
     let dataset = boxpose_data::Dataset::open(dir.path()).unwrap();
     assert_eq!(dataset.scenes().unwrap(), vec![scene]);
     assert_eq!(dataset.objects().unwrap(), vec![object]);
+}
+
+/// One damage done to a valid shard's bytes.
+#[derive(Debug, Clone)]
+enum Damage {
+    /// Overwrite bytes at these fractions of the length with these values.
+    Flip(Vec<(f64, u8)>),
+    /// Keep only this fraction of the file.
+    Truncate(f64),
+    /// Append bytes (a second footer, garbage after the magic).
+    Append(Vec<u8>),
+}
+
+fn damage() -> impl Strategy<Value = Damage> {
+    prop_oneof![
+        prop::collection::vec((0.0f64..1.0, any::<u8>()), 1..16).prop_map(Damage::Flip),
+        (0.0f64..1.0).prop_map(Damage::Truncate),
+        prop::collection::vec(any::<u8>(), 1..64).prop_map(Damage::Append),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 256, ..ProptestConfig::default() })]
+
+    /// The reader on a damaged shard returns rows or an error, and never panics: every byte of a
+    /// dataset may be wrong, and a reader that aborts loses the message that names the file.
+    #[test]
+    fn a_damaged_shard_is_read_or_refused_never_a_panic(damage in damage()) {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write_shard(dir.path(), &OBJECTS, &shard_file_name(0, 1), &[objects_batch(0.025)])
+            .unwrap();
+        let mut bytes = std::fs::read(&path).unwrap();
+        match &damage {
+            Damage::Flip(flips) => {
+                for &(at, value) in flips {
+                    let i = ((at * bytes.len() as f64) as usize).min(bytes.len() - 1);
+                    bytes[i] = value;
+                }
+            }
+            Damage::Truncate(keep) => bytes.truncate((keep * bytes.len() as f64) as usize),
+            Damage::Append(extra) => bytes.extend_from_slice(extra),
+        }
+        std::fs::write(&path, &bytes).unwrap();
+        let read = std::panic::catch_unwind(|| {
+            let _ = read_shard(&path, &OBJECTS);
+            let _ = Dataset::open(dir.path()).unwrap().objects();
+        });
+        prop_assert!(read.is_ok(), "the reader panicked on {damage:?}");
+    }
 }
