@@ -12,6 +12,7 @@ import tomllib
 from dataclasses import asdict, dataclass
 
 # [support] and [materials] are defined once, by the scene stage that owns them (no pydrake import).
+from boxpose_io.recipe_keys import unknown_recipe_keys
 from drake_scenes.recipe import MaterialsSpec, RecipeError, SupportSpec
 
 
@@ -105,6 +106,13 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise RecipeError(f"recipe {source}: invalid TOML ({e})") from e
+    unknown = unknown_recipe_keys(data)
+    if unknown:
+        raise RecipeError(
+            f"recipe {source}: unknown key{'s' if len(unknown) > 1 else ''} "
+            f"{', '.join(repr(k) for k in unknown)} (misspelt? the keys are listed in "
+            "python/boxpose_io/recipe_keys.py)"
+        )
     g = lambda key, kind: _get(data, key, kind, source)  # noqa: E731
     p = lambda key, kind=float: _pair(data, key, kind, source)  # noqa: E731
     camera = CameraSpec(

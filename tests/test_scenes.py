@@ -13,6 +13,8 @@ import pyarrow.parquet as pq
 import pytest
 
 import boxpose_io
+from blender_scripts.recipe import parse_render_recipe
+from boxpose_io.recipe_keys import RECIPE_KEYS
 from drake_scenes.generate import check_feasible, run_shard
 from drake_scenes.plant import BoxBody, build_scene_plant, min_signed_distance
 from drake_scenes.projection import project
@@ -280,6 +282,58 @@ def test_bad_recipe_key_names_the_key(tmp_path):
     recipe = tiny_variant(tmp_path, "typo", kind='kind = "trampoline"')
     result = run_cli("--recipe", recipe, "--out", tmp_path / "out")
     assert result.returncode == 2 and "support.kind 'trampoline'" in result.stderr
+
+
+def test_a_misspelt_recipe_key_is_refused_by_both_readers(tmp_path):
+    recipe = tiny_variant(tmp_path, "misspelt", window_s="window_s = 0.2\nwindow_seconds = 0.2")
+    with pytest.raises(RecipeError, match="unknown key 'settle.window_seconds'"):
+        Recipe.load(recipe)
+    with pytest.raises(RecipeError, match="unknown key 'settle.window_seconds'"):
+        parse_render_recipe(recipe.read_text(), str(recipe))
+
+
+def test_the_recipe_readers_read_exactly_the_recipe_keys(monkeypatch):
+    """RECIPE_KEYS is the one list of keys: every key one of the two readers reads (or looks
+    for) is in it, and every key in it is read by one of them."""
+    import tomllib
+
+    read: set[str] = set()
+
+    class Recording(dict):
+        def __init__(self, data, prefix=""):
+            super().__init__(
+                (k, Recording(v, f"{prefix}{k}.") if isinstance(v, dict) else v)
+                for k, v in data.items()
+            )
+            self.prefix = prefix
+
+        def __getitem__(self, key):
+            read.add(self.prefix + key)
+            return super().__getitem__(key)
+
+        def get(self, key, default=None):
+            read.add(self.prefix + key)
+            return super().get(key, default)
+
+        def __contains__(self, key):
+            read.add(self.prefix + key)
+            return super().__contains__(key)
+
+    parse = tomllib.loads
+
+    def recording_loads(text):
+        return Recording(parse(text))
+
+    monkeypatch.setattr(tomllib, "loads", recording_loads)
+    for path in sorted(RECIPES.glob("*.toml")):
+        Recipe.load(path)
+        parse_render_recipe(path.read_text(), str(path))
+    sections = {k.split(".")[0] for k in RECIPE_KEYS if "." in k}
+    leaves = read - sections
+    assert leaves <= RECIPE_KEYS, f"read but not listed: {sorted(leaves - RECIPE_KEYS)}"
+    assert RECIPE_KEYS - {"description"} <= leaves, (
+        f"listed but never read: {sorted(RECIPE_KEYS - leaves)}"
+    )
 
 
 @pytest.mark.parametrize(
