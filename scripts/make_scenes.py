@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import hashlib
 import json
 import os
 import queue
@@ -315,6 +316,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     ap.add_argument("--no-inspect", action="store_true", help="skip `boxpose inspect` at the end")
     ap.add_argument(
+        "--regenerate",
+        action="store_true",
+        help="when the dataset folder was generated from another recipe text, scene count or "
+        "shard count, delete its outputs and start again (default: refuse)",
+    )
+    ap.add_argument(
         "--worker-timeout",
         type=float,
         default=600.0,
@@ -349,6 +356,49 @@ def main(argv: list[str] | None = None) -> int:
         return 128 + signum
 
 
+MANIFEST = "manifest.json"
+# What --regenerate deletes: the dataset's tables, its unfinished chunks and its manifest.
+GENERATED = ("scenes", "objects", "frames", "instances", PARTIAL, MANIFEST)
+
+
+def claim_dataset(args, manifest: dict) -> None:
+    """A dataset folder remembers what it is being generated from (DIR/manifest.json, written
+    atomically on the first run). A resume with another recipe text, scene count or shard count
+    would mix two datasets: it is refused, or with --regenerate the old outputs are deleted."""
+    path = args.dataset / MANIFEST
+    if path.is_file():
+        try:
+            found = json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise DriverError(
+                f"{path}: unreadable manifest ({e}); delete it to adopt the folder"
+            ) from e
+        differ = [k for k in manifest if found.get(k) != manifest[k]]
+        if not differ:
+            return
+        if not args.regenerate:
+            what = "; ".join(f"{k} {found.get(k)!r} then, {manifest[k]!r} now" for k in differ)
+            raise DriverError(
+                f"{args.dataset} was generated from other settings ({what}): resuming would mix "
+                "two datasets. Use another --dataset folder, or --regenerate to delete this "
+                "one's outputs and start again"
+            )
+        for name in GENERATED:
+            target = args.dataset / name
+            if target.is_dir():
+                shutil.rmtree(target)
+            elif target.exists():
+                target.unlink()
+        print(f"--regenerate: deleted the outputs of the previous settings in {args.dataset}")
+    args.dataset.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{MANIFEST}.{os.getpid()}.tmp")
+    with open(tmp, "w") as f:
+        json.dump(manifest, f, indent=2)
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
 def run(args) -> int:
     from blender_scripts.recipe import RecipeError, parse_render_recipe
 
@@ -372,6 +422,15 @@ def run(args) -> int:
     if any(not 0 <= s < args.num_shards for s in shards):
         raise DriverError(f"--shards {args.shards}: indices must lie in 0..{args.num_shards - 1}")
     check_bpy(args.python)
+    claim_dataset(
+        args,
+        {
+            "recipe": recipe.name,
+            "recipe_sha256": hashlib.sha256(text.encode()).hexdigest(),
+            "num_scenes": num_scenes,
+            "num_shards": args.num_shards,
+        },
+    )
 
     frames_per_scene = recipe.camera.frames_per_scene
     total = num_scenes * frames_per_scene * len(shards) // args.num_shards

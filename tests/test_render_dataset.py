@@ -2,6 +2,7 @@
 Inputs are synthetic `scenes` / `objects` shards (no Drake needed); renders are 64², 1 sample."""
 
 import io
+import json
 import os
 import signal
 import subprocess
@@ -238,3 +239,27 @@ def test_sigterm_to_the_driver_stops_its_workers(tmp_path):
     assert driver.returncode == 128 + signal.SIGTERM, stderr
     assert "stopped by SIGTERM: run the same command again to resume" in stderr
     assert not alive(worker) and not worker_pids(dataset)
+
+
+def test_a_resume_with_other_settings_is_refused_or_regenerated(tmp_path):
+    """The folder's manifest.json remembers the recipe text, scene count and shard count; a
+    resume with another one would mix two datasets."""
+    dataset = tmp_path / "tiny"
+    write_inputs(dataset, tiny_scenes(2))
+    r = run_driver(dataset)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads((dataset / "manifest.json").read_text())
+    assert (manifest["recipe"], manifest["num_scenes"], manifest["num_shards"]) == ("tiny", 2, 1)
+
+    r = run_driver(dataset, "--num-scenes", "1")
+    assert r.returncode == 1
+    assert "num_scenes 2 then, 1 now" in r.stderr and "--regenerate" in r.stderr
+    r = run_driver(dataset, "--num-shards", "2")
+    assert r.returncode == 1 and "num_shards 1 then, 2 now" in r.stderr
+    assert sorted(pd.read_parquet(dataset / "frames").scene_id) == [0, 1]  # nothing lost
+
+    r = run_driver(dataset, "--num-scenes", "1", "--regenerate")
+    assert r.returncode == 0, r.stderr
+    assert "--regenerate: deleted" in r.stdout
+    assert len(pd.read_parquet(dataset / "scenes")) == 1  # the Drake stage ran again
+    assert json.loads((dataset / "manifest.json").read_text())["num_scenes"] == 1
