@@ -11,9 +11,17 @@ import math
 import tomllib
 from dataclasses import asdict, dataclass
 
-# [support] and [materials] are defined once, by the scene stage that owns them (no pydrake import).
 from boxpose_io.recipe_keys import unknown_recipe_keys
-from drake_scenes.recipe import MaterialsSpec, RecipeError, SupportSpec
+
+# [support] and [materials] are defined, read and checked once, by the scene stage that owns them
+# (no pydrake import).
+from drake_scenes.recipe import (
+    MaterialsSpec,
+    RecipeError,
+    SupportSpec,
+    read_support,
+    support_problems,
+)
 
 
 @dataclass(frozen=True)
@@ -158,7 +166,9 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         sensor_depth=g("render.sensor_depth", bool),
         **optional,
     )
-    problems = []
+    # Read and checked exactly as the scene stage does: half_extent_m is (x, y), not a range.
+    support = read_support(data, source)
+    problems = support_problems(support)
     if camera.frames_per_scene < 1 or camera.width < 1 or camera.height < 1:
         problems.append("camera.frames_per_scene, width and height must be >= 1")
     if not (0 < camera.hfov_deg[0] and camera.hfov_deg[1] < 180):
@@ -177,9 +187,6 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         problems.append("render.samples must be >= 1 and render.max_bounces >= 0")
     if problems:
         raise RecipeError(f"recipe {source}: " + "; ".join(problems))
-    support = SupportSpec(
-        g("support.kind", str), p("support.half_extent_m"), g("support.wall_height_m", float)
-    )
     # Settled boxes may sink into each other and the support by up to settle.max_penetration_m.
     penetration = (
         g("settle.max_penetration_m", float)

@@ -25,14 +25,15 @@ from blender_scripts.exr import read_exr
 from blender_scripts.materials import cardboard_material, support_material
 from blender_scripts.recipe import SupportSpec
 
+# Same support geometry as the physics (drake_scenes/plant.py: support_boxes), from the dataset
+# contract (rust/data/src/support.rs, via schema.json): the ground's top is z = 0; bin walls
+# stand on it with their inner faces on the support region's edges; a pallet is a slab of exactly
+# the support region, PALLET_HEIGHT_M high, standing on the ground.
+from boxpose_io import BIN_WALL_THICKNESS_M, PALLET_HEIGHT_M
+
 # Background pixels get this depth from Cycles (no surface); stored as 0.
 _NO_SURFACE = 1e9
 _FLOOR_HALF_EXTENT_M = 20.0
-# Same support geometry as the physics (drake_scenes/plant.py: support_boxes): the ground's top
-# is z = 0; bin walls stand on it with their inner faces on the support region's edges; a pallet
-# is a slab of exactly the support region, 0.144 m high, standing on the ground.
-_BIN_WALL_THICKNESS_M = 0.02
-_PALLET_HEIGHT_M = 0.144
 
 
 @dataclass
@@ -184,7 +185,7 @@ class BlenderScene:
                 support_material("floor", "floor", support_look),
             )
         elif support.kind == "bin":
-            t, wall = _BIN_WALL_THICKNESS_M, support.wall_height_m
+            t, wall = BIN_WALL_THICKNESS_M, support.wall_height_m
             mat = support_material("bin", "bin", support_look)
             self._slab(
                 "support_floor",
@@ -197,7 +198,7 @@ class BlenderScene:
             self._slab("support_wall_-y", (-hx, -hy - t, 0.0), (hx, -hy, wall), mat)
             self._slab("support_wall_+y", (-hx, hy, 0.0), (hx, hy + t, wall), mat)
         elif support.kind == "pallet":
-            ph = _PALLET_HEIGHT_M
+            ph = PALLET_HEIGHT_M
             self._slab(
                 "support_floor",
                 (-h, -h, -0.05),

@@ -16,8 +16,7 @@ import numpy as np
 
 from blender_scripts import geometry as geo
 from blender_scripts.recipe import parse_render_recipe
-
-PALLET_HEIGHT_M = 0.144
+from boxpose_io import PALLET_HEIGHT_M
 
 
 def _yaw_quat(yaw: float) -> list[float]:

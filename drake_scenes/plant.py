@@ -30,6 +30,7 @@ from pydrake.multibody.plant import (
 from pydrake.multibody.tree import RigidBody, SpatialInertia
 from pydrake.systems.framework import Context, Diagram, DiagramBuilder
 
+from boxpose_io import BIN_WALL_THICKNESS_M, PALLET_HEIGHT_M, SUPPORT_FRICTION
 from drake_scenes.recipe import SupportSpec
 
 # The ground is a thick box, not a HalfSpace: Drake has no Box–HalfSpace signed distance, which
@@ -39,11 +40,9 @@ GROUND_THICKNESS_M = 0.2
 # The ground reaches this far beyond the support region, so that a box that slides out of the
 # region stays on it and is rejected by the region check instead of falling forever.
 GROUND_MARGIN_M = 1.0
-WALL_THICKNESS_M = 0.02
-# A pallet is a slab at the height of a EUR pallet, exactly the size of the support region.
-PALLET_HEIGHT_M = 0.144
-# Support friction; the boxes' own friction comes from the recipe (Drake combines the two).
-SUPPORT_FRICTION = 0.6
+# Bin wall thickness, pallet height (a pallet is a slab exactly the size of the support region)
+# and support friction are the dataset contract's (rust/data/src/support.rs, via schema.json);
+# the boxes' own friction comes from the recipe (Drake combines the two).
 
 # Contact: hydroelastic with compliant boxes gives area contact between flat faces, so stacked
 # and resting boxes sit still; point contact (one point per box pair) makes them rock.
@@ -124,7 +123,7 @@ def support_boxes(spec: SupportSpec) -> list[tuple[str, np.ndarray, np.ndarray]]
         ),
     ]
     if spec.kind == "bin":
-        h, w = spec.wall_height_m, WALL_THICKNESS_M
+        h, w = spec.wall_height_m, BIN_WALL_THICKNESS_M
         # Inner faces on the region's edges; walls along x overlap the corners.
         parts += [
             ("wall_+x", np.array([w, 2 * (hy + w), h]), np.array([hx + w / 2, 0, h / 2])),

@@ -108,11 +108,7 @@ class Recipe:
                 density_kg_m3=reader.pair("boxes.density_kg_m3", float),
                 friction=reader.pair("boxes.friction", float),
             ),
-            support=SupportSpec(
-                kind=reader.get("support.kind", str),
-                half_extent_m=reader.pair("support.half_extent_m", float),
-                wall_height_m=reader.get("support.wall_height_m", float),
-            ),
+            support=read_support(data, source),
             drop=DropSpec(
                 height_m=reader.pair("drop.height_m", float),
                 min_separation_m=reader.get("drop.min_separation_m", float),
@@ -159,12 +155,7 @@ class Recipe:
         ):
             if not 0 < lo <= hi:
                 problems.append(f"{key} must be a positive range [min, max]")
-        if s.kind not in SUPPORT_KINDS:
-            problems.append(f"support.kind '{s.kind}' is not one of {', '.join(SUPPORT_KINDS)}")
-        if min(s.half_extent_m) <= 0 or s.wall_height_m < 0:
-            problems.append("support.half_extent_m must be positive and support.wall_height_m >= 0")
-        if s.kind == "bin" and s.wall_height_m <= 0:
-            problems.append("a bin needs support.wall_height_m > 0")
+        problems += support_problems(s)
         if (
             not 0 <= d.height_m[0] <= d.height_m[1]
             or d.min_separation_m <= 0
@@ -179,6 +170,31 @@ class Recipe:
             problems.append("settle: speed and penetration thresholds must be positive")
         if problems:
             raise self.error("; ".join(problems))
+
+
+def read_support(data: dict, source: str) -> SupportSpec:
+    """The [support] section of parsed recipe TOML, read strictly; the Blender stage reads it
+    with this too. `half_extent_m` is the region's half size along (x, y), not a range. Check
+    the values with `support_problems`."""
+    reader = _Reader(data, source)
+    return SupportSpec(
+        kind=reader.get("support.kind", str),
+        half_extent_m=reader.pair("support.half_extent_m", float),
+        wall_height_m=reader.get("support.wall_height_m", float),
+    )
+
+
+def support_problems(s: SupportSpec) -> list[str]:
+    """What is wrong with a support (empty when nothing is): a kind the contract does not know,
+    a half extent that is not positive, a negative wall, a bin without walls."""
+    problems = []
+    if s.kind not in SUPPORT_KINDS:
+        problems.append(f"support.kind '{s.kind}' is not one of {', '.join(SUPPORT_KINDS)}")
+    if min(s.half_extent_m) <= 0 or s.wall_height_m < 0:
+        problems.append("support.half_extent_m must be positive and support.wall_height_m >= 0")
+    if s.kind == "bin" and s.wall_height_m <= 0:
+        problems.append("a bin needs support.wall_height_m > 0")
+    return problems
 
 
 class _Reader:

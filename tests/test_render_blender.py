@@ -4,18 +4,23 @@ re-renders, pose changes, the simulated sensor. Tiny renders (≤ 128², 1 sampl
 import io
 import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
+import boxpose_io
 from blender_scripts import geometry as geo, sampling, sensor
 from blender_scripts.exr import read_exr
 from blender_scripts.groundtruth import OCCLUDED_BY_OTHER, OUTSIDE_IMAGE, SELF_OCCLUDED, VISIBLE
 from blender_scripts.recipe import parse_render_recipe
 from blender_scripts.session import RenderInputError, check_scene_objects
 from blender_scripts.synthetic import synthetic_scene
+from drake_scenes.recipe import Recipe, RecipeError
 
 REPO = Path(__file__).resolve().parent.parent
 RECIPES = REPO / "datasets" / "recipes"
@@ -52,6 +57,38 @@ def test_recipes_parse():
     for path in sorted(RECIPES.glob("*.toml")):
         r = parse_render_recipe(path.read_text(), str(path))
         assert r.camera.width > 0 and r.render.samples >= 1
+
+
+def with_half_extent(text: str, value: str) -> str:
+    old = next(t for t in text.splitlines() if t.startswith("half_extent_m"))
+    return text.replace(old, f"half_extent_m = {value}")
+
+
+@pytest.mark.parametrize(
+    "value, accepted",
+    [
+        ("[0.4, 0.3]", True),  # (x, y), not a [min, max] range
+        ("[0.3, 0.4]", True),
+        ("[0.25, 0.25]", True),
+        ("[0.4, 0.0]", False),
+        ("[-0.4, 0.3]", False),
+        ("[0.4, inf]", False),
+        ("[nan, 0.3]", False),
+        ("[0.4]", False),
+        ("[0.4, 0.3, 0.2]", False),
+        ("[0.4, true]", False),
+    ],
+)
+def test_both_stages_read_support_half_extent_alike(value, accepted):
+    """half_extent_m is the support's (x, y) half size: the Drake and the Blender readers accept
+    the same values (finite, positive, in either order) and keep them in order."""
+    text = with_half_extent(recipe_text(), value)
+    for read in (lambda t: Recipe.from_toml(t).support, lambda t: parse_render_recipe(t).support):
+        if accepted:
+            assert list(read(text).half_extent_m) == json.loads(value)
+        else:
+            with pytest.raises(RecipeError, match="half_extent_m"):
+                read(text)
 
 
 def test_camera_conversion_is_a_pure_axis_flip():
@@ -483,6 +520,50 @@ def test_other_supports_render(session, support):
         assert min(
             o["world_box_translation_m"][2] - o["size_m"][2] / 2 for o in objects
         ) == pytest.approx(0.144)
+
+
+def test_rectangular_support_from_drake_to_blender(session, tmp_path):
+    """A bin over a 0.6 × 0.4 m region, end to end: the Drake stage settles a scene in it and the
+    Blender stage builds the same walls (compared with drake_scenes.plant.support_boxes) and
+    renders it."""
+    from drake_scenes.plant import support_boxes
+
+    text = (
+        with_half_extent(recipe_text("tiny", 48, 48), "[0.3, 0.2]")
+        .replace('kind = "floor"', 'kind = "bin"')
+        .replace("wall_height_m = 0.0", "wall_height_m = 0.1")
+    )
+    recipe_path, out = tmp_path / "rect.toml", tmp_path / "out"
+    recipe_path.write_text(text)
+    result = subprocess.run(
+        [sys.executable, "-m", "drake_scenes", "--recipe", recipe_path, "--out", out]
+        + ["--num-scenes", "1", "--no-progress"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    rows = {
+        t: pq.read_table(boxpose_io.shard_path(out, t, 0, 1)).to_pylist()
+        for t in ("scenes", "objects")
+    }
+    (scene,), objects = rows["scenes"], rows["objects"]
+    for o in objects:  # boxes settled inside the rectangle
+        assert abs(o["world_box_translation_m"][0]) < 0.3
+        assert abs(o["world_box_translation_m"][1]) < 0.2
+
+    session.load(scene, objects)
+    assert session.recipe.support.half_extent_m == (0.3, 0.2)
+    import bpy
+
+    for name, size, centre in support_boxes(Recipe.from_toml(scene["recipe_toml"]).support):
+        if name.startswith("wall"):
+            wall = bpy.data.objects[f"support_{name}"]
+            assert np.allclose(wall.dimensions, size) and np.allclose(wall.location, centre)
+    frame, instances = session.render(0)
+    _, depth, _ = decode(frame)
+    assert (depth > 0).all() and len(instances) == len(objects)
 
 
 def test_boxes_off_the_image_and_behind_the_camera(session, clutter):

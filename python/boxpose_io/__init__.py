@@ -1,14 +1,28 @@
 """The boxpose dataset contract for the Python stages (Drake, Blender).
 
-The schema is defined once, in Rust (`rust/data/src/schema.rs`); `schema.json` beside this file
-is generated from it (`make schema`) and a Rust test fails when the two disagree.
+The schema is defined once, in Rust (`rust/data/src/schema.rs`, and the support geometry in
+`rust/data/src/support.rs`); `schema.json` beside this file is generated from it (`make schema`)
+and a Rust test fails when the two disagree.
 """
 
-from boxpose_io.schema import SCHEMA_VERSION, TABLES, arrow_schema, column_names
+from boxpose_io.schema import (
+    BIN_WALL_THICKNESS_M,
+    PALLET_HEIGHT_M,
+    SCHEMA_VERSION,
+    SUPPORT,
+    SUPPORT_FRICTION,
+    TABLES,
+    arrow_schema,
+    column_names,
+)
 from boxpose_io.shards import ShardError, shard_file_name, shard_path, table_from_rows, write_shard
 
 __all__ = [
+    "BIN_WALL_THICKNESS_M",
+    "PALLET_HEIGHT_M",
     "SCHEMA_VERSION",
+    "SUPPORT",
+    "SUPPORT_FRICTION",
     "TABLES",
     "ShardError",
     "arrow_schema",

@@ -1,4 +1,4 @@
-"""pyarrow schemas built from the generated contract in schema.json."""
+"""pyarrow schemas and the support geometry, from the generated contract in schema.json."""
 
 import json
 from pathlib import Path
@@ -11,6 +11,16 @@ SCHEMA_VERSION: int = _CONTRACT["schema_version"]
 VERSION_KEY: str = _CONTRACT["version_key"]
 TABLE_KEY: str = _CONTRACT["table_key"]
 TABLES: dict[str, dict] = {t["name"]: t for t in _CONTRACT["tables"]}
+
+# The support geometries the `scenes.support` values name (rust/data/src/support.rs): every
+# stage builds its floor, bin or pallet from these.
+SUPPORT: dict[str, float] = _CONTRACT["support"]
+# Height of the pallet deck's top above the ground (m).
+PALLET_HEIGHT_M: float = SUPPORT["pallet_height_m"]
+# Thickness of a bin's walls, outside the support region (m).
+BIN_WALL_THICKNESS_M: float = SUPPORT["bin_wall_thickness_m"]
+# Coulomb friction of every support surface (ground, bin walls, pallet).
+SUPPORT_FRICTION: float = SUPPORT["friction"]
 
 
 def _arrow_type(column: dict) -> pa.DataType:

@@ -1,5 +1,6 @@
 //! The boxpose dataset contract: a dataset is a folder with one sub-folder of Parquet shards per
-//! table (`scenes/`, `objects/`, `frames/`, `instances/`). [`schema`] defines every column once;
+//! table (`scenes/`, `objects/`, `frames/`, `instances/`). [`schema`] defines every column once,
+//! [`support`] the geometry each `support` value means;
 //! [`write_shard`] writes a shard atomically; [`Dataset`] opens a folder, validates every shard
 //! against the schema and yields decoded frames joined with their instances.
 
@@ -7,6 +8,7 @@ mod error;
 mod reader;
 mod rows;
 pub mod schema;
+pub mod support;
 mod writer;
 
 pub use error::{DataError, Result};

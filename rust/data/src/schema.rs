@@ -1,8 +1,9 @@
 //! The dataset contract: every table, column, type, unit and frame, written once.
 //!
-//! Everything else derives from [`TABLES`]: the Arrow schemas used by the Rust reader and
-//! writers, the JSON definition the Python writers load (`python/boxpose_io/schema.json`), and
-//! the column reference in `docs/dataset.md`. Tests fail when either generated file drifts.
+//! Everything else derives from [`TABLES`] (and [`crate::support`], the geometries the `support`
+//! column names): the Arrow schemas used by the Rust reader and writers, the JSON definition the
+//! Python stages load (`python/boxpose_io/schema.json`), and the column reference in
+//! `docs/dataset.md`. Tests fail when either generated file drifts.
 //!
 //! Conventions (docs/dataset.md, docs/design.md): metres, radians, seconds; poses `T_a_b` map points in frame b
 //! into frame a and are stored as a unit quaternion (w, x, y, z) plus a translation; camera
@@ -783,7 +784,8 @@ pub fn table(name: &str) -> Option<&'static Table> {
     TABLES.iter().find(|t| t.name == name)
 }
 
-/// The contract as JSON, the form the Python writers load.
+/// The contract as JSON, the form the Python stages load: the tables, and the support geometry
+/// ([`crate::support`]).
 pub fn to_json() -> serde_json::Value {
     let tables = TABLES
         .iter()
@@ -812,15 +814,23 @@ pub fn to_json() -> serde_json::Value {
             })
         })
         .collect::<Vec<_>>();
-    serde_json::json!({ "schema_version": SCHEMA_VERSION, "version_key": VERSION_KEY, "table_key": TABLE_KEY, "tables": tables })
+    serde_json::json!({
+        "schema_version": SCHEMA_VERSION,
+        "version_key": VERSION_KEY,
+        "table_key": TABLE_KEY,
+        "tables": tables,
+        "support": crate::support::to_json(),
+    })
 }
 
-/// The column reference of `docs/dataset.md`, one Markdown table per dataset table, then the
-/// result tables.
+/// The column reference of `docs/dataset.md`, one Markdown table per dataset table, the support
+/// geometries, then the result tables.
 pub fn to_markdown() -> String {
     let mut out = format!("Schema version {SCHEMA_VERSION}.\n");
     for (i, t) in TABLES.iter().chain(&RESULT_TABLES).enumerate() {
         if i == TABLES.len() {
+            out += "\n";
+            out += &crate::support::to_markdown();
             out += "\n### Result tables\n\nWritten by boxpose commands into their output folders, with the same version key and table-name metadata as the dataset's shards.\n";
         }
         out += &format!(

@@ -10,14 +10,9 @@ use crate::error::{PhysicsError, Result};
 /// tolerance); quaternions within it are normalized before simulation.
 pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 
-/// Thickness of the bin walls, outside the drop region.
-pub const BIN_WALL_THICKNESS_M: f64 = 0.02;
-
-/// Height of the pallet deck above the ground (a EUR pallet, 144 mm), as in drake_scenes/plant.py.
-pub const PALLET_HEIGHT_M: f64 = 0.144;
-
-/// Coulomb friction of every support surface, as in drake_scenes/plant.py (`SUPPORT_FRICTION`).
-pub const SUPPORT_FRICTION: f64 = 0.6;
+// The support geometry is the dataset contract's (boxpose_data::support), shared with the Drake
+// and Blender stages through the generated schema.json.
+pub use boxpose_data::support::{BIN_WALL_THICKNESS_M, PALLET_HEIGHT_M, SUPPORT_FRICTION};
 
 /// The friction coefficient of a contact between two materials, Drake's rule (`CoulombFriction`
 /// combination): 2 μ₁ μ₂ / (μ₁ + μ₂), 0 when both are 0.
@@ -82,9 +77,10 @@ impl SupportKind {
     }
 }
 
-/// The surface the boxes are dropped on, the same geometry as drake_scenes/plant.py. World
-/// frame: z up, gravity along −z, the ground's top surface at z = 0, the support region
-/// |x| ≤ half_extent_m[0], |y| ≤ half_extent_m[1] centred on the origin.
+/// The surface the boxes are dropped on, the geometry of [`boxpose_data::support`] (as in
+/// drake_scenes/plant.py and blender_scripts/scene.py). World frame: z up, gravity along −z, the
+/// ground's top surface at z = 0, the support region |x| ≤ half_extent_m[0],
+/// |y| ≤ half_extent_m[1] centred on the origin.
 ///
 /// - floor: the ground z = 0 (MuJoCo: an unbounded plane; Drake: a 0.2 m thick box reaching 1 m
 ///   beyond the region — boxes that far out are rejected either way).
