@@ -17,7 +17,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search lint fuzz clean
+.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search lint fuzz test-faults clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -125,7 +125,10 @@ PROPTEST_SEED ?= 20261201
 
 test: setup ## Run every test: Rust unit/property tests, then the Python/Rust end-to-end tests
 	PROPTEST_RNG_SEED=$(PROPTEST_SEED) cargo test --release --workspace
-	$(PY) -m pytest -q tests
+	$(PY) -m pytest -q -m "not faults" tests
+
+test-faults: setup ## Fault injection: kill -9 at every write/fsync/rename of a shard writer (needs strace; docs/reliability.md)
+	$(PY) -m pytest -q -s -m faults tests
 
 lint: $(VENV)/.stamp $(MUJOCO_LINK_DIR)/.stamp ## Style and lint gates that CI runs before the tests: rustfmt, clippy (-D warnings), ruff
 	cargo fmt --all --check

@@ -98,8 +98,19 @@ def write_shard(path: Path, table: pa.Table) -> Path:
     tmp = path.with_name(f"{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     # Small row groups where the schema asks for them (frames): a reader holds a whole row group.
     row_group_rows = TABLES[path.parent.name].get("row_group_rows")
-    pq.write_table(table, tmp, compression="zstd", row_group_size=row_group_rows)
-    with open(tmp, "rb") as f:
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        pq.write_table(table, tmp, compression="zstd", row_group_size=row_group_rows)
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        # A full disk or an I/O error leaves no temporary behind.
+        tmp.unlink(missing_ok=True)
+        raise
+    # The rename survives a power cut once the folder is synced too.
+    folder = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(folder)
+    finally:
+        os.close(folder)
     return path

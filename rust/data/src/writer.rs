@@ -73,25 +73,47 @@ fn write_parquet_in_row_groups(
         props = props.set_max_row_group_row_count(row_group_rows);
     }
     let props = props.build();
-    let file = fs::File::create(&tmp).map_err(io)?;
-    let mut writer = ArrowWriter::try_new(file, schema.clone(), Some(props)).map_err(parquet)?;
-    for batch in batches {
-        if batch.schema().fields() != schema.fields() {
-            return Err(DataError::WrongType {
-                path: tmp.clone(),
-                column: "*",
-                found: format!("{:?}", batch.schema().fields()),
-                expected: format!("{:?}", schema.fields()),
-            });
+    let write = || -> Result<()> {
+        let file = fs::File::create(&tmp).map_err(io)?;
+        let mut writer =
+            ArrowWriter::try_new(file, schema.clone(), Some(props)).map_err(parquet)?;
+        for batch in batches {
+            if batch.schema().fields() != schema.fields() {
+                return Err(DataError::WrongType {
+                    path: tmp.clone(),
+                    column: "*",
+                    found: format!("{:?}", batch.schema().fields()),
+                    expected: format!("{:?}", schema.fields()),
+                });
+            }
+            writer.write(batch).map_err(parquet)?;
         }
-        writer.write(batch).map_err(parquet)?;
+        let file = writer.into_inner().map_err(parquet)?;
+        file.sync_all().map_err(io)
+    };
+    publish(write(), &tmp, path)
+}
+
+/// Renames a complete, synced temporary onto `path` and syncs the folder, so that the new name
+/// survives a power cut; on any failure the temporary is removed (no leftovers on a full disk).
+fn publish(written: Result<()>, tmp: &Path, path: &Path) -> Result<()> {
+    let published = written.and_then(|()| {
+        fs::rename(tmp, path).map_err(|source| DataError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    });
+    if published.is_err() {
+        let _ = fs::remove_file(tmp);
+        return published;
     }
-    let file = writer.into_inner().map_err(parquet)?;
-    file.sync_all().map_err(io)?;
-    fs::rename(&tmp, path).map_err(|source| DataError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    let folder = path.parent().unwrap_or(Path::new("."));
+    fs::File::open(folder)
+        .and_then(|dir| dir.sync_all())
+        .map_err(|source| DataError::Io {
+            path: folder.to_path_buf(),
+            source,
+        })
 }
 
 /// A temporary name beside `path`, unique to this writer (`<name>.<pid>-<n>.tmp`: two processes or
@@ -120,12 +142,8 @@ pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
         path: tmp.clone(),
         source,
     };
-    let mut file = fs::File::create(&tmp).map_err(io)?;
-    file.write_all(bytes)
-        .and_then(|_| file.sync_all())
-        .map_err(io)?;
-    fs::rename(&tmp, path).map_err(|source| DataError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    let written = fs::File::create(&tmp)
+        .and_then(|mut file| file.write_all(bytes).and_then(|_| file.sync_all()))
+        .map_err(io);
+    publish(written, &tmp, path)
 }

@@ -70,6 +70,31 @@ fn rust_written_shard_reads_back() {
     assert!(object.has_tape && !object.has_label);
 }
 
+/// A write that fails at the last step (the rename: here the final name is taken by a folder)
+/// returns the error and leaves no temporary file behind.
+#[test]
+fn a_failed_write_leaves_no_temporary() {
+    let dir = tempfile::tempdir().unwrap();
+    let blocked = dir.path().join("objects").join(shard_file_name(0, 1));
+    std::fs::create_dir_all(blocked.join("occupied")).unwrap();
+    let error = write_shard(
+        dir.path(),
+        &OBJECTS,
+        &shard_file_name(0, 1),
+        &[objects_batch(0.025)],
+    )
+    .unwrap_err();
+    assert!(
+        matches!(&error, DataError::Io { path, .. } if path == &blocked),
+        "{error}"
+    );
+    let names: Vec<_> = std::fs::read_dir(dir.path().join("objects"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, [shard_file_name(0, 1)]);
+}
+
 #[test]
 fn nan_written_by_rust_is_caught_on_read() {
     let dir = tempfile::tempdir().unwrap();
