@@ -370,3 +370,19 @@ def test_eval_on_predicted_crops_counts_missed_boxes_as_failures(
     found = rows[rows.fit_error != "not found by the segmenter"]
     assert found.heatmap_mse.notna().all()
     assert "segmenter" in r.stdout and "mask AP" in r.stdout
+
+    # A second evaluation into the same folder, on ground-truth crops, leaves no stale
+    # segmenter scores beside its own results.
+    run_boxpose(
+        boxpose_bin,
+        "eval",
+        tiny_dataset,
+        "--model",
+        trained[0] / "model",
+        "--out",
+        out,
+        "--min-visible-fraction",
+        "0.05",
+    )
+    assert not (out / "segmentation.json").exists()
+    assert (out / "summary.json").is_file() and not list(out.glob("*.tmp"))

@@ -186,8 +186,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     write_rows(&args.out.join("eval.parquet"), &fit_rows, &evals)?;
     let summary = evaluation::summarize(&evals);
     let summary_path = args.out.join("summary.json");
-    std::fs::write(&summary_path, serde_json::to_string_pretty(&summary)?)
-        .with_context(|| summary_path.display().to_string())?;
+    boxpose_data::write_file_atomically(
+        &summary_path,
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )?;
     // Normalised by the box's d²/3, so that the paper's unit-box threshold marks the
     // counterexamples for every box size.
     let errors = |method: Method| -> Vec<f64> {
@@ -217,6 +219,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             evals.len()
         );
         plots::error_histogram(&histogram, &title, &series, PAPER_ERROR_THRESHOLD)?;
+    } else {
+        remove_stale(&histogram)?;
+    }
+    if segmenter.is_none() {
+        remove_stale(&args.out.join("segmentation.json"))?;
     }
 
     let crops = match args.crops {
@@ -245,8 +252,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             evals.len()
         );
         let path = args.out.join("segmentation.json");
-        std::fs::write(&path, serde_json::to_string_pretty(&s)?)
-            .with_context(|| path.display().to_string())?;
+        boxpose_data::write_file_atomically(&path, serde_json::to_string_pretty(&s)?.as_bytes())?;
     }
     println!(
         "corner recall (peak within {:.0} mm): {:.1}%   heatmap MSE {:.3e}",
@@ -265,6 +271,17 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         println!("no fit succeeded: no error histogram");
     }
     Ok(())
+}
+
+/// Removes an output an earlier run into the same folder wrote and this one does not, so that
+/// the folder never mixes two runs' results.
+fn remove_stale(path: &Path) -> anyhow::Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(e).with_context(|| format!("removing the stale {}", path.display()))
+        }
+        _ => Ok(()),
+    }
 }
 
 /// The fit rows with each instance's heatmap MSE and corners found beside them.

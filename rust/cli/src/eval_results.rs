@@ -353,9 +353,9 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
         },
     });
     let summary_text = serde_json::to_string_pretty(&summary)? + "\n";
-    fs::write(
-        args.out.join("summary.json"),
-        summary_text.replace("NaN", "null"),
+    boxpose_data::write_file_atomically(
+        &args.out.join("summary.json"),
+        summary_text.replace("NaN", "null").as_bytes(),
     )?;
 
     // Table: one row per obj_id and the total.

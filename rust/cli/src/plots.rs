@@ -175,19 +175,18 @@ pub fn overlay(
     save_png(path, &buffer, width as u32, height as u32)
 }
 
-/// Writes 8-bit RGB pixels as a PNG.
+/// Writes 8-bit RGB pixels as a PNG, atomically (a kill never leaves half a picture).
 fn save_png(path: &Path, rgb: &[u8], width: u32, height: u32) -> anyhow::Result<()> {
-    let file =
-        std::fs::File::create(path).with_context(|| format!("cannot write {}", path.display()))?;
-    let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width, height);
+    let mut bytes = Vec::new();
+    let mut encoder = png::Encoder::new(&mut bytes, width, height);
     encoder.set_color(png::ColorType::Rgb);
     encoder.set_depth(png::BitDepth::Eight);
     let mut writer = encoder.write_header()?;
     writer
         .write_image_data(rgb)
-        .with_context(|| format!("cannot write {}", path.display()))?;
+        .with_context(|| format!("cannot encode {}", path.display()))?;
     writer.finish()?;
-    Ok(())
+    Ok(boxpose_data::write_file_atomically(path, &bytes)?)
 }
 
 /// Histogram of `(value, weight)` pairs (values already on a log10 axis), with a dashed line at

@@ -264,7 +264,7 @@ fn finish(
         args.size_fit,
     )?;
     let json_path = args.out.join("predictions.json");
-    std::fs::write(
+    boxpose_data::write_file_atomically(
         &json_path,
         serde_json::to_string_pretty(&to_json(
             &frame,
@@ -272,9 +272,10 @@ fn finish(
             &predictions,
             &fits,
             args.size_fit,
-        ))?,
-    )
-    .with_context(|| format!("cannot write {}", json_path.display()))?;
+        ))?
+        .as_bytes(),
+    )?;
+
     let overlay_boxes: Vec<OverlayBox> = targets
         .iter()
         .zip(predictions.iter().zip(&fits))

@@ -164,8 +164,9 @@ pub fn train<T: Task, C: RunConfig>(
         }
     }
     let config_toml = toml::to_string_pretty(config).expect("a training config always serializes");
-    std::fs::write(&config_path, config_toml)
-        .map_err(|e| LearnError::Io(config_path.clone(), e))?;
+    // Atomically: a kill here must not leave a torn config that only --restart (which deletes
+    // the checkpoint) gets past.
+    boxpose_data::write_file_atomically(&config_path, config_toml.as_bytes())?;
 
     let device = options.device.clone().autodiff();
     device.seed(o.seed);
