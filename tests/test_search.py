@@ -167,6 +167,10 @@ def test_a_killed_run_resumes_to_identical_samples(mc_run, spaces, boxpose_bin, 
         and process.poll() is None
     ):
         time.sleep(0.2)
+    # a second process on the same shard of the run is refused while the first one samples
+    second = search(boxpose_bin, *args[2:], check=False)
+    assert second.returncode == 1
+    assert "shard 0 of 1 is being sampled by another process" in second.stderr
     os.killpg(process.pid, signal.SIGKILL)
     process.wait()
     assert not (out / "samples.parquet").exists(), "killed before the end"

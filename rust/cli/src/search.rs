@@ -253,6 +253,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     let record = RunRecord::new(&space, settings)?;
     let method = sut::method_named(&args.fit).map_err(anyhow::Error::msg)?;
     let run = Run::create(out, record)?;
+    let _shard_lock = run.lock_shard(args.shard, args.num_shards)?;
     if run.complete()? {
         println!("{}: every batch is already done", out.display());
         if args.shard != 0 {

@@ -257,7 +257,7 @@ impl Run {
             entry
                 .map(|e| {
                     let name = e.file_name().to_string_lossy().into_owned();
-                    !(name.ends_with(".tmp") || name == "run.json")
+                    !(name.ends_with(".tmp") || name.ends_with(".lock") || name == "run.json")
                 })
                 .unwrap_or(true)
         };
@@ -282,6 +282,26 @@ impl Run {
             });
         }
         Ok(run)
+    }
+
+    /// An exclusive lock on this shard of the run, held while the returned file lives (the
+    /// kernel releases it when the process ends, however it ends): two processes sampling one
+    /// shard would write the same batches.
+    pub fn lock_shard(&self, shard: usize, num_shards: usize) -> Result<std::fs::File> {
+        let path = self
+            .dir
+            .join(format!(".shard-{shard:05}-of-{num_shards:05}.lock"));
+        let file = std::fs::File::create(&path).map_err(|e| io_error(&path, e))?;
+        match file.try_lock() {
+            Ok(()) => Ok(file),
+            Err(std::fs::TryLockError::WouldBlock) => Err(SearchError::Run {
+                path: self.dir.clone(),
+                problem: format!(
+                    "shard {shard} of {num_shards} is being sampled by another process; wait for it or stop it (its committed batches are kept)"
+                ),
+            }),
+            Err(std::fs::TryLockError::Error(e)) => Err(io_error(&path, e)),
+        }
     }
 
     /// Opens an existing run folder.
