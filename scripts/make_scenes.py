@@ -88,9 +88,10 @@ def _tail(path: Path, n: int = 15) -> str:
 
 def stop_group(proc: subprocess.Popen) -> None:
     """Stops a stage process and everything it started (its own session): SIGTERM, then SIGKILL
-    after 5 s (a stopped or hung process does not act on SIGTERM)."""
+    after 5 s (a hung process may not act on SIGTERM)."""
     with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, signal.SIGTERM)
+        os.killpg(proc.pid, signal.SIGCONT)  # a stopped process acts on SIGTERM once continued
     try:
         proc.wait(timeout=5)
     except subprocess.TimeoutExpired:
@@ -358,6 +359,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 MANIFEST = "manifest.json"
+LOCK = ".lock"
 # What --regenerate deletes: the dataset's tables, its unfinished chunks and its manifest.
 GENERATED = ("scenes", "objects", "frames", "instances", PARTIAL, MANIFEST)
 
@@ -366,7 +368,13 @@ def lock_dataset(dataset: Path):
     """An exclusive lock on DIR/.lock for this driver's lifetime (released by the kernel when the
     process ends, however it ends): two drivers writing one dataset would race on its shards."""
     dataset.mkdir(parents=True, exist_ok=True)
-    lock = open(dataset / ".lock", "a+")
+    foreign = sorted(p.name for p in dataset.iterdir() if p.name not in (*GENERATED, LOCK))
+    if foreign:
+        raise DriverError(
+            f"{dataset} holds files that are not a dataset's ({', '.join(foreign[:5])}): "
+            "choose an empty or new --dataset folder"
+        )
+    lock = open(dataset / LOCK, "a+")
     try:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:

@@ -234,6 +234,7 @@ def test_a_hung_worker_is_stopped_by_the_watchdog(tmp_path):
 def test_sigterm_to_the_driver_stops_its_workers(tmp_path):
     dataset = tmp_path / "tiny"
     driver, worker = start_driver(dataset)
+    os.kill(worker, signal.SIGSTOP)  # still rendering when the signal comes, however fast it is
     driver.send_signal(signal.SIGTERM)
     _, stderr = driver.communicate(timeout=60)
     assert driver.returncode == 128 + signal.SIGTERM, stderr
@@ -268,6 +269,7 @@ def test_a_resume_with_other_settings_is_refused_or_regenerated(tmp_path):
 def test_a_second_driver_on_one_dataset_is_refused(tmp_path):
     dataset = tmp_path / "tiny"
     first, worker = start_driver(dataset)
+    os.kill(worker, signal.SIGSTOP)  # hold the first driver mid-render, however fast it is
     try:
         r = run_driver(dataset)
         assert r.returncode == 1
@@ -278,3 +280,12 @@ def test_a_second_driver_on_one_dataset_is_refused(tmp_path):
     assert not alive(worker)
     r = run_driver(dataset)  # the lock went with the first driver
     assert r.returncode == 0, r.stderr
+
+
+def test_a_folder_holding_other_files_is_refused(tmp_path):
+    dataset = tmp_path / "mine"
+    write_inputs(dataset, tiny_scenes(1))
+    (dataset / "notes.txt").write_text("not boxpose's")
+    r = run_driver(dataset)
+    assert r.returncode == 1 and "holds files that are not a dataset's (notes.txt)" in r.stderr
+    assert no_render_outputs(dataset) and (dataset / "notes.txt").read_text() == "not boxpose's"
