@@ -1,0 +1,151 @@
+"""Hypothesis fuzzing of what users hand boxpose: recipe TOML for the two recipe readers, and
+arrays for the `boxpose` Python module. Every input is read or refused with the documented
+error, never another exception, a hang or a crash of the interpreter."""
+
+import math
+import re
+import tomllib
+from pathlib import Path
+
+import hypothesis.extra.numpy as hnp
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+import boxpose
+from blender_scripts.recipe import parse_render_recipe
+from boxpose_io.recipe_keys import RECIPE_KEYS
+from drake_scenes.recipe import Recipe, RecipeError
+
+TINY = Path(__file__).resolve().parent.parent / "datasets" / "recipes" / "tiny.toml"
+TINY_TEXT = TINY.read_text()
+TINY_KEYS = sorted(
+    f"{section}.{key}" if isinstance(values, dict) else section
+    for section, values in tomllib.loads(TINY_TEXT).items()
+    for key in (values if isinstance(values, dict) else [None])
+)
+# Derandomized, like the Rust property tests' fixed seed: a CI run cannot fail by chance.
+# 3000 examples per test (max_examples=3000) passed when this suite was written.
+FUZZ = settings(
+    max_examples=150, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+
+toml_values = st.one_of(
+    st.integers(min_value=-(2**63), max_value=2**63 - 1).map(str),
+    st.floats(allow_nan=True, allow_infinity=True).map(
+        lambda x: (
+            "nan" if math.isnan(x) else ("inf" if x > 0 else "-inf") if math.isinf(x) else repr(x)
+        )
+    ),
+    st.booleans().map(lambda b: "true" if b else "false"),
+    st.text(alphabet="abc _-", max_size=8).map(lambda s: f'"{s}"'),
+    st.lists(st.floats(-1e3, 1e3), max_size=4).map(lambda v: "[" + ", ".join(map(repr, v)) + "]"),
+    st.lists(st.integers(-5, 50), max_size=4).map(lambda v: "[" + ", ".join(map(str, v)) + "]"),
+    st.just("{ a = 1 }"),
+)
+
+
+def with_value(text: str, dotted: str, value: str) -> str:
+    """`text` with the value of `dotted` replaced (its line in its section)."""
+    section, _, key = dotted.rpartition(".")
+    lines, current = text.splitlines(), ""
+    for i, line in enumerate(lines):
+        if line.startswith("["):
+            current = line.strip("[] ")
+        elif current == section and re.match(rf"{re.escape(key)}\s*=", line):
+            lines[i] = f"{key} = {value}"
+    return "\n".join(lines) + "\n"
+
+
+def read_both(text: str) -> tuple[bool, bool]:
+    """(Drake accepts, Blender accepts); any failure but RecipeError propagates."""
+    results = []
+    for read in (lambda: Recipe.from_toml(text, "fuzz"), lambda: parse_render_recipe(text, "fuzz")):
+        try:
+            read()
+            results.append(True)
+        except RecipeError as e:
+            assert "fuzz" in str(e), e  # the message names the recipe
+            results.append(False)
+    return results[0], results[1]
+
+
+@FUZZ
+@given(key=st.sampled_from(TINY_KEYS), value=toml_values)
+def test_any_value_of_any_recipe_key_is_read_or_refused_with_the_key(key, value):
+    read_both(with_value(TINY_TEXT, key, value))
+
+
+@FUZZ
+@given(key=st.sampled_from([k for k in TINY_KEYS if k.startswith("support.")]), value=toml_values)
+def test_both_readers_accept_and_refuse_the_same_supports(key, value):
+    drake, blender = read_both(with_value(TINY_TEXT, key, value))
+    assert drake == blender
+
+
+@FUZZ
+@given(name=st.from_regex(r"[a-z_]{1,12}", fullmatch=True), value=toml_values)
+def test_a_key_that_is_not_a_recipe_key_is_refused(name, value):
+    if f"settle.{name}" in RECIPE_KEYS:
+        return
+    text = TINY_TEXT.replace("[settle]\n", f"[settle]\n{name} = {value}\n")
+    assert read_both(text) == (False, False)
+
+
+@FUZZ
+@given(text=st.text(max_size=200))
+def test_arbitrary_text_is_refused_as_a_recipe(text):
+    read_both(text)
+
+
+# --- the Python module ----------------------------------------------------------------------
+
+float_arrays = hnp.arrays(
+    dtype=st.sampled_from([np.float64, np.float32, np.int64, np.bool_]),
+    shape=hnp.array_shapes(min_dims=1, max_dims=3, max_side=9),
+)
+
+
+def refused_or_returned(call):
+    try:
+        call()
+    except (ValueError, TypeError):
+        pass
+
+
+@FUZZ
+@given(
+    points=float_arrays,
+    size=st.lists(st.one_of(st.floats(-1, 1e3), st.just(math.nan)), min_size=3, max_size=3),
+)
+def test_fits_take_any_array(points, size):
+    refused_or_returned(lambda: boxpose.robust_fit(size, points))
+    refused_or_returned(lambda: boxpose.fit_pose_and_size(points))
+    refused_or_returned(lambda: boxpose.kabsch(points, points))
+
+
+@FUZZ
+@given(pose=float_arrays)
+def test_metrics_take_any_pose(pose):
+    refused_or_returned(lambda: boxpose.mssd([0.1, 0.2, 0.3], pose, np.eye(4)))
+    refused_or_returned(lambda: boxpose.add_s([0.1, 0.2, 0.3], np.eye(4), pose))
+
+
+@FUZZ
+@given(
+    heatmap=hnp.arrays(np.float32, hnp.array_shapes(min_dims=3, max_dims=3, max_side=6)),
+    count=st.integers(0, 2**40),
+    sigma=st.floats(allow_nan=True, allow_infinity=True),
+)
+def test_nms_takes_any_heatmap_and_settings(heatmap, count, sigma):
+    refused_or_returned(lambda: boxpose.nms(heatmap, count=count, sigma=sigma))
+
+
+@pytest.mark.parametrize("order", ["C", "F"])
+def test_non_contiguous_arrays_are_read_correctly(order):
+    points = np.asfortranarray(boxpose.box_corners([0.3, 0.2, 0.1])) if order == "F" else None
+    points = boxpose.box_corners([0.3, 0.2, 0.1]) if points is None else points
+    strided = np.zeros((8, 6))
+    strided[:, ::2] = points
+    fit = boxpose.kabsch(points, strided[:, ::2])
+    assert np.allclose(fit, np.eye(4), atol=1e-12)
