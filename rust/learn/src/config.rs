@@ -154,6 +154,14 @@ impl AugmentConfig {
                 self.scale, self.color, self.depth_dropout
             )));
         }
+        // The loader draws the noise in f32: beyond f32's range it is infinite and the normal
+        // distribution cannot be built (the loader panicked); a metre is already absurd.
+        if self.depth_noise_m > 1.0 {
+            return Err(LearnError::Config(format!(
+                "[augment] depth_noise_m = {} m must be at most 1 m",
+                self.depth_noise_m
+            )));
+        }
         Ok(())
     }
 }
@@ -282,6 +290,10 @@ mod tests {
             },
             AugmentConfig {
                 depth_dropout: f64::NAN,
+                ..fine.clone()
+            },
+            AugmentConfig {
+                depth_noise_m: 1e40,
                 ..fine.clone()
             },
         ] {
