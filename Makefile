@@ -48,8 +48,10 @@ rust: $(MUJOCO_LINK_DIR)/.stamp ## Build the Rust workspace (release) and instal
 setup: $(VENV)/.stamp $(MUJOCO_LINK_DIR)/.stamp rust ## Create .venv with pinned deps, prepare MuJoCo linking, build Rust
 
 schema: ## Regenerate python/boxpose_io/schema.json and the column reference in docs/dataset.md from the Rust schema
-	cargo run --quiet -p boxpose-cli -- schema > python/boxpose_io/schema.json
-	mkdir -p build && cargo run --quiet -p boxpose-cli -- schema --markdown > build/columns.md
+	# Each file is written beside its target and renamed: a killed `make schema` leaves no half file.
+	cargo run --release --quiet -p boxpose-cli -- schema > python/boxpose_io/schema.json.tmp
+	mv python/boxpose_io/schema.json.tmp python/boxpose_io/schema.json
+	mkdir -p build && cargo run --release --quiet -p boxpose-cli -- schema --markdown > build/columns.md
 	$(PY) scripts/splice_doc.py docs/dataset.md build/columns.md
 
 scenes: setup ## Generate a dataset: Drake scenes then Blender renders, shard by shard, resumable (RECIPE=clutter SHARDS=1)
@@ -61,9 +63,18 @@ train: setup ## Train the shipped networks: render the `train` recipe, train the
 	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
 	$(BOXPOSE) train --config configs/keypoint-slim.toml --out runs/keypoint-slim
 	$(BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --out runs/segmenter-slim
-	mkdir -p $(MODEL) $(SEGMENTER)
-	cp runs/keypoint-slim/model/* runs/keypoint-slim/history.csv runs/keypoint-slim/config.toml $(MODEL)/
-	cp runs/segmenter-slim/model/* runs/segmenter-slim/history.csv runs/segmenter-slim/config.toml $(SEGMENTER)/
+	$(call publish_model,runs/keypoint-slim,$(MODEL))
+	$(call publish_model,runs/segmenter-slim,$(SEGMENTER))
+
+# Copies a trained run's model, history and config into a model folder as a whole: assembled
+# beside it (keeping its card.md and plots), then swapped in by two renames, so that a killed copy
+# never leaves a folder mixing two trainings.
+define publish_model
+	rm -rf $(2).new && mkdir -p $(2).new
+	cp $(1)/model/* $(1)/history.csv $(1)/config.toml $(2).new/
+	if [ -d $(2) ]; then find $(2) -maxdepth 1 \( -name '*.md' -o -name '*.png' \) -exec cp {} $(2).new/ \; ; fi
+	rm -rf $(2).old && if [ -d $(2) ]; then mv $(2) $(2).old; fi && mv $(2).new $(2) && rm -rf $(2).old
+endef
 
 SPACE ?= single_box
 SAMPLER ?= mc
