@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from boxpose_io.rotations import quat_to_matrix
 from drake_scenes.plant import BoxBody, canonical_quat, support_top_z
 from drake_scenes.recipe import Recipe
 
@@ -56,17 +57,6 @@ def uniform_quaternion(rng: np.random.Generator) -> np.ndarray:
     return canonical_quat(q / np.linalg.norm(q))
 
 
-def rotation_matrix(quat_wxyz) -> np.ndarray:
-    w, x, y, z = np.asarray(quat_wxyz, float) / np.linalg.norm(quat_wxyz)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def half_extents_xy(size_m, rotation: np.ndarray) -> np.ndarray:
     """Half extents of the box's axis-aligned bounding box in x and y."""
     return np.abs(rotation[:2]) @ (0.5 * np.asarray(size_m, float))
@@ -74,7 +64,7 @@ def half_extents_xy(size_m, rotation: np.ndarray) -> np.ndarray:
 
 def half_height(size_m, quat_wxyz) -> float:
     """Height of the box centre above the box's lowest point, in the given orientation."""
-    return 0.5 * float(np.abs(rotation_matrix(quat_wxyz)[2]) @ np.asarray(size_m, float))
+    return 0.5 * float(np.abs(quat_to_matrix(quat_wxyz)[2]) @ np.asarray(size_m, float))
 
 
 def centre_bounds(recipe: Recipe, size_m) -> tuple[np.ndarray, np.ndarray]:
@@ -127,7 +117,7 @@ def _place(
     non-penetrating guess: from independent draws with deep overlaps, SNOPT solved 0 of 5
     twenty-box clutter scenes (measured).
     """
-    rotation = rotation_matrix(quat)
+    rotation = quat_to_matrix(quat)
     lower, upper = centre_bounds(recipe, size)
     lowest_point_offset = half_height(size, quat)
     margin = recipe.drop.min_separation_m
@@ -142,7 +132,7 @@ def _place(
                 rotation,
                 size,
                 o.translation_m,
-                rotation_matrix(o.quat_wxyz),
+                quat_to_matrix(o.quat_wxyz),
                 o.size_m,
                 margin,
             )
@@ -161,7 +151,7 @@ def _pile_top(xy, half_xy, placed: list[BoxBody], margin: float) -> float:
     footprint: a box dropped above it clears them all."""
     top = -np.inf
     for o in placed:
-        rotation = rotation_matrix(o.quat_wxyz)
+        rotation = quat_to_matrix(o.quat_wxyz)
         if np.all(
             np.abs(np.asarray(o.translation_m[:2]) - xy)
             < half_xy + half_extents_xy(o.size_m, rotation) + margin

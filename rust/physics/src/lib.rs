@@ -50,26 +50,12 @@ impl std::fmt::Display for Face {
     }
 }
 
-/// Rotation matrix (row-major) of a unit quaternion (w, x, y, z).
+/// Rotation matrix (row-major) of a unit quaternion (w, x, y, z), by nalgebra.
 pub fn rotation_matrix(q: [f64; 4]) -> [[f64; 3]; 3] {
     let [w, x, y, z] = q;
-    [
-        [
-            1.0 - 2.0 * (y * y + z * z),
-            2.0 * (x * y - w * z),
-            2.0 * (x * z + w * y),
-        ],
-        [
-            2.0 * (x * y + w * z),
-            1.0 - 2.0 * (x * x + z * z),
-            2.0 * (y * z - w * x),
-        ],
-        [
-            2.0 * (x * z - w * y),
-            2.0 * (y * z + w * x),
-            1.0 - 2.0 * (x * x + y * y),
-        ],
-    ]
+    let r = nalgebra::UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(w, x, y, z))
+        .to_rotation_matrix();
+    std::array::from_fn(|row| std::array::from_fn(|col| r[(row, col)]))
 }
 
 /// The face of a box with orientation `quat_wxyz` whose outward normal points most nearly down
