@@ -5,6 +5,7 @@ import subprocess
 import sys
 
 import pandas as pd
+import pyarrow.parquet as pq
 import pytest
 
 from conftest import REPO, run_boxpose
@@ -44,6 +45,7 @@ def evaluate(boxpose_bin, dataset, out, outliers):
         "0.2",
     )
     assert "per-instance metrics" in result.stdout
+    assert pq.read_schema(out).metadata[b"boxpose.table"] == b"eval_geometry"
     return pd.read_parquet(out)
 
 

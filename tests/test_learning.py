@@ -10,6 +10,7 @@ import sys
 
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
@@ -254,6 +255,9 @@ def test_eval_writes_metrics_a_summary_and_the_error_histogram(
         "--min-visible-fraction",
         "0.05",
     )
+    # a result table of the contract: its schema version and name in the Parquet metadata
+    metadata = pq.read_schema(out / "eval.parquet").metadata
+    assert metadata[b"boxpose.table"] == b"eval" and b"boxpose.schema_version" in metadata
     rows = pd.read_parquet(out / "eval.parquet")
     # the four fits, and the former robust and size fits beside them for comparison
     methods = {

@@ -7,7 +7,6 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use arrow::array::{ArrayRef, Float64Array, Int32Array};
-use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Frame};
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
@@ -287,9 +286,6 @@ fn remove_stale(path: &Path) -> anyhow::Result<()> {
 /// The fit rows with each instance's heatmap MSE and corners found beside them.
 fn write_rows(path: &Path, rows: &[FitRow], evals: &[InstanceEval]) -> anyhow::Result<()> {
     let per_instance = rows.len() / evals.len();
-    let mut fields = fit_table::fields();
-    fields.push(Field::new("heatmap_mse", DataType::Float64, true));
-    fields.push(Field::new("corners_found", DataType::Int32, false));
     let mut columns = fit_table::columns(rows);
     let repeat = |i: usize| &evals[i / per_instance];
     columns.push(Arc::new(
@@ -302,7 +298,7 @@ fn write_rows(path: &Path, rows: &[FitRow], evals: &[InstanceEval]) -> anyhow::R
             .map(|i| repeat(i).corners_found as i32)
             .collect::<Int32Array>(),
     ) as ArrayRef);
-    let schema = Arc::new(Schema::new(fields));
+    let schema = Arc::new(boxpose_data::schema::EVAL.arrow_schema());
     boxpose_data::write_parquet(
         path,
         schema.clone(),

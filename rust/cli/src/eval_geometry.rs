@@ -10,7 +10,6 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::Context;
-use arrow::datatypes::Schema;
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Instance, Intrinsics};
 use boxpose_geometry::BoxModel;
@@ -95,7 +94,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         "{}: no instance is visible enough to evaluate",
         args.dataset.display()
     );
-    let schema = Arc::new(Schema::new(fit_table::fields()));
+    let schema = Arc::new(boxpose_data::schema::EVAL_GEOMETRY.arrow_schema());
     boxpose_data::write_parquet(
         &args.out,
         schema.clone(),

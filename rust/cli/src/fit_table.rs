@@ -3,7 +3,6 @@
 use std::sync::Arc;
 
 use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, StringArray};
-use arrow::datatypes::{DataType, Field};
 use boxpose_geometry::pipeline::{Method, Scores};
 
 pub struct FitRow {
@@ -15,35 +14,7 @@ pub struct FitRow {
     pub outcome: Result<Scores, String>,
 }
 
-/// The columns, one row per instance and method. `confidence`, `margin_nats`, `noise_scale_m`,
-/// `inliers` and `mirror_ambiguous` are the fit's [`Scores`] confidence fields (the fit's own for
-/// `robust` and `size_and_pose`, the noise-adaptive assessment of its pose for the others); like
-/// the metrics they are null where the fit failed. `margin_nats` is infinite (and `confidence`
-/// 1) when no other box hypothesis exists.
-pub fn fields() -> Vec<Field> {
-    let f64_field = |name: &str| Field::new(name, DataType::Float64, true);
-    vec![
-        Field::new("scene_id", DataType::Int64, false),
-        Field::new("frame_id", DataType::Int32, false),
-        Field::new("object_id", DataType::Int32, false),
-        Field::new("method", DataType::Utf8, false),
-        Field::new("diameter_m", DataType::Float64, false),
-        f64_field("paper_error"),
-        f64_field("mssd_m"),
-        f64_field("add_s_m"),
-        f64_field("rotation_error_deg"),
-        f64_field("translation_error_m"),
-        f64_field("fit_time_us"),
-        f64_field("confidence"),
-        f64_field("margin_nats"),
-        f64_field("noise_scale_m"),
-        Field::new("inliers", DataType::Int32, true),
-        Field::new("mirror_ambiguous", DataType::Boolean, true),
-        Field::new("fit_error", DataType::Utf8, true),
-    ]
-}
-
-/// The columns of [`fields`], in order.
+/// The columns of [`boxpose_data::schema::EVAL_GEOMETRY`] (documented there), in order.
 pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
     let metric = |get: fn(&Scores) -> f64| -> ArrayRef {
         Arc::new(

@@ -775,7 +775,132 @@ pub const SEARCH_TIMINGS: Table = Table {
 };
 
 /// Result tables: written by boxpose's commands, not part of a dataset.
-pub const RESULT_TABLES: [Table; 2] = [SEARCH_SAMPLES, SEARCH_TIMINGS];
+/// One row per instance and pose fit: the columns that `eval-geometry` writes, and `eval` too.
+const FIT_COLUMNS: [Column; 17] = [
+    SCENE_ID,
+    FRAME_ID,
+    OBJECT_ID,
+    col(
+        "method",
+        Utf8,
+        "",
+        "The fit: paper_exact, fast_exact, robust, size_and_pose, robust_fixed or size_and_pose_ls.",
+    ),
+    col(
+        "diameter_m",
+        Float64,
+        "m",
+        "The true box's diagonal (MSSD thresholds are fractions of it).",
+    ),
+    nullable(col(
+        "paper_error",
+        Float64,
+        "m²",
+        "The paper's error (mean squared distance of each fitted corner to the nearest true corner); null where the fit failed, as every metric.",
+    )),
+    nullable(col(
+        "mssd_m",
+        Float64,
+        "m",
+        "Maximum symmetry-aware surface distance (BOP's MSSD, over the box's corners).",
+    )),
+    nullable(col(
+        "add_s_m",
+        Float64,
+        "m",
+        "ADD-S (BOP's adi) over a uniform grid of the box surface.",
+    )),
+    nullable(col(
+        "rotation_error_deg",
+        Float64,
+        "deg",
+        "Angle of the rotation between fitted and true pose, over the box's symmetries.",
+    )),
+    nullable(col(
+        "translation_error_m",
+        Float64,
+        "m",
+        "Distance between fitted and true box centres.",
+    )),
+    nullable(col("fit_time_us", Float64, "µs", "Wall time of the fit.")),
+    nullable(col(
+        "confidence",
+        Float64,
+        "",
+        "The fit's confidence in [0, 1] (its own for robust and size_and_pose, the noise-adaptive assessment of its pose for the others).",
+    )),
+    nullable(col(
+        "margin_nats",
+        Float64,
+        "nats",
+        "Log-likelihood margin over the best different box hypothesis; infinite when there is none.",
+    )),
+    nullable(col(
+        "noise_scale_m",
+        Float64,
+        "m",
+        "Noise scale the adaptive cost estimated from the inliers.",
+    )),
+    nullable(col(
+        "inliers",
+        Int32,
+        "",
+        "Peaks the fit counts as inliers.",
+    )),
+    nullable(col(
+        "mirror_ambiguous",
+        Bool,
+        "",
+        "Whether a mirror-image box explains the peaks almost as well.",
+    )),
+    nullable(col(
+        "fit_error",
+        Utf8,
+        "",
+        "Why the fit failed (the geometry error, or \"not found by the segmenter\"); null where it returned a pose.",
+    )),
+];
+
+/// [`FIT_COLUMNS`], then what `eval` adds per instance.
+const EVAL_COLUMNS: [Column; 19] = {
+    let mut columns = [FIT_COLUMNS[0]; 19];
+    let mut i = 0;
+    while i < FIT_COLUMNS.len() {
+        columns[i] = FIT_COLUMNS[i];
+        i += 1;
+    }
+    columns[17] = nullable(col(
+        "heatmap_mse",
+        Float64,
+        "",
+        "Mean squared error of the predicted heatmap against the target; null where the segmenter missed the box.",
+    ));
+    columns[18] = col(
+        "corners_found",
+        Int32,
+        "",
+        "True corners with an NMS peak within the recall radius.",
+    );
+    columns
+};
+
+pub const EVAL_GEOMETRY: Table = Table {
+    name: "eval_geometry",
+    doc: "One row per instance and pose fit on ground-truth heatmaps (`boxpose eval-geometry`'s Parquet).",
+    key: &["scene_id", "frame_id", "object_id", "method"],
+    row_group_rows: None,
+    columns: &FIT_COLUMNS,
+};
+
+pub const EVAL: Table = Table {
+    name: "eval",
+    doc: "One row per instance and pose fit on the keypoint network's heatmaps (`boxpose eval`'s `eval.parquet`).",
+    key: &["scene_id", "frame_id", "object_id", "method"],
+    row_group_rows: None,
+    columns: &EVAL_COLUMNS,
+};
+
+pub const RESULT_TABLES: [Table; 4] = [SEARCH_SAMPLES, SEARCH_TIMINGS, EVAL_GEOMETRY, EVAL];
 
 /// Every table of the contract, in pipeline order.
 pub const TABLES: [Table; 4] = [SCENES, OBJECTS, FRAMES, INSTANCES];
