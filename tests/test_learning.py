@@ -167,6 +167,7 @@ def test_predict_writes_poses_peaks_and_an_overlay(trained, tiny_dataset, boxpos
         (instances.scene_id == scene) & (instances.frame_id == 0) & (instances.visible_pixels > 0)
     ]
     table = pd.read_parquet(out / "predictions.parquet")
+    assert pq.read_schema(out / "predictions.parquet").metadata[b"boxpose.table"] == b"predictions"
     assert sorted(table.object_id) == sorted(visible.object_id)
     for row in table.itertuples():
         assert (

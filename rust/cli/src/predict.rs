@@ -20,7 +20,7 @@ use anyhow::{Context, bail};
 use arrow::array::{
     ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, StringArray,
 };
-use arrow::datatypes::{DataType, Field, Float32Type, Float64Type, Int32Type, Schema};
+use arrow::datatypes::{Float32Type, Float64Type, Int32Type};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Frame, Intrinsics, Pose};
 use boxpose_geometry::BoxModel;
@@ -558,35 +558,8 @@ fn write_parquet(
                 .map(|v| v.map(|v| v.into_iter().map(Some).collect::<Vec<_>>())),
         ))
     };
-    let list = |name: &str, item: DataType, nullable: bool| {
-        Field::new(
-            name,
-            DataType::List(Arc::new(Field::new("item", item, true))),
-            nullable,
-        )
-    };
-    let schema = Arc::new(Schema::new(vec![
-        Field::new("scene_id", DataType::Int64, false),
-        Field::new("frame_id", DataType::Int32, false),
-        Field::new("object_id", DataType::Int32, true),
-        list("bbox", DataType::Int32, false),
-        Field::new("reference_depth_m", DataType::Float64, false),
-        list("pose_quat_wxyz", DataType::Float64, true),
-        list("pose_translation_m", DataType::Float64, true),
-        list("size_m", DataType::Float64, true),
-        list("corners_camera_m", DataType::Float64, true),
-        list("peaks_camera_m", DataType::Float64, false),
-        list("peak_scores", DataType::Float32, false),
-        Field::new("inlier_count", DataType::Int32, true),
-        Field::new("inlier_rms_m", DataType::Float64, true),
-        Field::new("size_fit", DataType::Utf8, false),
-        Field::new("confidence", DataType::Float64, true),
-        Field::new("margin_nats", DataType::Float64, true),
-        Field::new("confidence_inliers", DataType::Int32, true),
-        Field::new("noise_scale_m", DataType::Float64, true),
-        Field::new("mirror_ambiguous", DataType::Boolean, true),
-        Field::new("fit_error", DataType::Utf8, true),
-    ]));
+    // Columns as documented in boxpose_data::schema::PREDICTIONS, in order.
+    let schema = Arc::new(boxpose_data::schema::PREDICTIONS.arrow_schema());
     let columns: Vec<ArrayRef> = vec![
         Arc::new(Int64Array::from(vec![frame.scene_id; targets.len()])),
         Arc::new(Int32Array::from(vec![frame.frame_id; targets.len()])),

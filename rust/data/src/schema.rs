@@ -900,7 +900,137 @@ pub const EVAL: Table = Table {
     columns: &EVAL_COLUMNS,
 };
 
-pub const RESULT_TABLES: [Table; 4] = [SEARCH_SAMPLES, SEARCH_TIMINGS, EVAL_GEOMETRY, EVAL];
+pub const PREDICTIONS: Table = Table {
+    name: "predictions",
+    doc: "One row per box `boxpose predict` found or was given in one frame (its `predictions.parquet`); the fit's columns are null where it failed.",
+    key: &["scene_id", "frame_id", "bbox"],
+    row_group_rows: None,
+    columns: &[
+        SCENE_ID,
+        FRAME_ID,
+        nullable(within(
+            col(
+                "object_id",
+                Int32,
+                "",
+                "The dataset box this one is matched to; null for a box of an image file or one that matches none.",
+            ),
+            0.0,
+            MAX_OBJECT_ID as f64,
+        )),
+        list(
+            "bbox",
+            Int32,
+            4,
+            "px",
+            "The crop's box (x_min, y_min, x_max, y_max), max exclusive: given with --bbox, the ground truth's, or the segmenter's.",
+        ),
+        col(
+            "reference_depth_m",
+            Float64,
+            "m",
+            "The crop's reference depth, which the network's depth bins are relative to.",
+        ),
+        nullable(list(
+            "pose_quat_wxyz",
+            Float64,
+            4,
+            "",
+            "Fitted rotation, camera frame (T_camera_box).",
+        )),
+        nullable(list(
+            "pose_translation_m",
+            Float64,
+            3,
+            "m, camera frame",
+            "Fitted box centre.",
+        )),
+        nullable(list("size_m", Float64, 3, "m", "Fitted (dx, dy, dz).")),
+        nullable(list(
+            "corners_camera_m",
+            Float64,
+            24,
+            "m, camera frame",
+            "The fitted box's 8 corners, 8 × (x, y, z) row-major, in the contract's corner order.",
+        )),
+        list(
+            "peaks_camera_m",
+            Float64,
+            ANY_LENGTH,
+            "m, camera frame",
+            "The NMS peaks back-projected, n × (x, y, z), best first.",
+        ),
+        list(
+            "peak_scores",
+            Float32,
+            ANY_LENGTH,
+            "",
+            "The peaks' heatmap values, best first.",
+        ),
+        nullable(col(
+            "inlier_count",
+            Int32,
+            "",
+            "Peaks the fit used (least squares counts every peak).",
+        )),
+        nullable(col(
+            "inlier_rms_m",
+            Float64,
+            "m",
+            "RMS distance of the inlier peaks to their fitted corners.",
+        )),
+        col(
+            "size_fit",
+            Utf8,
+            "",
+            "The size-and-pose fit used: robust or least-squares.",
+        ),
+        nullable(col(
+            "confidence",
+            Float64,
+            "",
+            "The fit's confidence in [0, 1].",
+        )),
+        nullable(col(
+            "margin_nats",
+            Float64,
+            "nats",
+            "Log-likelihood margin over the best different box hypothesis.",
+        )),
+        nullable(col(
+            "confidence_inliers",
+            Int32,
+            "",
+            "Peaks the noise-adaptive cost takes as inliers.",
+        )),
+        nullable(col(
+            "noise_scale_m",
+            Float64,
+            "m",
+            "Noise scale the adaptive cost estimated.",
+        )),
+        nullable(col(
+            "mirror_ambiguous",
+            Bool,
+            "",
+            "Whether a mirror-image box explains the peaks almost as well.",
+        )),
+        nullable(col(
+            "fit_error",
+            Utf8,
+            "",
+            "Why the fit failed; null where it returned a pose.",
+        )),
+    ],
+};
+
+pub const RESULT_TABLES: [Table; 5] = [
+    SEARCH_SAMPLES,
+    SEARCH_TIMINGS,
+    EVAL_GEOMETRY,
+    EVAL,
+    PREDICTIONS,
+];
 
 /// Every table of the contract, in pipeline order.
 pub const TABLES: [Table; 4] = [SCENES, OBJECTS, FRAMES, INSTANCES];
