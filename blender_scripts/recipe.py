@@ -11,7 +11,7 @@ import math
 import tomllib
 from dataclasses import asdict, dataclass
 
-from boxpose_io.recipe_keys import unknown_recipe_keys
+from boxpose_io.recipe_keys import unknown_keys_problem
 
 # [support] and [materials] are defined, read and checked once, by the scene stage that owns them
 # (no pydrake import).
@@ -114,13 +114,8 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise RecipeError(f"recipe {source}: invalid TOML ({e})") from e
-    unknown = unknown_recipe_keys(data)
-    if unknown:
-        raise RecipeError(
-            f"recipe {source}: unknown key{'s' if len(unknown) > 1 else ''} "
-            f"{', '.join(repr(k) for k in unknown)} (misspelt? the keys are listed in "
-            "python/boxpose_io/recipe_keys.py)"
-        )
+    if problem := unknown_keys_problem(data, source):
+        raise RecipeError(problem)
     g = lambda key, kind: _get(data, key, kind, source)  # noqa: E731
     p = lambda key, kind=float: _pair(data, key, kind, source)  # noqa: E731
     camera = CameraSpec(

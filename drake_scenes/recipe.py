@@ -12,7 +12,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from boxpose_io.recipe_keys import unknown_recipe_keys
+from boxpose_io.recipe_keys import unknown_keys_problem
 
 SUPPORT_KINDS = ("floor", "bin", "pallet")
 
@@ -89,13 +89,8 @@ class Recipe:
             data = tomllib.loads(text)
         except tomllib.TOMLDecodeError as e:
             raise RecipeError(f"recipe {source}: invalid TOML ({e})") from e
-        unknown = unknown_recipe_keys(data)
-        if unknown:
-            raise RecipeError(
-                f"recipe {source}: unknown key{'s' if len(unknown) > 1 else ''} "
-                f"{', '.join(repr(k) for k in unknown)} (misspelt? the keys are listed in "
-                "python/boxpose_io/recipe_keys.py)"
-            )
+        if problem := unknown_keys_problem(data, source):
+            raise RecipeError(problem)
         reader = _Reader(data, source)
         recipe = Recipe(
             name=reader.get("name", str),

@@ -70,3 +70,15 @@ def unknown_recipe_keys(data: dict, prefix: str = "") -> list[str]:
         elif dotted not in RECIPE_KEYS:
             unknown.append(dotted)
     return sorted(unknown)
+
+
+def unknown_keys_problem(data: dict, source: str) -> str | None:
+    """The message both recipe readers raise for keys that are not recipe keys, or None."""
+    unknown = unknown_recipe_keys(data)
+    if not unknown:
+        return None
+    return (
+        f"recipe {source}: unknown key{'s' if len(unknown) > 1 else ''} "
+        f"{', '.join(repr(k) for k in unknown)} (misspelt? the keys are listed in "
+        "python/boxpose_io/recipe_keys.py)"
+    )
