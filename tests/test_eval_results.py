@@ -10,6 +10,7 @@ from pathlib import Path
 import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
 import pytest
 
 from conftest import render_synthetic_dataset
@@ -91,6 +92,8 @@ def test_ground_truth_scores_perfectly(gt, boxpose_bin, tmp_path, dataset):
     )
     assert r.returncode == 0, r.stderr
     assert "all" in r.stdout
+    metadata = pq.read_schema(out / "eval_results.parquet").metadata
+    assert metadata[b"boxpose.table"] == b"eval_results"
     df = pd.read_parquet(out / "eval_results.parquet")
     instances = pd.read_parquet(dataset / "instances")
     assert len(df) == len(instances) == len(gt)

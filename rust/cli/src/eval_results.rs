@@ -10,7 +10,6 @@ use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use arrow::array::{ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array};
-use arrow::datatypes::{DataType, Field, Schema};
 use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Instance};
 use boxpose_geometry::BoxModel;
@@ -421,25 +420,8 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
 }
 
 fn write_rows(path: &Path, rows: &[Row], truths: &[Truth]) -> anyhow::Result<()> {
-    let f64_field = |name: &str| Field::new(name, DataType::Float64, true);
-    let schema = Arc::new(Schema::new(vec![
-        Field::new("scene_id", DataType::Int64, false),
-        Field::new("im_id", DataType::Int32, false),
-        Field::new("gt_id", DataType::Int32, false),
-        Field::new("object_id", DataType::Int32, false),
-        Field::new("obj_id", DataType::Int32, false),
-        Field::new("visib_fract", DataType::Float32, false),
-        f64_field("diameter_m"),
-        Field::new("matched", DataType::Boolean, false),
-        Field::new("csv_line", DataType::Int64, true),
-        f64_field("score"),
-        f64_field("mssd_m"),
-        f64_field("add_s_m"),
-        f64_field("paper_error_m2"),
-        f64_field("paper_error_normalized"),
-        f64_field("rotation_error_deg"),
-        f64_field("translation_error_m"),
-    ]));
+    // Columns as documented in boxpose_data::schema::EVAL_RESULTS, in order.
+    let schema = Arc::new(boxpose_data::schema::EVAL_RESULTS.arrow_schema());
     let truth = |r: &Row| &truths[r.gt];
     // gt_id: the instance's rank in its frame (export bop's order).
     let mut rank: HashMap<(i64, i32), i32> = HashMap::new();

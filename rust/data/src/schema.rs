@@ -1024,12 +1024,87 @@ pub const PREDICTIONS: Table = Table {
     ],
 };
 
-pub const RESULT_TABLES: [Table; 5] = [
+pub const EVAL_RESULTS: Table = Table {
+    name: "eval_results",
+    doc: "One row per ground-truth instance of a dataset scored against another method's BOP results (`boxpose eval-results`' `eval_results.parquet`); the metrics are null where no estimate matched.",
+    key: &["scene_id", "im_id", "gt_id"],
+    row_group_rows: None,
+    columns: &[
+        SCENE_ID,
+        within(
+            col(
+                "im_id",
+                Int32,
+                "",
+                "The frame (BOP's image id, the dataset's frame_id).",
+            ),
+            0.0,
+            i32::MAX as f64,
+        ),
+        col(
+            "gt_id",
+            Int32,
+            "",
+            "The instance's rank in its frame, as `export bop` orders them.",
+        ),
+        OBJECT_ID,
+        col(
+            "obj_id",
+            Int32,
+            "",
+            "BOP object id (one per distinct box size, as `export bop` numbers them).",
+        ),
+        col(
+            "visib_fract",
+            Float32,
+            "",
+            "The instance's visible fraction.",
+        ),
+        nullable(col("diameter_m", Float64, "m", "The true box's diagonal.")),
+        col(
+            "matched",
+            Bool,
+            "",
+            "Whether an estimate was matched to this instance (score order per frame and object, as bop_toolkit).",
+        ),
+        nullable(col(
+            "csv_line",
+            Int64,
+            "",
+            "The matched estimate's line in the results CSV.",
+        )),
+        nullable(col("score", Float64, "", "The matched estimate's score.")),
+        nullable(col("mssd_m", Float64, "m", "MSSD of the matched estimate.")),
+        nullable(col("add_s_m", Float64, "m", "ADD-S (BOP's adi).")),
+        nullable(col("paper_error_m2", Float64, "m²", "The paper's error.")),
+        nullable(col(
+            "paper_error_normalized",
+            Float64,
+            "",
+            "The paper's error / (d²/3), d the box's diagonal.",
+        )),
+        nullable(col(
+            "rotation_error_deg",
+            Float64,
+            "deg",
+            "Rotation error modulo the box's symmetries.",
+        )),
+        nullable(col(
+            "translation_error_m",
+            Float64,
+            "m",
+            "Distance between the estimated and true centres.",
+        )),
+    ],
+};
+
+pub const RESULT_TABLES: [Table; 6] = [
     SEARCH_SAMPLES,
     SEARCH_TIMINGS,
     EVAL_GEOMETRY,
     EVAL,
     PREDICTIONS,
+    EVAL_RESULTS,
 ];
 
 /// Every table of the contract, in pipeline order.
