@@ -7,7 +7,6 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use arrow::array::{ArrayRef, Float64Array, Int32Array};
-use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Frame};
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::Method;
@@ -298,11 +297,6 @@ fn write_rows(path: &Path, rows: &[FitRow], evals: &[InstanceEval]) -> anyhow::R
             .map(|i| repeat(i).corners_found as i32)
             .collect::<Int32Array>(),
     ) as ArrayRef);
-    let schema = Arc::new(boxpose_data::schema::EVAL.arrow_schema());
-    boxpose_data::write_parquet(
-        path,
-        schema.clone(),
-        &[RecordBatch::try_new(schema, columns)?],
-    )?;
+    boxpose_data::write_table(path, &boxpose_data::schema::EVAL, columns)?;
     Ok(())
 }

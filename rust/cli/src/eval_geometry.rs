@@ -7,10 +7,8 @@
 //! true pose. It isolates the geometry from the network: what fails here fails with any network.
 
 use std::path::PathBuf;
-use std::sync::Arc;
 
 use anyhow::Context;
-use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Instance, Intrinsics};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::heatmap::{
@@ -94,11 +92,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         "{}: no instance is visible enough to evaluate",
         args.dataset.display()
     );
-    let schema = Arc::new(boxpose_data::schema::EVAL_GEOMETRY.arrow_schema());
-    boxpose_data::write_parquet(
+    boxpose_data::write_table(
         &args.out,
-        schema.clone(),
-        &[RecordBatch::try_new(schema, fit_table::columns(&rows))?],
+        &boxpose_data::schema::EVAL_GEOMETRY,
+        fit_table::columns(&rows),
     )?;
     print_summary(args, &rows);
     println!("per-instance metrics: {}", args.out.display());

@@ -10,7 +10,6 @@ use std::sync::Arc;
 
 use anyhow::{Context, bail};
 use arrow::array::{ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array};
-use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Instance};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::align::nearest_rotation;
@@ -420,8 +419,6 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
 }
 
 fn write_rows(path: &Path, rows: &[Row], truths: &[Truth]) -> anyhow::Result<()> {
-    // Columns as documented in boxpose_data::schema::EVAL_RESULTS, in order.
-    let schema = Arc::new(boxpose_data::schema::EVAL_RESULTS.arrow_schema());
     let truth = |r: &Row| &truths[r.gt];
     // gt_id: the instance's rank in its frame (export bop's order).
     let mut rank: HashMap<(i64, i32), i32> = HashMap::new();
@@ -495,11 +492,7 @@ fn write_rows(path: &Path, rows: &[Row], truths: &[Truth]) -> anyhow::Result<()>
         metric(|s| s.rotation_error_deg),
         metric(|s| s.translation_error),
     ];
-    boxpose_data::write_parquet(
-        path,
-        schema.clone(),
-        &[RecordBatch::try_new(schema, columns)?],
-    )?;
+    boxpose_data::write_table(path, &boxpose_data::schema::EVAL_RESULTS, columns)?;
     Ok(())
 }
 

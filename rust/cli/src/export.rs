@@ -151,36 +151,18 @@ pub(crate) fn obj_id(ids: &BTreeMap<SizeKey, u32>, instance: &Instance) -> anyho
 }
 
 /// The proper rotations mapping an axis-aligned box of this size onto itself, identity excluded
-/// (BOP's `symmetries_discrete` leaves it out): the signed permutation matrices of determinant +1
-/// that permute only equal sides. 3 for three distinct sides, 7 with two equal, 23 for a cube.
-fn box_symmetries(key: SizeKey) -> Vec<[[f64; 3]; 3]> {
-    const PERMS: [[usize; 3]; 6] = [
-        [0, 1, 2],
-        [0, 2, 1],
-        [1, 0, 2],
-        [1, 2, 0],
-        [2, 0, 1],
-        [2, 1, 0],
-    ];
-    const PARITY: [f64; 6] = [1.0, -1.0, -1.0, 1.0, 1.0, -1.0];
-    let mut out = Vec::new();
-    for (perm, parity) in PERMS.iter().zip(PARITY) {
-        if (0..3).any(|i| key[i] != key[perm[i]]) {
-            continue;
-        }
-        for signs in 0..8u32 {
-            let sign = |i: usize| if signs >> i & 1 == 1 { -1.0 } else { 1.0 };
-            if sign(0) * sign(1) * sign(2) * parity < 0.0 || (signs == 0 && *perm == [0, 1, 2]) {
-                continue;
-            }
-            let mut r = [[0.0; 3]; 3];
-            for i in 0..3 {
-                r[i][perm[i]] = sign(i);
-            }
-            out.push(r);
-        }
-    }
-    out
+/// (BOP's `symmetries_discrete` leaves it out): the geometry crate's symmetry group of the box,
+/// whose sides here are compared as size keys. 3 for three distinct sides, 7 with two equal, 23
+/// for a cube.
+fn box_symmetries(key: SizeKey) -> anyhow::Result<Vec<[[f64; 3]; 3]>> {
+    let model = boxpose_geometry::BoxModel::new(nalgebra::Vector3::from(key_mm(key)))
+        .with_context(|| format!("a box of {:?} mm", key_mm(key)))?;
+    Ok(model
+        .symmetries()
+        .into_iter()
+        .skip(1) // the identity comes first
+        .map(|s| std::array::from_fn(|row| std::array::from_fn(|col| s.rotation[(row, col)])))
+        .collect())
 }
 
 /// ASCII PLY of a box centred at the origin, in mm: 24 vertices (4 per face, with the face's
@@ -229,9 +211,9 @@ fn box_ply(size_mm: [f64; 3]) -> String {
     ply
 }
 
-fn model_info(key: SizeKey) -> Value {
+fn model_info(key: SizeKey) -> anyhow::Result<Value> {
     let s = key_mm(key);
-    let symmetries: Vec<Vec<f64>> = box_symmetries(key)
+    let symmetries: Vec<Vec<f64>> = box_symmetries(key)?
         .iter()
         .map(|r| {
             let mut m = Vec::with_capacity(16);
@@ -243,12 +225,12 @@ fn model_info(key: SizeKey) -> Value {
             m
         })
         .collect();
-    json!({
+    Ok(json!({
         "diameter": (s[0] * s[0] + s[1] * s[1] + s[2] * s[2]).sqrt(),
         "min_x": -s[0] / 2.0, "min_y": -s[1] / 2.0, "min_z": -s[2] / 2.0,
         "size_x": s[0], "size_y": s[1], "size_z": s[2],
         "symmetries_discrete": symmetries,
-    })
+    }))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -579,7 +561,7 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
         let mut info = BTreeMap::new();
         for (&key, &id) in &ids {
             fs::write(dir.join(format!("obj_{id:06}.ply")), box_ply(key_mm(key)))?;
-            info.insert(id as i64, model_info(key));
+            info.insert(id as i64, model_info(key)?);
         }
         write_keyed(&dir.join("models_info.json"), &info)?;
     }
@@ -742,7 +724,7 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
             s[0],
             s[1],
             s[2],
-            box_symmetries(key).len()
+            box_symmetries(key)?.len()
         )?;
     }
     fs::write(out.join("dataset_info.md"), md)?;
@@ -845,11 +827,11 @@ mod tests {
 
     #[test]
     fn symmetry_group_sizes() {
-        assert_eq!(box_symmetries([1, 2, 3]).len(), 3);
-        assert_eq!(box_symmetries([2, 2, 3]).len(), 7);
-        assert_eq!(box_symmetries([2, 3, 2]).len(), 7);
-        assert_eq!(box_symmetries([4, 4, 4]).len(), 23);
-        for r in box_symmetries([4, 4, 4]) {
+        assert_eq!(box_symmetries([1, 2, 3]).unwrap().len(), 3);
+        assert_eq!(box_symmetries([2, 2, 3]).unwrap().len(), 7);
+        assert_eq!(box_symmetries([2, 3, 2]).unwrap().len(), 7);
+        assert_eq!(box_symmetries([4, 4, 4]).unwrap().len(), 23);
+        for r in box_symmetries([4, 4, 4]).unwrap() {
             let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
                 - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
                 + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);

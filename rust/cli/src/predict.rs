@@ -21,7 +21,6 @@ use arrow::array::{
     ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, StringArray,
 };
 use arrow::datatypes::{Float32Type, Float64Type, Int32Type};
-use arrow::record_batch::RecordBatch;
 use boxpose_data::{Dataset, Frame, Intrinsics, Pose};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::adaptive::FitConfidence;
@@ -127,21 +126,12 @@ impl Fit {
 /// Fits the peaks of one box. The pipeline (`inference::predict`) already fitted them robustly,
 /// but keeps no confidence: the fit (deterministic, well under a millisecond) is run again here.
 fn fit_box(points: &[Point3<f64>], method: SizeFit) -> Result<Fit, String> {
-    let rms = |residuals: &[f64], inliers: &[bool]| {
-        let squares: Vec<f64> = residuals
-            .iter()
-            .zip(inliers)
-            .filter(|(_, i)| **i)
-            .map(|(r, _)| r * r)
-            .collect();
-        (squares.iter().sum::<f64>() / squares.len().max(1) as f64).sqrt()
-    };
     match method {
         SizeFit::Robust => {
             let f = size_fit::robust_size_fit(points, &size_fit::RobustSizeParams::default())
                 .map_err(|e| e.to_string())?;
             Ok(Fit {
-                inlier_rms: rms(&f.residuals, &f.inliers),
+                inlier_rms: f.inlier_rms(),
                 model: f.model,
                 pose: f.pose,
                 inliers: f.inliers,
@@ -558,8 +548,6 @@ fn write_parquet(
                 .map(|v| v.map(|v| v.into_iter().map(Some).collect::<Vec<_>>())),
         ))
     };
-    // Columns as documented in boxpose_data::schema::PREDICTIONS, in order.
-    let schema = Arc::new(boxpose_data::schema::PREDICTIONS.arrow_schema());
     let columns: Vec<ArrayRef> = vec![
         Arc::new(Int64Array::from(vec![frame.scene_id; targets.len()])),
         Arc::new(Int32Array::from(vec![frame.frame_id; targets.len()])),
@@ -652,10 +640,6 @@ fn write_parquet(
                 .collect::<StringArray>(),
         ),
     ];
-    boxpose_data::write_parquet(
-        path,
-        schema.clone(),
-        &[RecordBatch::try_new(schema, columns)?],
-    )?;
+    boxpose_data::write_table(path, &boxpose_data::schema::PREDICTIONS, columns)?;
     Ok(())
 }

@@ -775,6 +775,35 @@ pub const SEARCH_TIMINGS: Table = Table {
 };
 
 /// Result tables: written by boxpose's commands, not part of a dataset.
+// The fit confidence columns that the fit tables and the predictions share.
+const CONFIDENCE: Column = nullable(col(
+    "confidence",
+    Float64,
+    "",
+    "The fit's confidence in [0, 1]: the robust fits' own, the noise-adaptive assessment of the fitted pose for the others.",
+));
+
+const MARGIN_NATS: Column = nullable(col(
+    "margin_nats",
+    Float64,
+    "nats",
+    "Log-likelihood margin over the best different box hypothesis; infinite when there is none.",
+));
+
+const NOISE_SCALE_M: Column = nullable(col(
+    "noise_scale_m",
+    Float64,
+    "m",
+    "Noise scale the adaptive cost estimated from the inliers.",
+));
+
+const MIRROR_AMBIGUOUS: Column = nullable(col(
+    "mirror_ambiguous",
+    Bool,
+    "",
+    "Whether a mirror-image box explains the peaks almost as well.",
+));
+
 /// One row per instance and pose fit: the columns that `eval-geometry` writes, and `eval` too.
 const FIT_COLUMNS: [Column; 17] = [
     SCENE_ID,
@@ -823,36 +852,16 @@ const FIT_COLUMNS: [Column; 17] = [
         "Distance between fitted and true box centres.",
     )),
     nullable(col("fit_time_us", Float64, "µs", "Wall time of the fit.")),
-    nullable(col(
-        "confidence",
-        Float64,
-        "",
-        "The fit's confidence in [0, 1] (its own for robust and size_and_pose, the noise-adaptive assessment of its pose for the others).",
-    )),
-    nullable(col(
-        "margin_nats",
-        Float64,
-        "nats",
-        "Log-likelihood margin over the best different box hypothesis; infinite when there is none.",
-    )),
-    nullable(col(
-        "noise_scale_m",
-        Float64,
-        "m",
-        "Noise scale the adaptive cost estimated from the inliers.",
-    )),
+    CONFIDENCE,
+    MARGIN_NATS,
+    NOISE_SCALE_M,
     nullable(col(
         "inliers",
         Int32,
         "",
         "Peaks the fit counts as inliers.",
     )),
-    nullable(col(
-        "mirror_ambiguous",
-        Bool,
-        "",
-        "Whether a mirror-image box explains the peaks almost as well.",
-    )),
+    MIRROR_AMBIGUOUS,
     nullable(col(
         "fit_error",
         Utf8,
@@ -985,36 +994,16 @@ pub const PREDICTIONS: Table = Table {
             "",
             "The size-and-pose fit used: robust or least-squares.",
         ),
-        nullable(col(
-            "confidence",
-            Float64,
-            "",
-            "The fit's confidence in [0, 1].",
-        )),
-        nullable(col(
-            "margin_nats",
-            Float64,
-            "nats",
-            "Log-likelihood margin over the best different box hypothesis.",
-        )),
+        CONFIDENCE,
+        MARGIN_NATS,
         nullable(col(
             "confidence_inliers",
             Int32,
             "",
             "Peaks the noise-adaptive cost takes as inliers.",
         )),
-        nullable(col(
-            "noise_scale_m",
-            Float64,
-            "m",
-            "Noise scale the adaptive cost estimated.",
-        )),
-        nullable(col(
-            "mirror_ambiguous",
-            Bool,
-            "",
-            "Whether a mirror-image box explains the peaks almost as well.",
-        )),
+        NOISE_SCALE_M,
+        MIRROR_AMBIGUOUS,
         nullable(col(
             "fit_error",
             Utf8,

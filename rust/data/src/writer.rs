@@ -1,6 +1,7 @@
 use std::fs;
 use std::path::{Path, PathBuf};
 
+use arrow::array::ArrayRef;
 use arrow::datatypes::SchemaRef;
 use arrow::record_batch::RecordBatch;
 use parquet::arrow::ArrowWriter;
@@ -38,6 +39,18 @@ pub fn write_shard(
 /// Writes `batches` (zstd) first under a temporary name unique to this writer (`.<pid>-<n>.tmp`),
 /// then renames the file once complete and
 /// synced, so an interrupted job never leaves a half file that looks valid.
+/// Writes `columns` as one file of the result table `table` (its schema, version and table
+/// keys), atomically as [`write_parquet`]; columns that do not fit the schema are an error.
+pub fn write_table(path: &Path, table: &Table, columns: Vec<ArrayRef>) -> Result<()> {
+    let schema = std::sync::Arc::new(table.arrow_schema());
+    let batch =
+        RecordBatch::try_new(schema.clone(), columns).map_err(|source| DataError::Arrow {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    write_parquet(path, schema, &[batch])
+}
+
 pub fn write_parquet(path: &Path, schema: SchemaRef, batches: &[RecordBatch]) -> Result<()> {
     write_parquet_in_row_groups(path, schema, batches, None)
 }

@@ -301,6 +301,25 @@ pub struct AdaptiveFit {
     pub confidence: FitConfidence,
 }
 
+impl AdaptiveFit {
+    /// Root mean square of the inliers' residuals, metres.
+    pub fn inlier_rms(&self) -> f64 {
+        inlier_rms(&self.residuals, &self.inliers)
+    }
+}
+
+/// Root mean square of the residuals whose point is an inlier (0 when there is none).
+pub fn inlier_rms(residuals: &[f64], inliers: &[bool]) -> f64 {
+    let (sum, count) = residuals
+        .iter()
+        .zip(inliers)
+        .filter(|(_, inlier)| **inlier)
+        .fold((0.0, 0usize), |(sum, count), (r, _)| {
+            (sum + r * r, count + 1)
+        });
+    (sum / count.max(1) as f64).sqrt()
+}
+
 /// Pose of a box of known size from unordered corner peaks, up to half of which may be outliers,
 /// with no threshold in box units: every triple of peaks is matched with every triple of corners
 /// whose pairwise distances agree within [`AdaptiveParams::pair_tolerance`] (symmetric corner

@@ -424,6 +424,13 @@ pub struct RobustSizedFit {
     pub confidence: FitConfidence,
 }
 
+impl RobustSizedFit {
+    /// Root mean square of the inliers' residuals, metres.
+    pub fn inlier_rms(&self) -> f64 {
+        crate::robust::inlier_rms(&self.residuals, &self.inliers)
+    }
+}
+
 /// Pose and side lengths of a box of unknown size from unordered corner peaks, some of which may
 /// be outliers, by the hypothesis-and-score design of [`crate::robust::adaptive_fit`].
 ///

@@ -333,16 +333,6 @@ fn confidence_items(dict: &Bound<'_, PyDict>, c: &FitConfidence) -> PyResult<()>
     Ok(())
 }
 
-fn inlier_rms(residuals: &[f64], inliers: &[bool]) -> f64 {
-    let squares: Vec<f64> = residuals
-        .iter()
-        .zip(inliers)
-        .filter(|(_, i)| **i)
-        .map(|(r, _)| r * r)
-        .collect();
-    (squares.iter().sum::<f64>() / squares.len().max(1) as f64).sqrt()
-}
-
 /// Pose of a box of known size that survives up to half the points being outliers.
 ///
 /// `method="adaptive"` (default): every minimal hypothesis scored by the noise-adaptive cost (no
@@ -380,7 +370,7 @@ fn robust_fit<'py>(
                 .detach(|| robust::adaptive_fit(&model, &pts, &robust::AdaptiveParams::default()))
                 .map_err(value_error)?;
             dict.set_item("pose", matrix(py, &fit.pose))?;
-            dict.set_item("inlier_rms", inlier_rms(&fit.residuals, &fit.inliers))?;
+            dict.set_item("inlier_rms", fit.inlier_rms())?;
             dict.set_item("inliers", fit.inliers)?;
             dict.set_item("nearest_corners", fit.nearest_corners)?;
             dict.set_item("residuals", fit.residuals)?;
@@ -452,7 +442,7 @@ fn fit_pose_and_size<'py>(
             .detach(|| -> boxpose_geometry::Result<_> {
                 let f = size_fit::robust_size_fit(&pts, &size_fit::RobustSizeParams::default())?;
                 Ok(SizedFit {
-                    rms: inlier_rms(&f.residuals, &f.inliers),
+                    rms: f.inlier_rms(),
                     model: f.model,
                     pose: f.pose,
                     nearest_corners: f.nearest_corners,
