@@ -100,6 +100,34 @@ def stop_group(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
+def stop_children() -> None:
+    """Stops every stage process this driver started, with its process group: the fallback for a
+    signal that lands between starting a stage and guarding it (found: a worker left stopped)."""
+    me = str(os.getpid())
+    children = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        with contextlib.suppress(OSError, IndexError):
+            # the parent pid is the second field after the parenthesised command name
+            if stat.read_text().rsplit(")", 1)[1].split()[1] == me:
+                children.append(int(stat.parent.name))
+    for pid in children:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(pid, signal.SIGTERM)
+            os.killpg(pid, signal.SIGCONT)
+    deadline = time.monotonic() + 5
+    for pid in children:
+        while time.monotonic() < deadline:
+            with contextlib.suppress(ChildProcessError):
+                if os.waitpid(pid, os.WNOHANG)[0]:
+                    break
+                time.sleep(0.05)
+                continue
+            break
+        else:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(pid, signal.SIGKILL)
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM or SIGHUP to the driver: unwinds like Ctrl-C, so that its workers are stopped."""
 
@@ -349,6 +377,7 @@ def main(argv: list[str] | None = None) -> int:
         tqdm.write(f"error: {e}", file=sys.stderr)
         return 1
     except KeyboardInterrupt as e:
+        stop_children()
         signum = e.args[0] if isinstance(e, Terminated) else signal.SIGINT
         tqdm.write(
             f"stopped by {signum.name}: run the same command again to resume "
