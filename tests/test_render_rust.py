@@ -4,7 +4,9 @@ Python worker wrote: identical ground truth, the same image within noise, crops,
 import io
 import json
 import os
+import signal
 import subprocess
+import time
 from pathlib import Path
 
 import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
@@ -166,3 +168,29 @@ def test_rust_errors_are_clear(dataset, boxpose_bin, tmp_path):
     r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--out", dataset)
     assert r.returncode != 0 and "is the input dataset" in r.stderr
     assert sorted(p.name for p in (dataset / "frames").iterdir()) == before
+
+
+def test_blender_output_survives_a_crash_while_it_is_filtered(dataset, boxpose_bin, tmp_path):
+    """Blender's start-up and first render run with stdout and stderr filtered (its CUDA-probe
+    noise dropped). Whatever is written there before a crash reaches the terminal: the text is
+    written into the filtered stderr from outside, then the process is killed (SIGKILL: nothing
+    in it can run after that)."""
+    process = subprocess.Popen(
+        [str(boxpose_bin), "render", str(dataset), "--scene", "0", "--out", str(tmp_path / "x")],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    stderr_link = Path(f"/proc/{process.pid}/fd/2")
+    original = os.readlink(stderr_link)
+    deadline = time.monotonic() + 120
+    while os.readlink(stderr_link) == original:
+        assert process.poll() is None, "the render ended before its output was filtered"
+        assert time.monotonic() < deadline, "stderr was never redirected"
+        time.sleep(0.001)
+    with open(stderr_link, "w") as filtered_stderr:
+        filtered_stderr.write("Blender's last words before the crash\n")
+    os.kill(process.pid, signal.SIGKILL)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == -signal.SIGKILL
+    assert "Blender's last words before the crash" in stderr
