@@ -1,10 +1,11 @@
-"""Crash consistency and I/O errors of the Python shard writer.
+"""Crash consistency and I/O errors of the shard writers, Python's and Rust's.
 
 A write that fails from some byte on (a file-size limit, as a full disk) is one error and leaves
 no file (in `make test`). With strace (`make test-faults`, marker `faults`), a SIGKILL at the
 k-th write, fsync or rename system call of the writing process, for every k until the write
 completes: the shard is then absent or whole, never a torn file under its final name, and a
-rerun writes it whole."""
+rerun writes it whole. The Rust writer (`boxpose_data::writer`, behind every Rust shard and
+result table) is driven through `boxpose eval-geometry`, which writes one result table."""
 
 import os
 import shutil
@@ -14,6 +15,8 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+
+from conftest import render_synthetic_dataset
 
 WRITER = """
 import resource, signal, sys
@@ -113,3 +116,50 @@ def test_a_failing_disk_is_one_error_and_leaves_nothing(tmp_path):
         assert leftovers(dataset) == []
     assert failures >= 3
     print(f"EFBIG: {failures} failed writes injected, no leftovers")
+
+
+def eval_geometry(boxpose_bin: Path, dataset: Path, out: Path, *inject: str):
+    """`boxpose eval-geometry` writing `out`, under strace with the given fault injections."""
+    command = [str(boxpose_bin), "eval-geometry", str(dataset), "--out", str(out)]
+    command += ["--outliers", "2", "--seed", "3"]
+    if inject:
+        command = [strace(), "-f", "-qq", "-o", os.devnull, *inject, *command]
+    return subprocess.run(command, capture_output=True, text=True, timeout=120)
+
+
+def without_timings(path: Path) -> pd.DataFrame:
+    """The table without its measured times (which differ from run to run)."""
+    return pd.read_parquet(path).drop(columns="fit_time_us")
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory) -> Path:
+    return render_synthetic_dataset(tmp_path_factory.mktemp("rendered") / "ds", 48, 36)
+
+
+@pytest.mark.faults
+@pytest.mark.parametrize("syscall", ["write", "fsync", "rename"])
+def test_a_kill_at_every_step_of_the_rust_writer_leaves_the_table_absent_or_whole(
+    tmp_path, rendered, boxpose_bin, syscall
+):
+    reference = tmp_path / "reference.parquet"
+    assert eval_geometry(boxpose_bin, rendered, reference).returncode == 0
+    expected = without_timings(reference)
+    kills = 0
+    for k in range(1, 200):
+        out = tmp_path / f"{syscall}-{k}" / "eval_geometry.parquet"
+        r = eval_geometry(
+            boxpose_bin, rendered, out, "-e", f"inject={syscall}:signal=SIGKILL:when={k}"
+        )
+        if r.returncode == 0:
+            break  # the k-th call never came: the write completed
+        kills += 1
+        if out.exists():
+            pd.testing.assert_frame_equal(without_timings(out), expected)
+        rerun = eval_geometry(boxpose_bin, rendered, out)
+        assert rerun.returncode == 0, rerun.stderr
+        pd.testing.assert_frame_equal(without_timings(out), expected)
+    else:
+        pytest.fail(f"the writer still died after 200 injected {syscall} kills")
+    assert kills >= 1, f"no {syscall} call was interrupted"
+    print(f"Rust writer, {syscall}: {kills} kills injected, no data lost")
