@@ -2,6 +2,7 @@
 
 import os
 import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -30,6 +31,24 @@ def run_boxpose(boxpose_bin: Path, *args, check: bool = True) -> subprocess.Comp
     return result
 
 
+def peak_rss_mb(*command) -> float:
+    """Peak resident memory of `command`, measured by a fresh Python process whose only child
+    it is (this test process has had other children)."""
+    probe = (
+        "import resource, subprocess, sys; "
+        "r = subprocess.run(sys.argv[1:], capture_output=True, text=True); "
+        "assert r.returncode == 0, r.stderr; "
+        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", probe, *map(str, command)],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    return int(out.stdout) / 1024
+
+
 def tiny_recipe(width: int, height: int, frames: int) -> str:
     """The `tiny` recipe (1 sample, no denoise) at another image size and number of views."""
     text = (REPO / "datasets" / "recipes" / "tiny.toml").read_text()
@@ -46,8 +65,6 @@ def render_synthetic_dataset(
     """Two synthetic scenes (2 boxes spread out, 3 boxes stacked), two views each, rendered by the
     Python worker into the dataset folder `root`. With `shared_size_in_scene_0`, scene 0's two
     boxes get one square-based size (one BOP obj_id with 7 discrete symmetries)."""
-    import sys
-
     import boxpose_io
     from blender_scripts.synthetic import synthetic_scene
 

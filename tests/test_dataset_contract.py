@@ -5,8 +5,6 @@ clear error naming the file and the problem."""
 import io
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +15,7 @@ import pytest
 from PIL import Image
 
 import boxpose_io
-from conftest import run_boxpose
+from conftest import peak_rss_mb, run_boxpose
 
 WIDTH, HEIGHT = 8, 6
 NUM_SHARDS = 2
@@ -493,22 +491,18 @@ def test_a_frame_claiming_a_huge_image_is_refused_before_decoding(dataset, boxpo
     expect_error(boxpose_bin, root, shard, "10000 × 10000 is over the limit")
 
 
-def peak_rss_mb(*command) -> float:
-    """Peak resident memory of `command`, measured by a fresh Python process whose only child
-    it is (this test process has had other children)."""
-    probe = (
-        "import resource, subprocess, sys; "
-        "r = subprocess.run(sys.argv[1:], capture_output=True, text=True); "
-        "assert r.returncode == 0, r.stderr; "
-        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)"
-    )
-    out = subprocess.run(
-        [sys.executable, "-c", probe, *map(str, command)],
-        capture_output=True,
-        text=True,
-        check=True,
-    )
-    return int(out.stdout) / 1024
+def test_a_bad_image_is_named_by_its_row_in_the_shard(tmp_path, boxpose_bin):
+    """Frames are read in batches; the message names the row in the shard, not in its batch."""
+    tables = synthetic_rows(np.random.default_rng(3))
+    frame = tables["frames"][0]
+    tables["frames"] = [{**frame, "scene_id": 0, "frame_id": k} for k in range(20)]
+    tables["frames"][19]["rgb_png"] = b"\x89PNG broken"
+    tables["instances"] = []
+    root = tmp_path / "ds"
+    for name, rows in tables.items():
+        path = boxpose_io.shard_path(root, name, 0, 1)
+        boxpose_io.write_shard(path, boxpose_io.table_from_rows(name, rows))
+    expect_error(boxpose_bin, root, "part-00000-of-00001.parquet", "row 19", "rgb_png")
 
 
 def test_readers_stream_frames_instead_of_holding_the_dataset(tmp_path, boxpose_bin):

@@ -3,6 +3,7 @@ renders): a tiny network for a few steps, interrupted and resumed; then its pred
 evaluation read back with pandas. The numbers of a 4-step network mean nothing; the plumbing and
 files are tested."""
 
+import io
 import json
 import shutil
 import subprocess
@@ -14,7 +15,8 @@ import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
-from conftest import REPO, run_boxpose
+import boxpose_io
+from conftest import REPO, peak_rss_mb, run_boxpose
 
 
 @pytest.fixture(scope="module")
@@ -391,3 +393,101 @@ def test_eval_on_predicted_crops_counts_missed_boxes_as_failures(
     )
     assert not (out / "segmentation.json").exists()
     assert (out / "summary.json").is_file() and not list(out.glob("*.tmp"))
+
+
+def enlarged_copy(dataset, root, copies: int, scale: int):
+    """`copies` copies of every scene of `dataset` (new scene ids), each image `scale` times
+    larger (nearest neighbour; intrinsics and pixel coordinates scaled alike, so the tiny
+    models still apply) and its depth perturbed in the last bits so that it does not compress.
+    Returns the decoded size of its frames in MB."""
+    rng = np.random.default_rng(0)
+    tables = {name: pd.read_parquet(dataset / name) for name in boxpose_io.TABLES}
+    frames = tables["frames"]
+    big = []
+    for f in frames.itertuples():
+        w, h = f.width * scale, f.height * scale
+        rgb = Image.open(io.BytesIO(f.rgb_png)).resize((w, h), Image.Resampling.NEAREST)
+        mask = Image.open(io.BytesIO(f.instance_mask_png)).resize((w, h), Image.Resampling.NEAREST)
+        depth = np.frombuffer(f.depth_m_f32le, "<f4").reshape(f.height, f.width)
+        depth = depth.repeat(scale, 0).repeat(scale, 1)
+        encoded = []
+        for image in (rgb, mask):
+            buffer = io.BytesIO()
+            image.save(buffer, "PNG")
+            encoded.append(buffer.getvalue())
+        big.append(
+            {
+                "width": w,
+                "height": h,
+                "fx": f.fx * scale,
+                "fy": f.fy * scale,
+                "cx": (f.cx + 0.5) * scale - 0.5,
+                "cy": (f.cy + 0.5) * scale - 0.5,
+                "rgb_png": encoded[0],
+                "instance_mask_png": encoded[1],
+                "sensor_depth_m_f32le": None,
+                "depth": depth,
+            }
+        )
+    frames = frames.assign(**{k: [b[k] for b in big] for k in big[0] if k != "depth"})
+    instances = tables["instances"].copy()
+    instances["visible_bbox_px"] = [
+        None if b is None else [v * scale for v in b] for b in instances.visible_bbox_px
+    ]
+    instances["visible_pixels"] *= scale * scale
+    for column in ("corners_px", "label_keypoints_px"):
+        instances[column] = [
+            None if p is None else [(v + 0.5) * scale - 0.5 for v in p] for p in instances[column]
+        ]
+    scene_offset = int(tables["scenes"].scene_id.max()) + 1
+    for name, table in list(tables.items()):
+        parts = []
+        for copy in range(copies):
+            part = (instances if name == "instances" else table).copy()
+            if name == "frames":
+                part = frames.copy()
+                part["depth_m_f32le"] = [
+                    (b["depth"] * (1 + rng.uniform(-1e-5, 1e-5, b["depth"].shape)))
+                    .astype("<f4")
+                    .tobytes()
+                    for b in big
+                ]
+            part["scene_id"] += copy * scene_offset
+            parts.append(part)
+        rows = [
+            {k: v.tolist() if isinstance(v, np.ndarray) else v for k, v in row.items()}
+            for row in pd.concat(parts).to_dict("records")
+        ]
+        path = boxpose_io.shard_path(root, name, 0, 1)
+        boxpose_io.write_shard(path, boxpose_io.table_from_rows(name, rows))
+    pixels = sum(b["width"] * b["height"] for b in big) * copies
+    return pixels * (3 + 4 + 2) / 2**20
+
+
+def test_training_and_evaluation_hold_a_bounded_part_of_a_large_dataset(
+    trained, segmenter, tiny_dataset, boxpose_bin, tmp_path
+):
+    """Frames are read from their shards as needed: training keeps at most `frame_cache_mib`
+    of decoded frames, and evaluation on the segmenter's crops one frame (it used to keep
+    every frame's mask and every detection's, training every decoded frame)."""
+    big = tmp_path / "big"
+    decoded_mb = enlarged_copy(tiny_dataset, big, copies=48, scale=8)
+    assert decoded_mb > 400
+    config = tmp_path / "tiny.toml"
+    config.write_text(
+        (REPO / "configs" / "tiny.toml")
+        .read_text()
+        .replace("loader_threads = 1", "loader_threads = 1\nframe_cache_mib = 16")
+    )
+    train = peak_rss_mb(
+        boxpose_bin, "train", "--config", config, "--dataset", big, "--out", tmp_path / "run"
+    )
+    model = trained[0] / "model"
+    evaluate = peak_rss_mb(
+        boxpose_bin, "eval", big, "--model", model, "--crops", "predicted",
+        "--segmenter", segmenter[0] / "model", "--out", tmp_path / "eval",
+    )  # fmt: skip
+    print(f"decoded frames {decoded_mb:.0f} MB; peak RSS train {train:.0f}, eval {evaluate:.0f}")
+    history = pd.read_csv(tmp_path / "run" / "history.csv")
+    assert history.corner_recall.notna().all()
+    assert train < decoded_mb / 2 and evaluate < decoded_mb / 2

@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use anyhow::Context;
 use arrow::array::{ArrayRef, Float64Array, Int32Array};
-use boxpose_data::{Dataset, Frame};
+use boxpose_data::Dataset;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;
@@ -66,11 +66,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.held_out
             .is_none_or(|modulus| data::is_held_out(scene_id, i64::from(modulus)))
     };
-    // Frames stream through one at a time; only the segmenter's scoring keeps each frame's
-    // instance mask (its images dropped) for the AP at the end.
+    // Frames stream through one at a time; the segmenter's AP keeps only overlaps.
     let frames = dataset.frames()?;
-    let mut scored_frames = Vec::new();
-    let mut all_detections = Vec::new();
+    let mut detection_scorer = segmentation::DetectionScorer::default();
     let total = frames.instance_count(evaluated);
     let bar = ProgressBar::new(total as u64).with_style(ProgressStyle::with_template(
         "evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
@@ -78,11 +76,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut fit_rows = Vec::new();
     let mut evals = Vec::new();
     for frame in frames {
-        let owned = frame?;
-        if !evaluated(owned.scene_id) {
+        let frame = &frame?;
+        if !evaluated(frame.scene_id) {
             continue;
         }
-        let frame = &owned;
         let chosen: Vec<_> = frame
             .instances
             .iter()
@@ -130,7 +127,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                         .map(Some)
                     })
                     .collect::<Result<Vec<_>, boxpose_learn::LearnError>>()?;
-                all_detections.push(detections);
+                detection_scorer.add(frame, &detections);
                 samples
             }
         };
@@ -163,14 +160,6 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             evals.push(eval);
         }
         bar.inc(frame.instances.len() as u64);
-        if segmenter.is_some() {
-            scored_frames.push(Frame {
-                rgb: Vec::new(),
-                depth: Vec::new(),
-                sensor_depth: None,
-                ..owned
-            });
-        }
     }
     bar.finish_and_clear();
     anyhow::ensure!(
@@ -235,8 +224,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         evals.len()
     );
     if segmenter.is_some() {
-        let frame_refs: Vec<_> = scored_frames.iter().collect();
-        let s = segmentation::score_detections(&frame_refs, &all_detections);
+        let s = detection_scorer.scores();
         println!(
             "segmenter {}: mask AP {:.3} (AP50 {:.3}), bbox AP {:.3} (AP50 {:.3}); {} detections for {} visible boxes; {} of {} evaluated boxes found",
             args.segmenter.display(),

@@ -1,12 +1,13 @@
 use std::collections::{HashMap, HashSet};
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use arrow::array::{Array, AsArray};
 use arrow::datatypes::{DataType, Float32Type, Float64Type, Int32Type, Int64Type};
 use arrow::record_batch::RecordBatch;
 use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use parquet::arrow::arrow_reader::{ParquetRecordBatchReaderBuilder, RowSelection, RowSelector};
 
 use crate::error::{DataError, Result};
 use crate::rows::{Frame, Instance, Object, Scene};
@@ -214,11 +215,41 @@ impl Dataset {
     /// (where the dataset has those tables) a frame of no scene or an instance of no object are
     /// errors naming the row.
     pub fn frames(&self) -> Result<FrameIter> {
+        let keys = self.frame_keys()?;
+        Ok(FrameIter {
+            shards: keys.shards.into_iter(),
+            current: None,
+            instances: keys.instances,
+        })
+    }
+
+    /// Every frame's key, instances and place, checked as by [`Dataset::frames`], without reading
+    /// an image: for random access to the frames of a dataset larger than memory
+    /// ([`FrameEntry::read`]), in shard order.
+    pub fn frame_index(&self) -> Result<Vec<FrameEntry>> {
+        let mut keys = self.frame_keys()?;
+        Ok(keys
+            .rows
+            .into_iter()
+            .map(|(path, row, scene_id, frame_id)| FrameEntry {
+                scene_id,
+                frame_id,
+                instances: keys
+                    .instances
+                    .remove(&(scene_id, frame_id))
+                    .unwrap_or_default(),
+                path,
+                row,
+            })
+            .collect())
+    }
+
+    /// The frames' keys (only the key columns are read) and instances, joins checked.
+    fn frame_keys(&self) -> Result<FrameKeys> {
         let shards = self.shards(&schema::FRAMES)?;
         let mut frame_keys = UniqueKeys::new(schema::FRAMES.name);
         let mut offsets = ShardRowOffsets::default();
         let scenes = self.scene_ids()?;
-        // Only the key columns: the images are read later, one batch at a time.
         let mut key_batches = Vec::new();
         for path in &shards {
             for batch in read_columns(path, &schema::FRAMES, &["scene_id", "frame_id"])? {
@@ -228,8 +259,14 @@ impl Dataset {
                 });
             }
         }
+        let mut rows = Vec::new();
+        let mut shared_path: Option<Arc<Path>> = None;
         for sb in &key_batches {
             let first = offsets.next(sb);
+            if shared_path.as_deref() != Some(sb.path.as_path()) {
+                shared_path = Some(Arc::from(sb.path.as_path()));
+            }
+            let path = shared_path.clone().expect("set above");
             let scene_ids = key_column::<Int64Type>(sb, "scene_id")?;
             let frame_ids = key_column::<Int32Type>(sb, "frame_id")?;
             for (row, (scene, frame)) in scene_ids.iter().zip(frame_ids.iter()).enumerate() {
@@ -243,6 +280,7 @@ impl Dataset {
                         "frame {frame} of scene {scene}, which is not in scenes/"
                     )));
                 }
+                rows.push((path.clone(), first + row, *scene, *frame));
             }
         }
         let objects: Option<HashSet<(i64, i32)>> = if self.has_table(&schema::OBJECTS)? {
@@ -285,11 +323,71 @@ impl Dataset {
         for list in by_frame.values_mut() {
             list.sort_by_key(|i| i.object_id);
         }
-        Ok(FrameIter {
-            shards: shards.into_iter(),
-            current: None,
+        Ok(FrameKeys {
+            shards,
+            rows,
             instances: by_frame,
         })
+    }
+}
+
+/// What [`Dataset::frame_keys`] checked: the frame shards, each frame's (shard, row in it,
+/// scene, frame), and the instances of each frame, sorted by object id.
+struct FrameKeys {
+    shards: Vec<PathBuf>,
+    rows: Vec<(Arc<Path>, usize, i64, i32)>,
+    instances: HashMap<(i64, i32), Vec<Instance>>,
+}
+
+/// A frame's key, instances and place in its shard, from [`Dataset::frame_index`]: what a job
+/// needs to pick frames before reading any image.
+#[derive(Debug, Clone)]
+pub struct FrameEntry {
+    pub scene_id: i64,
+    pub frame_id: i32,
+    /// Sorted by object_id.
+    pub instances: Vec<Instance>,
+    path: Arc<Path>,
+    row: usize,
+}
+
+impl FrameEntry {
+    /// Reads and decodes this frame alone: only its row of the shard is decoded, and validated
+    /// as every row is.
+    pub fn read(&self) -> Result<Frame> {
+        let path: &Path = &self.path;
+        let builder = shard_builder(path, &schema::FRAMES)?;
+        check_columns(path, &schema::FRAMES, builder.schema())?;
+        let only_this_row =
+            RowSelection::from(vec![RowSelector::skip(self.row), RowSelector::select(1)]);
+        let mut rows = builder
+            .with_row_selection(only_this_row)
+            .with_batch_size(1)
+            .build()
+            .map_err(|source| DataError::Parquet {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        let changed = |problem: &str| DataError::BadValue {
+            path: path.to_path_buf(),
+            row: self.row,
+            column: "*",
+            problem: format!("{problem} since the dataset was indexed (was it rewritten?)"),
+        };
+        let batch = rows
+            .next()
+            .ok_or_else(|| changed("the shard has fewer rows"))?
+            .map_err(|source| DataError::Arrow {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        check_values(path, &schema::FRAMES, &batch, self.row)?;
+        let mut frame = Frame::from_row(path, &batch, 0, self.row)?;
+        if (frame.scene_id, frame.frame_id) != (self.scene_id, self.frame_id) {
+            return Err(changed("another frame is in this row"));
+        }
+        frame.instances = self.instances.clone();
+        Ok(frame)
     }
 }
 
@@ -401,7 +499,8 @@ fn key_column<'a, T: arrow::datatypes::ArrowPrimitiveType>(
 /// of [`FRAME_BATCH_ROWS`] frames at a time, so memory does not grow with the dataset.
 pub struct FrameIter {
     shards: std::vec::IntoIter<PathBuf>,
-    current: Option<(ShardReader, RecordBatch, usize)>,
+    /// The open shard, its current batch, the next row in it and the batch's first shard row.
+    current: Option<(ShardReader, RecordBatch, usize, usize)>,
     instances: HashMap<(i64, i32), Vec<Instance>>,
 }
 
@@ -419,13 +518,15 @@ impl FrameIter {
             .sum()
     }
 
-    /// Moves to the next frame row, opening shards and reading batches as needed.
-    fn advance(&mut self) -> Result<Option<(&Path, &RecordBatch, usize)>> {
+    /// Moves to the next frame row, opening shards and reading batches as needed: the shard,
+    /// the batch, the row in it and the batch's first row in the shard.
+    fn advance(&mut self) -> Result<Option<(&Path, &RecordBatch, usize, usize)>> {
         loop {
             let exhausted = match &mut self.current {
-                Some((_, batch, row)) if *row < batch.num_rows() => break,
-                Some((reader, batch, row)) => match reader.next_batch()? {
+                Some((_, batch, row, _)) if *row < batch.num_rows() => break,
+                Some((reader, batch, row, first)) => match reader.next_batch()? {
                     Some(next) => {
+                        *first += batch.num_rows();
                         *batch = next;
                         *row = 0;
                         false
@@ -440,13 +541,13 @@ impl FrameIter {
                     return Ok(None);
                 };
                 let mut reader = ShardReader::open(&path, &schema::FRAMES, FRAME_BATCH_ROWS)?;
-                self.current = reader.next_batch()?.map(|batch| (reader, batch, 0));
+                self.current = reader.next_batch()?.map(|batch| (reader, batch, 0, 0));
             }
         }
-        let (reader, batch, row) = self.current.as_mut().expect("a batch with rows left");
+        let (reader, batch, row, first) = self.current.as_mut().expect("a batch with rows left");
         let at = *row;
         *row += 1;
-        Ok(Some((&reader.path, batch, at)))
+        Ok(Some((&reader.path, batch, at, *first)))
     }
 }
 
@@ -454,7 +555,7 @@ impl Iterator for FrameIter {
     type Item = Result<Frame>;
 
     fn next(&mut self) -> Option<Self::Item> {
-        let (path, batch, row) = match self.advance() {
+        let (path, batch, row, first) = match self.advance() {
             Ok(Some(at)) => at,
             Ok(None) => return None,
             Err(e) => {
@@ -463,7 +564,7 @@ impl Iterator for FrameIter {
                 return Some(Err(e));
             }
         };
-        let frame = Frame::from_row(path, batch, row);
+        let frame = Frame::from_row(path, batch, row, first);
         Some(frame.map(|mut frame| {
             frame.instances = self
                 .instances
@@ -496,7 +597,7 @@ pub fn decode_frames(
     }
     (0..frames.num_rows())
         .map(|row| {
-            let mut frame = Frame::from_row(source, frames, row)?;
+            let mut frame = Frame::from_row(source, frames, row, 0)?;
             let mut list = by_frame
                 .remove(&(frame.scene_id, frame.frame_id))
                 .unwrap_or_default();

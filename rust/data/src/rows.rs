@@ -152,13 +152,15 @@ struct Row<'a> {
     path: &'a Path,
     batch: &'a RecordBatch,
     row: usize,
+    /// The shard row of the batch's first row, for messages.
+    first_row: usize,
 }
 
 impl Row<'_> {
     fn bad(&self, column: &'static str, problem: impl Into<String>) -> DataError {
         DataError::BadValue {
             path: self.path.to_path_buf(),
-            row: self.row,
+            row: self.first_row + self.row,
             column,
             problem: problem.into(),
         }
@@ -223,7 +225,12 @@ fn chunks<const K: usize, const N: usize, const M: usize>(flat: [f64; N]) -> [[f
 
 impl Scene {
     pub(crate) fn from_row(path: &Path, batch: &RecordBatch, row: usize) -> Result<Self> {
-        let r = Row { path, batch, row };
+        let r = Row {
+            path,
+            batch,
+            row,
+            first_row: 0,
+        };
         Ok(Self {
             scene_id: r.scalar::<Int64Type>("scene_id"),
             seed: r.scalar::<Int64Type>("seed"),
@@ -247,7 +254,12 @@ impl Scene {
 
 impl Object {
     pub(crate) fn from_row(path: &Path, batch: &RecordBatch, row: usize) -> Result<Self> {
-        let r = Row { path, batch, row };
+        let r = Row {
+            path,
+            batch,
+            row,
+            first_row: 0,
+        };
         let size = r.required::<Float64Type, 3>("size_m");
         if size.iter().any(|&s| s <= 0.0) {
             return Err(r.bad("size_m", format!("box size {size:?} must be positive")));
@@ -274,7 +286,12 @@ impl Object {
 
 impl Instance {
     pub(crate) fn from_row(path: &Path, batch: &RecordBatch, row: usize) -> Result<Self> {
-        let r = Row { path, batch, row };
+        let r = Row {
+            path,
+            batch,
+            row,
+            first_row: 0,
+        };
         let codes = r.required::<Int8Type, 8>("corner_visibility");
         let mut visibility = [Visibility::Visible; 8];
         for (v, &code) in visibility.iter_mut().zip(&codes) {
@@ -309,8 +326,19 @@ impl Instance {
 pub const MAX_FRAME_PIXELS: u64 = 1 << 26;
 
 impl Frame {
-    pub(crate) fn from_row(path: &Path, batch: &RecordBatch, row: usize) -> Result<Self> {
-        let r = Row { path, batch, row };
+    /// Row `row` of `batch`, whose first row is row `first_row` of the shard at `path`.
+    pub(crate) fn from_row(
+        path: &Path,
+        batch: &RecordBatch,
+        row: usize,
+        first_row: usize,
+    ) -> Result<Self> {
+        let r = Row {
+            path,
+            batch,
+            row,
+            first_row,
+        };
         let (width, height) = (
             r.scalar::<Int32Type>("width"),
             r.scalar::<Int32Type>("height"),

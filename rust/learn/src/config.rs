@@ -210,6 +210,16 @@ pub struct DataConfig {
     pub max_val_instances: usize,
     /// Worker threads preparing batches (crop, augment, target) ahead of the optimizer.
     pub loader_threads: usize,
+    /// Memory for decoded frames, in MiB. Frames are read from their shards when first needed
+    /// and kept up to this much (least recently used dropped first): a dataset that fits is
+    /// decoded once; a larger one is read again as needed instead of exhausting memory.
+    #[serde(default = "default_frame_cache_mib")]
+    pub frame_cache_mib: usize,
+}
+
+/// 4 GiB: about 1500 decoded 640×480 frames (2.8 MB each without sensor depth).
+fn default_frame_cache_mib() -> usize {
+    4096
 }
 
 impl TrainConfig {

@@ -3,10 +3,11 @@
 //! input and normalized, and the target: a 3D Gaussian at every ground-truth corner in the
 //! (z-bin, v, u) volume. Batches are prepared on worker threads ahead of the optimizer.
 
-use std::sync::Arc;
+use std::collections::HashMap;
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
+use std::sync::{Arc, Mutex};
 
-use boxpose_data::{Dataset, Frame, Instance, Intrinsics};
+use boxpose_data::{Dataset, Frame, FrameEntry, Instance, Intrinsics};
 use boxpose_geometry::heatmap::{
     self, CropTransform, DepthBins, HeatmapDims, PinholeIntrinsics, VoxelGrid,
 };
@@ -349,10 +350,13 @@ fn gt_reference_depth(frame: &Frame, window: &CropWindow, label: u16) -> Result<
     })
 }
 
-/// Every decoded frame of some datasets, and the instances to learn from, split by scene into
-/// training and held-out validation.
+/// The frames of some datasets, and the instances to learn from, split by scene into training
+/// and held-out validation. Images are read from the shards when first needed and kept in a
+/// cache of `frame_cache_mib` ([`DataConfig`]).
 pub struct InstanceSet {
-    pub frames: Vec<Frame>,
+    /// Every frame's key, instances and place in its shard (no image).
+    pub frames: Vec<FrameEntry>,
+    cache: FrameCache,
     /// (frame index, instance index) pairs.
     pub train: Vec<(usize, usize)>,
     pub val: Vec<(usize, usize)>,
@@ -372,10 +376,7 @@ impl InstanceSet {
         let (val_modulus, min_visible_fraction) = (data.val_modulus, data.min_visible_fraction);
         let mut frames = Vec::new();
         for path in &data.datasets {
-            let dataset = Dataset::open(path)?;
-            for frame in dataset.frames()? {
-                frames.push(frame?);
-            }
+            frames.extend(Dataset::open(path)?.frame_index()?);
         }
         let (mut train, mut val) = (Vec::new(), Vec::new());
         let (mut train_frames, mut val_frames) = (Vec::new(), Vec::new());
@@ -401,6 +402,7 @@ impl InstanceSet {
         }
         Ok(Self {
             frames,
+            cache: FrameCache::new(data.frame_cache_mib << 20),
             train,
             val,
             train_frames,
@@ -408,9 +410,80 @@ impl InstanceSet {
         })
     }
 
-    pub fn instance(&self, (f, i): (usize, usize)) -> (&Frame, &Instance) {
-        (&self.frames[f], &self.frames[f].instances[i])
+    /// Frame `f`, decoded (from the cache when it holds it).
+    pub fn frame(&self, f: usize) -> Result<Arc<Frame>, LearnError> {
+        self.cache.get_or_read(f, &self.frames[f])
     }
+
+    pub fn instance(&self, (f, i): (usize, usize)) -> &Instance {
+        &self.frames[f].instances[i]
+    }
+}
+
+/// Decoded frames by index, the least recently used dropped once they exceed `budget_bytes`.
+struct FrameCache {
+    budget_bytes: usize,
+    state: Mutex<CacheState>,
+}
+
+#[derive(Default)]
+struct CacheState {
+    /// Frame index → (frame, tick of its last use).
+    frames: HashMap<usize, (Arc<Frame>, u64)>,
+    bytes: usize,
+    tick: u64,
+}
+
+impl FrameCache {
+    fn new(budget_bytes: usize) -> Self {
+        Self {
+            budget_bytes,
+            state: Mutex::default(),
+        }
+    }
+
+    fn get_or_read(&self, index: usize, entry: &FrameEntry) -> Result<Arc<Frame>, LearnError> {
+        {
+            let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+            state.tick += 1;
+            let tick = state.tick;
+            if let Some((frame, last_use)) = state.frames.get_mut(&index) {
+                *last_use = tick;
+                return Ok(frame.clone());
+            }
+        }
+        // Decoded outside the lock, so loader threads decode in parallel (two of them may
+        // decode one frame at once; the second copy is dropped).
+        let frame = Arc::new(entry.read()?);
+        let size = decoded_bytes(&frame);
+        let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
+        while state.bytes + size > self.budget_bytes && !state.frames.is_empty() {
+            let oldest = state
+                .frames
+                .iter()
+                .min_by_key(|(_, (_, last_use))| *last_use)
+                .map(|(&k, _)| k)
+                .expect("a cached frame");
+            if let Some((dropped, _)) = state.frames.remove(&oldest) {
+                state.bytes -= decoded_bytes(&dropped);
+            }
+        }
+        if size <= self.budget_bytes {
+            let tick = state.tick;
+            if state.frames.insert(index, (frame.clone(), tick)).is_none() {
+                state.bytes += size;
+            }
+        }
+        Ok(frame)
+    }
+}
+
+/// Memory of a decoded frame's images.
+fn decoded_bytes(frame: &Frame) -> usize {
+    frame.rgb.len()
+        + frame.depth.len() * 4
+        + frame.instance_mask.len() * 2
+        + frame.sensor_depth.as_ref().map_or(0, |d| d.len() * 4)
 }
 
 /// A batch as flat arrays: inputs `[B, C, H, W]`, targets `[B, C', H', W']`.

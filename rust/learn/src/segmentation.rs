@@ -25,6 +25,8 @@ pub const SEGMENTER_FILE: &str = "segmenter.toml";
 const OUTPUTS: usize = 4;
 /// Target channels: the outputs' targets and the mask of pixels whose offset is supervised.
 const TARGETS: usize = 5;
+/// Frames per forward pass of the segmenter at inference and validation.
+const SEGMENT_BATCH: usize = 4;
 
 /// What the segmenter sees and how its output becomes instances.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -311,7 +313,7 @@ impl SegmenterModel {
     pub fn segment(&self, frames: &[&Frame]) -> Result<Vec<Vec<Detection>>, LearnError> {
         let (w, h) = (self.config.input_width, self.config.input_height);
         let mut out = Vec::with_capacity(frames.len());
-        for chunk in frames.chunks(4) {
+        for chunk in frames.chunks(SEGMENT_BATCH) {
             let flat: Vec<f32> = chunk
                 .iter()
                 .flat_map(|f| frame_input(&self.config, f, None))
@@ -453,40 +455,62 @@ pub fn true_masks(frame: &Frame) -> Vec<TrueMask> {
         .collect()
 }
 
-pub fn score_detections(frames: &[&Frame], detections: &[Vec<Detection>]) -> SegmentationScores {
-    let truths: Vec<_> = frames.iter().map(|f| true_masks(f)).collect();
-    let true_count = truths.iter().map(Vec::len).sum();
-    let scores: Vec<Vec<f32>> = detections
-        .iter()
-        .map(|d| d.iter().map(|d| d.score).collect())
-        .collect();
-    let ious = |overlap: &dyn Fn(&Detection, &TrueMask) -> f64| -> Vec<Vec<Vec<f64>>> {
-        detections
-            .iter()
-            .zip(&truths)
-            .map(|(dets, gts)| {
-                dets.iter()
-                    .map(|d| gts.iter().map(|g| overlap(d, g)).collect())
-                    .collect()
-            })
-            .collect()
-    };
-    let mask_ious = ious(&|d, g| mask_iou(&d.mask, &g.1));
-    let bbox_ious = ious(&|d, g| bbox_iou(&d.bbox, &g.2));
-    let coco = |ious: &[Vec<Vec<f64>>]| {
-        (0..10)
-            .map(|k| average_precision(ious, &scores, true_count, 0.5 + 0.05 * k as f64))
-            .sum::<f64>()
-            / 10.0
-    };
-    SegmentationScores {
-        mask_ap50: average_precision(&mask_ious, &scores, true_count, 0.5),
-        mask_ap: coco(&mask_ious),
-        bbox_ap50: average_precision(&bbox_ious, &scores, true_count, 0.5),
-        bbox_ap: coco(&bbox_ious),
-        true_instances: true_count,
-        detections: detections.iter().map(Vec::len).sum(),
+/// Mask and box AP over frames scored one at a time: it keeps each detection's score and its
+/// overlaps with the frame's true instances, not the masks, so a dataset can stream through.
+#[derive(Debug, Default)]
+pub struct DetectionScorer {
+    /// Per frame, per detection.
+    scores: Vec<Vec<f32>>,
+    /// Per frame, per detection, per true instance.
+    mask_ious: Vec<Vec<Vec<f64>>>,
+    bbox_ious: Vec<Vec<Vec<f64>>>,
+    true_instances: usize,
+}
+
+impl DetectionScorer {
+    /// Adds one frame's detections, matched against its true visible instances.
+    pub fn add(&mut self, frame: &Frame, detections: &[Detection]) {
+        let truths = true_masks(frame);
+        self.true_instances += truths.len();
+        self.scores
+            .push(detections.iter().map(|d| d.score).collect());
+        let ious = |overlap: &dyn Fn(&Detection, &TrueMask) -> f64| -> Vec<Vec<f64>> {
+            detections
+                .iter()
+                .map(|d| truths.iter().map(|g| overlap(d, g)).collect())
+                .collect()
+        };
+        self.mask_ious.push(ious(&|d, g| mask_iou(&d.mask, &g.1)));
+        self.bbox_ious.push(ious(&|d, g| bbox_iou(&d.bbox, &g.2)));
     }
+
+    /// AP50 and COCO's AP over every frame added.
+    pub fn scores(&self) -> SegmentationScores {
+        let true_count = self.true_instances;
+        let coco = |ious: &[Vec<Vec<f64>>]| {
+            (0..10)
+                .map(|k| average_precision(ious, &self.scores, true_count, 0.5 + 0.05 * k as f64))
+                .sum::<f64>()
+                / 10.0
+        };
+        SegmentationScores {
+            mask_ap50: average_precision(&self.mask_ious, &self.scores, true_count, 0.5),
+            mask_ap: coco(&self.mask_ious),
+            bbox_ap50: average_precision(&self.bbox_ious, &self.scores, true_count, 0.5),
+            bbox_ap: coco(&self.bbox_ious),
+            true_instances: true_count,
+            detections: self.scores.iter().map(Vec::len).sum(),
+        }
+    }
+}
+
+/// [`DetectionScorer`] over frames in memory.
+pub fn score_detections(frames: &[&Frame], detections: &[Vec<Detection>]) -> SegmentationScores {
+    let mut scorer = DetectionScorer::default();
+    for (frame, detections) in frames.iter().zip(detections) {
+        scorer.add(frame, detections);
+    }
+    scorer.scores()
 }
 
 /// The segmenter's task: whole frames of the training scenes.
@@ -526,13 +550,13 @@ impl Task for SegmenterTask {
         item: usize,
         rng: &mut ChaCha8Rng,
     ) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
-        let frame = &self.set.frames[self.set.train_frames[item]];
+        let frame = self.set.frame(self.set.train_frames[item])?;
         let input = frame_input(
             &self.config.segmenter,
-            frame,
+            &frame,
             Some((&self.config.augment, rng)),
         );
-        Ok((input, frame_targets(&self.config.segmenter, frame)))
+        Ok((input, frame_targets(&self.config.segmenter, &frame)))
     }
 
     fn network(&self, device: &Device) -> ResNetDeconv {
@@ -565,20 +589,24 @@ impl Task for SegmenterTask {
             net: net.clone(),
             device,
         };
-        let frames: Vec<&Frame> = self
-            .set
-            .val_frames
-            .iter()
-            .map(|&f| &self.set.frames[f])
-            .collect();
-        if frames.is_empty() {
+        if self.set.val_frames.is_empty() {
             return Err(LearnError::Data(format!(
                 "no held-out frame: no scene has scene_id % {} == 0",
                 self.config.data.val_modulus
             )));
         }
-        let detections = model.segment(&frames)?;
-        let s = score_detections(&frames, &detections);
+        let mut scorer = DetectionScorer::default();
+        for chunk in self.set.val_frames.chunks(SEGMENT_BATCH) {
+            let frames = chunk
+                .iter()
+                .map(|&f| self.set.frame(f))
+                .collect::<Result<Vec<_>, _>>()?;
+            let frames: Vec<&Frame> = frames.iter().map(|f| f.as_ref()).collect();
+            for (frame, detections) in frames.iter().zip(model.segment(&frames)?) {
+                scorer.add(frame, &detections);
+            }
+        }
+        let s = scorer.scores();
         Ok(vec![
             ("mask_ap50".into(), s.mask_ap50),
             ("mask_ap".into(), s.mask_ap),

@@ -299,8 +299,8 @@ impl KeypointTask {
         let samples = picks
             .par_iter()
             .map(|&pick| {
-                let (frame, instance) = set.instance(pick);
-                data::instance_sample(&config.network, frame, instance, None)
+                let frame = set.frame(pick.0)?;
+                data::instance_sample(&config.network, &frame, set.instance(pick), None)
             })
             .collect::<Result<Vec<_>, _>>()?;
         let device = net.devices().into_iter().next().unwrap_or_default();
@@ -316,10 +316,9 @@ impl KeypointTask {
             .zip(&samples)
             .zip(&heatmaps)
             .map(|((&pick, sample), heatmap)| {
-                let (_, instance) = set.instance(pick);
                 evaluation::evaluate_instance(
                     &config.network,
-                    instance,
+                    set.instance(pick),
                     heatmap,
                     &sample.target,
                     &sample.grid,
@@ -349,11 +348,12 @@ impl Task for KeypointTask {
         item: usize,
         rng: &mut ChaCha8Rng,
     ) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
-        let (frame, instance) = self.set.instance(self.set.train[item]);
+        let pick = self.set.train[item];
+        let frame = self.set.frame(pick.0)?;
         let sample = data::instance_sample(
             &self.config.network,
-            frame,
-            instance,
+            &frame,
+            self.set.instance(pick),
             Some((&self.config.augment, rng)),
         )?;
         Ok((sample.input, sample.target))
