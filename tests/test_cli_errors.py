@@ -18,3 +18,26 @@ def test_an_error_is_one_line_even_with_rust_backtrace_set(tmp_path, boxpose_bin
     assert len(lines) == 1, result.stderr
     assert lines[0].startswith("error: ") and str(missing) in lines[0]
     assert "backtrace" not in result.stderr.lower()
+
+
+def test_a_dataset_path_that_is_not_utf8_is_one_error_not_a_panic(tmp_path, boxpose_bin, repo):
+    """A run records its configuration as TOML (UTF-8 only); training used to panic writing it."""
+    dataset = os.path.join(os.fsencode(tmp_path), b"data-\xff")
+    os.mkdir(dataset)
+    for command, config in (("train", "tiny.toml"), ("train-segmenter", "segmenter-tiny.toml")):
+        result = subprocess.run(
+            [
+                os.fsencode(boxpose_bin),
+                command.encode(),
+                b"--config",
+                os.fsencode(repo / "configs" / config),
+                b"--dataset",
+                dataset,
+                b"--out",
+                os.fsencode(tmp_path / command),
+            ],
+            capture_output=True,
+        )
+        stderr = result.stderr.decode(errors="replace")
+        assert result.returncode == 1, stderr
+        assert "is not valid UTF-8" in stderr and "panicked" not in stderr

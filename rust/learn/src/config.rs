@@ -248,6 +248,14 @@ impl DataConfig {
                 "[data] datasets is empty: name at least one dataset folder".into(),
             ));
         }
+        // A run records its configuration as TOML, which holds only UTF-8 text.
+        if let Some(path) = self.datasets.iter().find(|p| p.to_str().is_none()) {
+            return Err(LearnError::Config(format!(
+                "[data] datasets: {} is not valid UTF-8, so a run's config.toml cannot record it; \
+                 rename the folder or reach it through a symlink with a UTF-8 name",
+                path.display()
+            )));
+        }
         Ok(())
     }
 }

@@ -163,7 +163,8 @@ pub fn train<T: Task, C: RunConfig>(
             )));
         }
     }
-    let config_toml = toml::to_string_pretty(config).expect("a training config always serializes");
+    let config_toml = toml::to_string_pretty(config)
+        .map_err(|e| LearnError::Config(format!("the configuration cannot be written: {e}")))?;
     // Atomically: a kill here must not leave a torn config that only --restart (which deletes
     // the checkpoint) gets past.
     boxpose_data::write_file_atomically(&config_path, config_toml.as_bytes())?;
