@@ -474,6 +474,77 @@ def test_values_outside_their_range_are_refused(dataset, boxpose_bin, table, col
         boxpose_io.table_from_rows(table, rows)
 
 
+def column_mutations():
+    """(table, column, mutation) for every column of the contract: each a way a foreign writer
+    could get the column wrong. "null" is legal where the column is nullable."""
+    for table, spec in boxpose_io.TABLES.items():
+        for column in spec["columns"]:
+            name, kind = column["name"], column["type"]
+            yield table, name, "null"
+            yield table, name, "other type"
+            if kind.startswith("float"):
+                yield table, name, "nan"
+                yield table, name, "inf"
+            if column["list_size"]:
+                yield table, name, "list too short"
+            if column["range"]:
+                yield table, name, "below range"
+            if kind == "binary":
+                yield table, name, "damaged bytes"
+
+
+def mutated(value, mutation, column):
+    if mutation == "null":
+        return None
+    if mutation in ("nan", "inf"):
+        bad = math.nan if mutation == "nan" else math.inf
+        return [bad, *value[1:]] if isinstance(value, list) else bad
+    if mutation == "list too short":
+        return value[:-1]
+    if mutation == "below range":
+        low = column["range"][0] - 1
+        low = low if column["type"].startswith("float") else int(low)
+        return [low, *value[1:]] if isinstance(value, list) else low
+    if mutation == "damaged bytes":
+        return value[: len(value) // 2] + b"\x00" if value else b"\x00"
+    raise AssertionError(mutation)
+
+
+@pytest.mark.parametrize("table, column, mutation", list(column_mutations()))
+def test_every_column_mutated_is_read_or_refused_never_a_panic(
+    dataset, boxpose_bin, table, column, mutation
+):
+    """Structure-aware mutations of row 0 of every column, written by pyarrow alone as a foreign
+    tool would: `inspect` accepts the shard only where the contract allows the value (a null in a
+    nullable column), and otherwise refuses it in one message naming the shard and the column."""
+    root, _ = dataset
+    shard = boxpose_io.shard_path(root, table, 0, NUM_SHARDS)
+    spec = next(c for c in boxpose_io.TABLES[table]["columns"] if c["name"] == column)
+
+    def mutate(t):
+        index = t.schema.get_field_index(column)
+        field = t.schema.field(index)
+        values = t.column(column).to_pylist()
+        if mutation == "other type":
+            array = (
+                pa.array([1] * len(values))
+                if field.type == pa.string()
+                else pa.array([str(v) for v in values])
+            )
+            return t.set_column(index, pa.field(column, array.type), array)
+        values[0] = mutated(values[0], mutation, spec)
+        return t.set_column(index, field.with_nullable(True), pa.array(values, field.type))
+
+    rewrite(shard, mutate)
+    result = run_boxpose(boxpose_bin, "inspect", root, check=False)
+    assert "panicked" not in result.stderr and result.returncode in (0, 1), result.stderr
+    if mutation == "null" and spec["nullable"]:
+        assert result.returncode == 0, result.stderr
+    else:
+        assert result.returncode == 1, f"{mutation} in {table}.{column} was accepted"
+        assert str(shard) in result.stderr and column in result.stderr, result.stderr
+
+
 def test_a_frame_claiming_a_huge_image_is_refused_before_decoding(dataset, boxpose_bin):
     """A decompression bomb: a frame whose size claims 10000 × 10000 is refused from its
     `width` and `height` before any PNG is inflated."""
