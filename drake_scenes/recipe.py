@@ -13,8 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from boxpose_io.recipe_keys import unknown_keys_problem
-
-SUPPORT_KINDS = ("floor", "bin", "pallet")
+from boxpose_io.schema import MAX_SETTLE_STEPS, SUPPORT_KINDS
 
 
 class RecipeError(ValueError):
@@ -161,6 +160,11 @@ class Recipe:
             )
         if not 0 < st.time_step_s < st.window_s < st.max_time_s:
             problems.append("settle: need 0 < time_step_s < window_s < max_time_s")
+        elif st.max_time_s / st.time_step_s > MAX_SETTLE_STEPS:
+            problems.append(
+                f"settle: max_time_s / time_step_s = {st.max_time_s / st.time_step_s:.3g} steps "
+                f"is more than {MAX_SETTLE_STEPS:.0e}"
+            )
         if min(st.max_linear_speed_mps, st.max_angular_speed_radps, st.max_penetration_m) <= 0:
             problems.append("settle: speed and penetration thresholds must be positive")
         if problems:

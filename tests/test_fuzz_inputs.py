@@ -4,6 +4,8 @@ error, never another exception, a hang or a crash of the interpreter."""
 
 import math
 import re
+import subprocess
+import tempfile
 import tomllib
 from pathlib import Path
 
@@ -96,6 +98,70 @@ def test_a_key_that_is_not_a_recipe_key_is_refused(name, value):
 @given(text=st.text(max_size=200))
 def test_arbitrary_text_is_refused_as_a_recipe(text):
     read_both(text)
+
+
+def rust_accepts(boxpose_bin: Path, dataset: Path, text: str) -> bool:
+    """Whether MuJoCo's reader (`boxpose_physics::RecipePhysics`, through `boxpose settle
+    --recipe`, settling no scene) accepts a recipe; any failure but a recipe error fails."""
+    with tempfile.NamedTemporaryFile("w", suffix=".toml") as recipe:
+        recipe.write(text)
+        recipe.flush()
+        r = subprocess.run(
+            [str(boxpose_bin), "settle", str(dataset), "--recipe", recipe.name, "--limit", "0"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+    if r.returncode == 0:
+        return True
+    assert r.returncode == 1 and r.stderr.startswith("error: "), r.stderr
+    assert any(w in r.stderr for w in ("recipe", "support", "settle parameters")), r.stderr
+    return False
+
+
+@pytest.fixture(scope="module")
+def scenes_dataset(tmp_path_factory) -> Path:
+    """A dataset with scenes and objects (what `boxpose settle` opens before the recipe)."""
+    from test_dataset_contract import synthetic_rows, write_dataset
+
+    root = tmp_path_factory.mktemp("scenes") / "ds"
+    write_dataset(root, synthetic_rows(np.random.default_rng(0)))
+    return root
+
+
+PHYSICS_KEYS = [k for k in TINY_KEYS if k.startswith(("support.", "settle."))]
+
+
+@FUZZ
+@given(key=st.sampled_from(PHYSICS_KEYS), value=toml_values)
+def test_the_drake_and_rust_readers_accept_and_refuse_the_same_physics(
+    scenes_dataset, boxpose_bin, key, value
+):
+    """The support and settle rules are written in Python (the Drake stage) and in Rust
+    (MuJoCo, the search); they must agree on every value of every key."""
+    text = with_value(TINY_TEXT, key, value)
+    drake, _ = read_both(text)
+    assert rust_accepts(boxpose_bin, scenes_dataset, text) == drake, text
+
+
+@FUZZ
+@given(
+    section=st.sampled_from(["", "boxes", "camera", "settle", "render"]),
+    name=st.from_regex(r"[a-z_]{1,12}", fullmatch=True),
+    value=toml_values,
+)
+def test_the_rust_reader_refuses_a_key_that_is_not_a_recipe_key(
+    scenes_dataset, boxpose_bin, section, name, value
+):
+    """Also in the sections it does not read: all three readers refuse the same keys."""
+    if (f"{section}.{name}" if section else name) in RECIPE_KEYS:
+        return
+    if section:
+        text = TINY_TEXT.replace(f"[{section}]\n", f"[{section}]\n{name} = {value}\n")
+    else:
+        text = f"{name} = {value}\n{TINY_TEXT}"
+    assert read_both(text) == (False, False)
+    assert not rust_accepts(boxpose_bin, scenes_dataset, text)
 
 
 # --- the Python module ----------------------------------------------------------------------

@@ -1,62 +1,12 @@
-"""Every key a scene recipe may hold, in one place. The Drake stage and the Blender stage each
-read their own part of a recipe; both refuse a key that is in neither part (a misspelt
-`max_tiem_s` used to be ignored silently), naming the key. A test checks that the two readers
-read exactly these keys."""
+"""Every key a scene recipe may hold: `RECIPE_KEYS`, defined once in `rust/data/src/recipe.rs`
+and loaded from the generated schema.json. The Drake stage and the Blender stage each read their
+own part of a recipe; both refuse a key that is in neither part (a misspelt `max_tiem_s` used to
+be ignored silently), naming the key, as the Rust reader does. A test checks that the two Python
+readers read exactly these keys."""
 
-RECIPE_KEYS: frozenset[str] = frozenset(
-    {
-        # the recipe itself
-        "name",
-        "description",
-        "seed",
-        "num_scenes",
-        # Drake: what is dropped, where, and when it counts as settled
-        "boxes.count",
-        "boxes.size_min_m",
-        "boxes.size_max_m",
-        "boxes.density_kg_m3",
-        "boxes.friction",
-        "support.kind",
-        "support.half_extent_m",
-        "support.wall_height_m",
-        "drop.height_m",
-        "drop.min_separation_m",
-        "drop.max_solve_attempts",
-        "settle.time_step_s",
-        "settle.max_time_s",
-        "settle.window_s",
-        "settle.max_linear_speed_mps",
-        "settle.max_angular_speed_radps",
-        "settle.max_penetration_m",
-        # both: the boxes' surfaces
-        "materials.roughness",
-        "materials.tape_probability",
-        "materials.label_probability",
-        # Blender: cameras, lights, render settings
-        "camera.frames_per_scene",
-        "camera.width",
-        "camera.height",
-        "camera.hfov_deg",
-        "camera.distance_m",
-        "camera.elevation_deg",
-        "camera.azimuth_deg",
-        "camera.look_at_jitter_m",
-        "camera.look_at_object",
-        "lighting.sun_strength",
-        "lighting.sun_elevation_deg",
-        "lighting.sun_azimuth_deg",
-        "lighting.area_lights",
-        "lighting.area_power_w",
-        "lighting.world_strength",
-        "lighting.world_color_jitter",
-        "render.samples",
-        "render.denoise",
-        "render.sensor_depth",
-        "render.max_bounces",
-        "render.view_transform",
-        "render.exposure",
-    }
-)
+from boxpose_io.schema import RECIPE_KEYS
+
+__all__ = ["RECIPE_KEYS", "unknown_keys_problem", "unknown_recipe_keys"]
 
 
 def unknown_recipe_keys(data: dict, prefix: str = "") -> list[str]:
@@ -80,5 +30,5 @@ def unknown_keys_problem(data: dict, source: str) -> str | None:
     return (
         f"recipe {source}: unknown key{'s' if len(unknown) > 1 else ''} "
         f"{', '.join(repr(k) for k in unknown)} (misspelt? the keys are listed in "
-        "python/boxpose_io/recipe_keys.py)"
+        "rust/data/src/recipe.rs)"
     )

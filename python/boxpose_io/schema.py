@@ -22,6 +22,12 @@ BIN_WALL_THICKNESS_M: float = SUPPORT["bin_wall_thickness_m"]
 # Coulomb friction of every support surface (ground, bin walls, pallet).
 SUPPORT_FRICTION: float = SUPPORT["friction"]
 
+# What a scene recipe may hold (rust/data/src/recipe.rs): its keys, dotted by section; the
+# support kinds; the most simulation steps one settle may take.
+RECIPE_KEYS: frozenset[str] = frozenset(_CONTRACT["recipe"]["keys"])
+SUPPORT_KINDS: tuple[str, ...] = tuple(_CONTRACT["recipe"]["support_kinds"])
+MAX_SETTLE_STEPS: float = _CONTRACT["recipe"]["max_settle_steps"]
+
 
 def _arrow_type(column: dict) -> pa.DataType:
     scalar = getattr(pa, column["type"])()

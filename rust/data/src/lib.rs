@@ -1,11 +1,12 @@
 //! The boxpose dataset contract: a dataset is a folder with one sub-folder of Parquet shards per
 //! table (`scenes/`, `objects/`, `frames/`, `instances/`). [`schema`] defines every column once,
-//! [`support`] the geometry each `support` value means;
+//! [`support`] the geometry each `support` value means, [`recipe`] what a scene recipe may hold;
 //! [`write_shard`] writes a shard atomically; [`Dataset`] opens a folder, validates every shard
 //! against the schema and yields decoded frames joined with their instances.
 
 mod error;
 mod reader;
+pub mod recipe;
 mod rows;
 pub mod schema;
 pub mod support;

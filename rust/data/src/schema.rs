@@ -1103,8 +1103,8 @@ pub fn table(name: &str) -> Option<&'static Table> {
     TABLES.iter().find(|t| t.name == name)
 }
 
-/// The contract as JSON, the form the Python stages load: the tables, and the support geometry
-/// ([`crate::support`]).
+/// The contract as JSON, the form the Python stages load: the tables, the support geometry
+/// ([`crate::support`]) and what a recipe may hold ([`crate::recipe`]).
 pub fn to_json() -> serde_json::Value {
     let tables = TABLES
         .iter()
@@ -1139,6 +1139,7 @@ pub fn to_json() -> serde_json::Value {
         "table_key": TABLE_KEY,
         "tables": tables,
         "support": crate::support::to_json(),
+        "recipe": crate::recipe::to_json(),
     })
 }
 

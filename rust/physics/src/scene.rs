@@ -12,6 +12,7 @@ pub const QUATERNION_NORM_TOLERANCE: f64 = 1e-3;
 
 // The support geometry is the dataset contract's (boxpose_data::support), shared with the Drake
 // and Blender stages through the generated schema.json.
+pub use boxpose_data::recipe::MAX_SETTLE_STEPS;
 pub use boxpose_data::support::{BIN_WALL_THICKNESS_M, PALLET_HEIGHT_M, SUPPORT_FRICTION};
 
 /// The friction coefficient of a contact between two materials, Drake's rule (`CoulombFriction`
@@ -95,7 +96,6 @@ impl SupportKind {
 pub struct Support {
     pub kind: SupportKind,
     pub half_extent_m: [f64; 2],
-    #[serde(default)]
     pub wall_height_m: f64,
 }
 
@@ -178,31 +178,35 @@ impl Default for SettleParams {
 }
 
 impl SettleParams {
+    /// The Drake stage's rules (`drake_scenes/recipe.py`), which `tests/test_fuzz_inputs.py`
+    /// holds this to: finite values, positive thresholds, 0 < time step < window < max time,
+    /// and at most [`MAX_SETTLE_STEPS`] steps.
     pub fn validate(&self) -> Result<()> {
-        let positive = [
+        let all = [
             ("time_step_s", self.time_step_s),
             ("max_time_s", self.max_time_s),
             ("window_s", self.window_s),
             ("max_linear_speed_mps", self.max_linear_speed_mps),
             ("max_angular_speed_radps", self.max_angular_speed_radps),
+            ("max_penetration_m", self.max_penetration_m),
         ];
-        for (name, v) in positive {
+        for (name, v) in all {
             if !v.is_finite() || v <= 0.0 {
                 return Err(PhysicsError::BadParams(format!(
                     "{name} = {v} must be finite and positive"
                 )));
             }
         }
-        if !self.max_penetration_m.is_finite() || self.max_penetration_m < 0.0 {
+        if !(self.time_step_s < self.window_s && self.window_s < self.max_time_s) {
             return Err(PhysicsError::BadParams(format!(
-                "max_penetration_m = {} must be finite and non-negative",
-                self.max_penetration_m
+                "need time_step_s < window_s < max_time_s, got {} < {} < {}",
+                self.time_step_s, self.window_s, self.max_time_s
             )));
         }
-        if self.window_s > self.max_time_s {
+        let steps = self.max_time_s / self.time_step_s;
+        if steps > MAX_SETTLE_STEPS {
             return Err(PhysicsError::BadParams(format!(
-                "window_s = {} exceeds max_time_s = {}",
-                self.window_s, self.max_time_s
+                "max_time_s / time_step_s = {steps:.3e} steps is more than {MAX_SETTLE_STEPS:.0e}"
             )));
         }
         Ok(())
@@ -228,8 +232,20 @@ pub struct RecipePhysics {
 
 impl RecipePhysics {
     /// Parses a recipe's TOML text (as in `datasets/recipes/*.toml` or a scene's `recipe_toml`).
+    /// Like the Python stages' readers, it refuses keys that are not recipe keys
+    /// ([`boxpose_data::recipe::RECIPE_KEYS`]), though it reads only these two sections.
     pub fn from_toml(text: &str) -> Result<Self> {
-        let recipe: Self = toml::from_str(text).map_err(|e| PhysicsError::Recipe(e.to_string()))?;
+        let table: toml::Table =
+            toml::from_str(text).map_err(|e| PhysicsError::Recipe(e.to_string()))?;
+        let unknown = boxpose_data::recipe::unknown_keys(&table);
+        if !unknown.is_empty() {
+            return Err(PhysicsError::Recipe(format!(
+                "unknown keys {unknown:?} (misspelt? the keys are listed in rust/data/src/recipe.rs)"
+            )));
+        }
+        let recipe: Self = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| PhysicsError::Recipe(e.to_string()))?;
         recipe.support.validate()?;
         recipe.settle.validate()?;
         Ok(recipe)
@@ -238,7 +254,13 @@ impl RecipePhysics {
     pub fn from_file(path: &std::path::Path) -> Result<Self> {
         let text = std::fs::read_to_string(path)
             .map_err(|e| PhysicsError::Recipe(format!("{}: {e}", path.display())))?;
-        Self::from_toml(&text).map_err(|e| PhysicsError::Recipe(format!("{}: {e}", path.display())))
+        Self::from_toml(&text).map_err(|e| {
+            let problem = match e {
+                PhysicsError::Recipe(problem) => problem,
+                other => other.to_string(),
+            };
+            PhysicsError::Recipe(format!("{}: {problem}", path.display()))
+        })
     }
 }
 

@@ -579,7 +579,12 @@ fn bad_input_is_a_clear_error() {
     let err = RecipePhysics::from_toml("[support]\nkind = \"table\"\nhalf_extent_m = [0.2, 0.2]\n")
         .unwrap_err();
     assert!(matches!(err, PhysicsError::Recipe(_)), "{err}");
+    let err = RecipePhysics::from_toml(
+        "[support]\nkind = \"floor\"\nhalf_extent_m = [0.2, 0.2]\nwall_height_m = 0.0\n",
+    )
+    .unwrap_err();
+    assert!(err.to_string().contains("settle"), "{err}");
     let err = RecipePhysics::from_toml("[support]\nkind = \"floor\"\nhalf_extent_m = [0.2, 0.2]\n")
         .unwrap_err();
-    assert!(err.to_string().contains("settle"), "{err}");
+    assert!(err.to_string().contains("wall_height_m"), "{err}");
 }
