@@ -7,8 +7,12 @@ use std::sync::Arc;
 use anyhow::Context;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::config::{Backbone, DataConfig, OptimizerConfig, TrainConfig};
+use boxpose_learn::keypoint::KeypointTask;
 use boxpose_learn::segmentation::{SegmenterTask, SegmenterTrainConfig};
-use boxpose_learn::training::{self, KeypointTask, MODEL_DIR, RunConfig, Task, TrainOptions};
+use boxpose_learn::training::{
+    self, MODEL_DIR, RunConfig, Task, TrainObserver, TrainOptions, Validation,
+};
+use indicatif::{ProgressBar, ProgressStyle};
 
 /// What both training commands take beside their config.
 #[derive(clap::Args)]
@@ -70,7 +74,6 @@ impl RunArgs {
             device: self.backend.device()?,
             restart: self.restart,
             stop_after: self.stop_after,
-            progress: true,
         };
         let report = training::train(
             Arc::new(task),
@@ -79,6 +82,7 @@ impl RunArgs {
             loader_threads,
             &self.out,
             options,
+            &mut ProgressDisplay::default(),
         )?;
         if let Some(step) = report.resumed_from {
             println!("resumed from the checkpoint at step {step}");
@@ -88,7 +92,7 @@ impl RunArgs {
             report.state.step, o.steps, report.state.train_seconds
         );
         if let Some(v) = &report.state.last_validation {
-            training::print_validation(v);
+            println!("{}", validation_line(v));
         }
         if report.finished {
             println!("model: {}", report.run_dir.join(MODEL_DIR).display());
@@ -97,6 +101,62 @@ impl RunArgs {
         }
         Ok(())
     }
+}
+
+/// The training run on the terminal: a progress bar with the running loss and ETA, and a line
+/// per validation.
+#[derive(Default)]
+struct ProgressDisplay {
+    bar: Option<ProgressBar>,
+}
+
+impl TrainObserver for ProgressDisplay {
+    fn started(&mut self, step: usize, total: usize) {
+        let style = ProgressStyle::with_template(
+            "training {bar:30} {pos}/{len} steps [{elapsed_precise}<{eta_precise}, {per_sec}] {msg}",
+        )
+        .expect("a valid template");
+        let bar = ProgressBar::new(total as u64).with_style(style);
+        bar.set_position(step as u64);
+        bar.reset_eta();
+        self.bar = Some(bar);
+    }
+
+    fn stepped(&mut self, step: usize, mean_loss: f64) {
+        if let Some(bar) = &self.bar {
+            bar.set_position(step as u64);
+            bar.set_message(format!("loss {mean_loss:.3e}"));
+        }
+    }
+
+    fn validated(&mut self, validation: &Validation) {
+        let line = validation_line(validation);
+        match &self.bar {
+            Some(bar) => bar.suspend(|| println!("{line}")),
+            None => println!("{line}"),
+        }
+    }
+
+    fn ended(&mut self) {
+        if let Some(bar) = self.bar.take() {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+/// One validation as the CLI prints it.
+fn validation_line(v: &Validation) -> String {
+    let metrics: Vec<String> = v
+        .metrics
+        .iter()
+        .map(|(name, value)| format!("{name} {value:.4}"))
+        .collect();
+    format!(
+        "step {:>6}  train loss {:.3e}  held out: {}",
+        v.step,
+        v.train_loss,
+        metrics.join(", ")
+    )
 }
 
 #[derive(clap::Args)]

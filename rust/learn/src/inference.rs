@@ -2,7 +2,7 @@
 //! peaks, back-projection, and a pose-and-size fit. A trained model is a folder holding
 //! `network.toml` (what the network sees) and `model.bpk` (burn's burnpack weights).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use boxpose_data::Frame;
 use boxpose_geometry::GeometryError;
@@ -10,71 +10,16 @@ use boxpose_geometry::heatmap::{self, NmsParams, Peak, VoxelGrid};
 use boxpose_geometry::size_fit::{self, SizedBoxFit};
 use burn::prelude::*;
 use nalgebra::Point3;
-use serde::Serialize;
-use serde::de::DeserializeOwned;
 
 use crate::LearnError;
 use crate::config::NetworkConfig;
 use crate::data::{self, CropWindow};
-use crate::model::{KeypointNet, ResNetDeconv};
+use crate::model::KeypointNet;
+use crate::model_dir::{load_model_dir, save_model_dir};
 
 pub const NETWORK_FILE: &str = "network.toml";
-pub const WEIGHTS_FILE: &str = "model.bpk";
 /// Peaks taken from each heatmap: one per box corner, as the paper.
 pub const PEAK_COUNT: usize = 8;
-
-/// Reads a trained network's folder: its config (TOML, `config_file`), checked by `validate`,
-/// and its weights (`model.bpk`), loaded into the untrained network `build` makes from it.
-pub(crate) fn load_model_dir<C: DeserializeOwned>(
-    dir: &Path,
-    config_file: &str,
-    validate: impl FnOnce(&C) -> Result<(), LearnError>,
-    build: impl FnOnce(&C) -> ResNetDeconv,
-) -> Result<(C, ResNetDeconv), LearnError> {
-    let config_path = dir.join(config_file);
-    let text = std::fs::read_to_string(&config_path)
-        .map_err(|e| LearnError::Io(config_path.clone(), e))?;
-    let config: C = toml::from_str(&text)
-        .map_err(|e| LearnError::Checkpoint(config_path.clone(), e.to_string()))?;
-    validate(&config).map_err(|e| LearnError::Checkpoint(config_path, e.to_string()))?;
-    let weights = dir.join(WEIGHTS_FILE);
-    if !weights.is_file() {
-        return Err(LearnError::Checkpoint(
-            weights,
-            "missing: is this a model folder written by `boxpose train` or `train-segmenter`?"
-                .into(),
-        ));
-    }
-    let net = build(&config).try_load_file(&weights).map_err(|e| {
-        LearnError::Checkpoint(
-            weights.clone(),
-            format!("cannot load the weights ({e}); were they trained with this {config_file}?"),
-        )
-    })?;
-    Ok((config, net.valid()))
-}
-
-/// Writes a trained network's folder (`config_file` and `model.bpk`) atomically: into `dir.tmp`,
-/// then renamed.
-pub(crate) fn save_model_dir<C: Serialize>(
-    dir: &Path,
-    config_file: &str,
-    config: &C,
-    net: &ResNetDeconv,
-) -> Result<(), LearnError> {
-    write_dir_atomically(dir, |tmp| {
-        let path = tmp.join(config_file);
-        std::fs::write(
-            &path,
-            toml::to_string_pretty(config).expect("a network config serializes"),
-        )
-        .map_err(|e| LearnError::Io(path, e))?;
-        let path = tmp.join(WEIGHTS_FILE);
-        net.clone()
-            .save_file(&path)
-            .map_err(|e| LearnError::Checkpoint(path, e.to_string()))
-    })
-}
 
 /// A trained keypoint network, ready for inference on one device.
 pub struct KeypointModel {
@@ -233,43 +178,4 @@ pub fn predict(
             Ok(BoxPrediction { peaks, points, fit })
         })
         .collect()
-}
-
-/// Writes a folder by filling `dir.tmp` and renaming it over `dir`, so a reader never sees a
-/// half-written one (an interrupted write leaves the previous folder intact).
-pub fn write_dir_atomically(
-    dir: &Path,
-    fill: impl FnOnce(&Path) -> Result<(), LearnError>,
-) -> Result<(), LearnError> {
-    let with_suffix = |suffix: &str| -> PathBuf {
-        let mut name = dir.file_name().unwrap_or_default().to_os_string();
-        name.push(suffix);
-        dir.with_file_name(name)
-    };
-    let (tmp, old) = (with_suffix(".tmp"), with_suffix(".old"));
-    restore_interrupted(dir, &old)?;
-    for leftover in [&tmp, &old] {
-        if leftover.exists() {
-            std::fs::remove_dir_all(leftover).map_err(|e| LearnError::Io(leftover.clone(), e))?;
-        }
-    }
-    std::fs::create_dir_all(&tmp).map_err(|e| LearnError::Io(tmp.clone(), e))?;
-    fill(&tmp)?;
-    if dir.exists() {
-        std::fs::rename(dir, &old).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
-    }
-    std::fs::rename(&tmp, dir).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
-    if old.exists() {
-        std::fs::remove_dir_all(&old).map_err(|e| LearnError::Io(old, e))?;
-    }
-    Ok(())
-}
-
-/// If a write was interrupted between its two renames, `dir` is missing and `dir.old` is the last
-/// complete folder: put it back.
-pub fn restore_interrupted(dir: &Path, old: &Path) -> Result<(), LearnError> {
-    if !dir.exists() && old.exists() {
-        std::fs::rename(old, dir).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
-    }
-    Ok(())
 }

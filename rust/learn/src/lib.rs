@@ -1,14 +1,24 @@
-//! Learning in boxpose (paper steps 3–5), laid out as burn's own examples: [`model`] (the
-//! keypoint network), [`data`] (Parquet frames → crops and targets), [`training`] (the loop,
-//! validation, checkpoints) and [`inference`] (a frame and a crop → heatmap → peaks → pose);
-//! [`segmentation`] finds the boxes (and their crops) in a whole frame.
+//! Learning in boxpose (paper steps 3–5), laid out as burn's own examples, each module using only
+//! those before it (`tests/module_graph.rs` holds the order):
+//! - [`config`], [`backend`];
+//! - [`data`]: Parquet frames → crops and targets (no burn); [`loader`]: batches on worker
+//!   threads (no burn);
+//! - [`model`]: the ResNet + deconvolution network; [`model_dir`]: model folders on disk;
+//! - [`inference`]: a frame and a crop → heatmap → peaks → pose; [`evaluation`]: scores of it;
+//! - [`training`]: the loop, validation and checkpoints for any [`training::Task`], reporting to
+//!   a [`training::TrainObserver`];
+//! - [`keypoint`]: the keypoint network's task; [`segmentation`]: the segmenter (its model,
+//!   grouping, AP and task), which finds the boxes (and their crops) in a whole frame.
 
 pub mod backend;
 pub mod config;
 pub mod data;
 pub mod evaluation;
 pub mod inference;
+pub mod keypoint;
+pub mod loader;
 pub mod model;
+pub mod model_dir;
 pub mod segmentation;
 pub mod training;
 

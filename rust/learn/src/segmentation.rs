@@ -16,8 +16,9 @@ use serde::{Deserialize, Serialize};
 use crate::LearnError;
 use crate::config::{self, AugmentConfig, Backbone, DataConfig, OptimizerConfig};
 use crate::data::{self, InstanceSet};
-use crate::inference::{load_model_dir, save_model_dir};
+use crate::loader::ExampleSource;
 use crate::model::ResNetDeconv;
+use crate::model_dir::{load_model_dir, save_model_dir};
 use crate::training::Task;
 
 pub const SEGMENTER_FILE: &str = "segmenter.toml";
@@ -527,22 +528,9 @@ impl SegmenterTask {
     }
 }
 
-impl Task for SegmenterTask {
+impl ExampleSource for SegmenterTask {
     fn train_items(&self) -> usize {
         self.set.train_frames.len()
-    }
-
-    fn input_shape(&self) -> [usize; 3] {
-        [
-            4,
-            self.config.segmenter.input_height,
-            self.config.segmenter.input_width,
-        ]
-    }
-
-    fn target_shape(&self) -> [usize; 3] {
-        let [w, h] = self.config.segmenter.output_size();
-        [TARGETS, h, w]
     }
 
     fn training_example(
@@ -557,6 +545,21 @@ impl Task for SegmenterTask {
             Some((&self.config.augment, rng)),
         );
         Ok((input, frame_targets(&self.config.segmenter, &frame)))
+    }
+}
+
+impl Task for SegmenterTask {
+    fn input_shape(&self) -> [usize; 3] {
+        [
+            4,
+            self.config.segmenter.input_height,
+            self.config.segmenter.input_width,
+        ]
+    }
+
+    fn target_shape(&self) -> [usize; 3] {
+        let [w, h] = self.config.segmenter.output_size();
+        [TARGETS, h, w]
     }
 
     fn network(&self, device: &Device) -> ResNetDeconv {

@@ -14,17 +14,14 @@ use std::time::Instant;
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::prelude::*;
-use rand_chacha::ChaCha8Rng;
-use rayon::prelude::*;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 use crate::LearnError;
-use crate::config::{OptimizerConfig, TrainConfig};
-use crate::data::{self, InstanceSet};
-use crate::evaluation::{self, InstanceEval};
-use crate::inference::{self, KeypointModel, write_dir_atomically};
-use crate::model::{KeypointNet, ResNetDeconv};
+use crate::config::OptimizerConfig;
+use crate::loader::{ExampleSource, spawn_loader};
+use crate::model::ResNetDeconv;
+use crate::model_dir::{WEIGHTS_FILE, restore_interrupted, write_dir_atomically};
 
 const CONFIG_FILE: &str = "config.toml";
 const CHECKPOINT_DIR: &str = "checkpoint";
@@ -33,19 +30,12 @@ const OPTIMIZER_FILE: &str = "optimizer.bpk";
 const HISTORY_FILE: &str = "history.csv";
 pub const MODEL_DIR: &str = "model";
 
-/// What a network learns: its examples, loss, held-out scores and saved form.
-pub trait Task: Send + Sync + 'static {
-    /// Training examples, addressed as 0..n.
-    fn train_items(&self) -> usize;
+/// What a network learns: its examples (an [`ExampleSource`]), loss, held-out scores and saved
+/// form.
+pub trait Task: ExampleSource {
     /// Shapes of one example's input and target, `[channels, height, width]`.
     fn input_shape(&self) -> [usize; 3];
     fn target_shape(&self) -> [usize; 3];
-    /// One augmented training example (input, target), flat in those shapes.
-    fn training_example(
-        &self,
-        item: usize,
-        rng: &mut ChaCha8Rng,
-    ) -> Result<(Vec<f32>, Vec<f32>), LearnError>;
     fn network(&self, device: &Device) -> ResNetDeconv;
     /// The scalar loss of a batch's output against its targets.
     fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1>;
@@ -89,8 +79,24 @@ pub struct TrainOptions {
     /// Stop (with a checkpoint) after this many steps of this session; for tests and time-boxed
     /// jobs. The run resumes from there later.
     pub stop_after: Option<usize>,
-    pub progress: bool,
 }
+
+/// What a run reports as it goes, for a progress display: the library prints nothing.
+pub trait TrainObserver {
+    /// The run starts at `step` (0, or where it resumes) of `total`.
+    fn started(&mut self, _step: usize, _total: usize) {}
+    /// Step `step` is done; `mean_loss` is the training loss since the last validation.
+    fn stepped(&mut self, _step: usize, _mean_loss: f64) {}
+    /// A validation was scored (and checkpointed).
+    fn validated(&mut self, _validation: &Validation) {}
+    /// The session ends (finished, stopped early or failed).
+    fn ended(&mut self) {}
+}
+
+/// An observer that shows nothing.
+pub struct Silent;
+
+impl TrainObserver for Silent {}
 
 /// Learning rate at `step`: linear warm-up over the first 5 % of the run, then cosine decay to
 /// `final_lr_fraction` of the peak.
@@ -135,11 +141,12 @@ pub fn train<T: Task, C: RunConfig>(
     loader_threads: usize,
     run_dir: &Path,
     options: TrainOptions,
+    observer: &mut dyn TrainObserver,
 ) -> Result<TrainReport, LearnError> {
     std::fs::create_dir_all(run_dir).map_err(|e| LearnError::Io(run_dir.to_path_buf(), e))?;
     let _lock = lock_run_dir(run_dir)?;
     let checkpoint_dir = run_dir.join(CHECKPOINT_DIR);
-    inference::restore_interrupted(
+    restore_interrupted(
         &checkpoint_dir,
         &run_dir.join(format!("{CHECKPOINT_DIR}.old")),
     )?;
@@ -194,7 +201,7 @@ pub fn train<T: Task, C: RunConfig>(
         Some(n) => (state.step + n).min(o.steps),
         None => o.steps,
     };
-    let batches = data::spawn_loader(
+    let batches = spawn_loader(
         task.clone(),
         o.batch_size,
         o.seed,
@@ -202,7 +209,50 @@ pub fn train<T: Task, C: RunConfig>(
         last_step,
         loader_threads,
     )?;
-    let bar = progress_bar(options.progress, o.steps, state.step);
+    observer.started(state.step, o.steps);
+    let result = run_steps(
+        &task,
+        o,
+        run_dir,
+        &checkpoint_dir,
+        &device,
+        model,
+        optimizer,
+        state,
+        last_step,
+        batches,
+        observer,
+    );
+    observer.ended();
+    let (model, state) = result?;
+    let finished = state.step == o.steps;
+    if finished {
+        task.save_model(&model.valid(), &run_dir.join(MODEL_DIR))?;
+    }
+    Ok(TrainReport {
+        run_dir: run_dir.to_path_buf(),
+        state,
+        resumed_from,
+        finished,
+    })
+}
+
+/// The optimizer steps of one session, from `state.step` to `last_step`, validating and
+/// checkpointing on the way; returns the network and where the run stands.
+#[allow(clippy::too_many_arguments)]
+fn run_steps<T: Task>(
+    task: &Arc<T>,
+    o: &OptimizerConfig,
+    run_dir: &Path,
+    checkpoint_dir: &Path,
+    device: &Device,
+    mut model: ResNetDeconv,
+    mut optimizer: ModuleOptimizer,
+    mut state: TrainState,
+    last_step: usize,
+    batches: std::sync::mpsc::Receiver<Result<crate::loader::Batch, LearnError>>,
+    observer: &mut dyn TrainObserver,
+) -> Result<(ResNetDeconv, TrainState), LearnError> {
     let (input_shape, target_shape) = (task.input_shape(), task.target_shape());
     let (mut loss_sum, mut loss_count) = (0.0, 0usize);
     let mut session_start = Instant::now();
@@ -216,14 +266,12 @@ pub fn train<T: Task, C: RunConfig>(
             "the batch loader delivered a batch out of order"
         );
         let [c, h, w] = input_shape;
-        let inputs = Tensor::<4>::from_data(
-            TensorData::new(batch.inputs, [batch.size, c, h, w]),
-            &device,
-        );
+        let inputs =
+            Tensor::<4>::from_data(TensorData::new(batch.inputs, [batch.size, c, h, w]), device);
         let [c, h, w] = target_shape;
         let targets = Tensor::<4>::from_data(
             TensorData::new(batch.targets, [batch.size, c, h, w]),
-            &device,
+            device,
         );
         let loss = task.loss(model.forward(inputs), targets);
         let loss_value = loss.clone().into_scalar::<f32>() as f64;
@@ -238,8 +286,7 @@ pub fn train<T: Task, C: RunConfig>(
         state.step += 1;
         loss_sum += loss_value;
         loss_count += 1;
-        bar.set_position(state.step as u64);
-        bar.set_message(format!("loss {:.3e}", loss_sum / loss_count as f64));
+        observer.stepped(state.step, loss_sum / loss_count as f64);
         if state.step.is_multiple_of(o.validate_every) || state.step == last_step {
             state.train_seconds += session_start.elapsed().as_secs_f64();
             let validation = Validation {
@@ -247,137 +294,17 @@ pub fn train<T: Task, C: RunConfig>(
                 train_loss: loss_sum / loss_count as f64,
                 metrics: task.validate(&model.valid())?,
             };
-            if options.progress {
-                bar.suspend(|| print_validation(&validation));
-            }
             append_history(run_dir, &validation)?;
             state.last_validation = Some(validation);
-            save_checkpoint(&checkpoint_dir, &model, &optimizer, &state)?;
+            save_checkpoint(checkpoint_dir, &model, &optimizer, &state)?;
+            if let Some(validation) = &state.last_validation {
+                observer.validated(validation);
+            }
             (loss_sum, loss_count) = (0.0, 0);
             session_start = Instant::now();
         }
     }
-    bar.finish_and_clear();
-    let finished = state.step == o.steps;
-    if finished {
-        task.save_model(&model.valid(), &run_dir.join(MODEL_DIR))?;
-    }
-    Ok(TrainReport {
-        run_dir: run_dir.to_path_buf(),
-        state,
-        resumed_from,
-        finished,
-    })
-}
-
-/// The keypoint network's task: crops of ground-truth instances, heatmap MSE.
-pub struct KeypointTask {
-    pub config: TrainConfig,
-    pub set: InstanceSet,
-}
-
-impl KeypointTask {
-    pub fn load(config: TrainConfig) -> Result<Self, LearnError> {
-        config.validate()?;
-        let set = InstanceSet::load(&config.data)?;
-        Ok(Self { config, set })
-    }
-
-    /// Scores on (up to `max_val_instances`, evenly spread) held-out instances.
-    pub fn evaluate(&self, net: &KeypointNet) -> Result<Vec<InstanceEval>, LearnError> {
-        let (config, set) = (&self.config, &self.set);
-        let max = config.data.max_val_instances;
-        let mut picks = set.val.clone();
-        if max > 0 && picks.len() > max {
-            picks = (0..max).map(|i| set.val[i * set.val.len() / max]).collect();
-        }
-        if picks.is_empty() {
-            return Err(LearnError::Data(format!(
-                "no held-out instance: no scene has scene_id % {} == 0 (add scenes or lower val_modulus)",
-                config.data.val_modulus
-            )));
-        }
-        let samples = picks
-            .par_iter()
-            .map(|&pick| {
-                let frame = set.frame(pick.0)?;
-                data::instance_sample(&config.network, &frame, set.instance(pick), None)
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        let device = net.devices().into_iter().next().unwrap_or_default();
-        let model = KeypointModel {
-            config: config.network.clone(),
-            net: net.clone(),
-            device,
-        };
-        let inputs: Vec<Vec<f32>> = samples.iter().map(|s| s.input.clone()).collect();
-        let heatmaps = model.heatmaps(&inputs, config.optimizer.batch_size)?;
-        picks
-            .par_iter()
-            .zip(&samples)
-            .zip(&heatmaps)
-            .map(|((&pick, sample), heatmap)| {
-                evaluation::evaluate_instance(
-                    &config.network,
-                    set.instance(pick),
-                    heatmap,
-                    &sample.target,
-                    &sample.grid,
-                )
-            })
-            .collect()
-    }
-}
-
-impl Task for KeypointTask {
-    fn train_items(&self) -> usize {
-        self.set.train.len()
-    }
-
-    fn input_shape(&self) -> [usize; 3] {
-        let s = self.config.network.input_size;
-        [4, s, s]
-    }
-
-    fn target_shape(&self) -> [usize; 3] {
-        let n = self.config.network.heatmap_size();
-        [self.config.network.depth_bins, n, n]
-    }
-
-    fn training_example(
-        &self,
-        item: usize,
-        rng: &mut ChaCha8Rng,
-    ) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
-        let pick = self.set.train[item];
-        let frame = self.set.frame(pick.0)?;
-        let sample = data::instance_sample(
-            &self.config.network,
-            &frame,
-            self.set.instance(pick),
-            Some((&self.config.augment, rng)),
-        )?;
-        Ok((sample.input, sample.target))
-    }
-
-    fn network(&self, device: &Device) -> ResNetDeconv {
-        KeypointNet::keypoints(&self.config.network, device)
-    }
-
-    /// The paper's loss, mean squared error of the heatmap against the Gaussian target, with each
-    /// voxel weighted by 1 + positive_weight·target (see [`OptimizerConfig::positive_weight`]).
-    fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
-        let weight = target.clone() * self.config.optimizer.positive_weight + 1.0;
-        ((output - target).powi_scalar(2) * weight).mean()
-    }
-
-    fn validate(&self, net: &ResNetDeconv) -> Result<Vec<(String, f64)>, LearnError> {
-        Ok(evaluation::summarize(&self.evaluate(net)?).named())
-    }
-
-    fn save_model(&self, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
-        KeypointModel::save(&self.config.network, net, dir)
-    }
+    Ok((model, state))
 }
 
 fn save_checkpoint(
@@ -387,7 +314,7 @@ fn save_checkpoint(
     state: &TrainState,
 ) -> Result<(), LearnError> {
     write_dir_atomically(dir, |tmp| {
-        let path = tmp.join(inference::WEIGHTS_FILE);
+        let path = tmp.join(WEIGHTS_FILE);
         model
             .clone()
             .save_file(&path)
@@ -416,7 +343,7 @@ fn load_checkpoint(
     let path = dir.join(STATE_FILE);
     let text = std::fs::read_to_string(&path).map_err(|e| bad(path.clone(), e.to_string()))?;
     let state: TrainState = toml::from_str(&text).map_err(|e| bad(path.clone(), e.to_string()))?;
-    let path = dir.join(inference::WEIGHTS_FILE);
+    let path = dir.join(WEIGHTS_FILE);
     let model = model
         .try_load_file(&path)
         .map_err(|e| bad(path.clone(), e.to_string()))?;
@@ -491,33 +418,6 @@ fn append_history(run_dir: &Path, v: &Validation) -> Result<(), LearnError> {
         .map_err(|e| LearnError::Io(path.clone(), e))?;
     file.write_all(line.as_bytes())
         .map_err(|e| LearnError::Io(path, e))
-}
-
-pub fn print_validation(v: &Validation) {
-    let metrics: Vec<String> = v
-        .metrics
-        .iter()
-        .map(|(name, value)| format!("{name} {value:.4}"))
-        .collect();
-    println!(
-        "step {:>6}  train loss {:.3e}  held out: {}",
-        v.step,
-        v.train_loss,
-        metrics.join(", ")
-    );
-}
-
-fn progress_bar(show: bool, steps: usize, start: usize) -> indicatif::ProgressBar {
-    if !show {
-        return indicatif::ProgressBar::hidden();
-    }
-    let bar = indicatif::ProgressBar::new(steps as u64).with_style(
-        indicatif::ProgressStyle::with_template("training {bar:30} {pos}/{len} steps [{elapsed_precise}<{eta_precise}, {per_sec}] {msg}")
-            .expect("a valid template"),
-    );
-    bar.set_position(start as u64);
-    bar.reset_eta();
-    bar
 }
 
 #[cfg(test)]

@@ -1,0 +1,129 @@
+//! The keypoint network's task (paper step 3): crops of ground-truth instances, the weighted
+//! heatmap MSE, and held-out scores from the evaluation of each crop's fits.
+
+use std::path::Path;
+
+use burn::prelude::*;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+
+use crate::LearnError;
+use crate::config::TrainConfig;
+use crate::data::{self, InstanceSet};
+use crate::evaluation::{self, InstanceEval};
+use crate::inference::KeypointModel;
+use crate::loader::ExampleSource;
+use crate::model::{KeypointNet, ResNetDeconv};
+use crate::training::Task;
+
+/// The keypoint network's task: crops of ground-truth instances, heatmap MSE.
+pub struct KeypointTask {
+    pub config: TrainConfig,
+    pub set: InstanceSet,
+}
+
+impl KeypointTask {
+    pub fn load(config: TrainConfig) -> Result<Self, LearnError> {
+        config.validate()?;
+        let set = InstanceSet::load(&config.data)?;
+        Ok(Self { config, set })
+    }
+
+    /// Scores on (up to `max_val_instances`, evenly spread) held-out instances.
+    pub fn evaluate(&self, net: &KeypointNet) -> Result<Vec<InstanceEval>, LearnError> {
+        let (config, set) = (&self.config, &self.set);
+        let max = config.data.max_val_instances;
+        let mut picks = set.val.clone();
+        if max > 0 && picks.len() > max {
+            picks = (0..max).map(|i| set.val[i * set.val.len() / max]).collect();
+        }
+        if picks.is_empty() {
+            return Err(LearnError::Data(format!(
+                "no held-out instance: no scene has scene_id % {} == 0 (add scenes or lower val_modulus)",
+                config.data.val_modulus
+            )));
+        }
+        let samples = picks
+            .par_iter()
+            .map(|&pick| {
+                let frame = set.frame(pick.0)?;
+                data::instance_sample(&config.network, &frame, set.instance(pick), None)
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let device = net.devices().into_iter().next().unwrap_or_default();
+        let model = KeypointModel {
+            config: config.network.clone(),
+            net: net.clone(),
+            device,
+        };
+        let inputs: Vec<Vec<f32>> = samples.iter().map(|s| s.input.clone()).collect();
+        let heatmaps = model.heatmaps(&inputs, config.optimizer.batch_size)?;
+        picks
+            .par_iter()
+            .zip(&samples)
+            .zip(&heatmaps)
+            .map(|((&pick, sample), heatmap)| {
+                evaluation::evaluate_instance(
+                    &config.network,
+                    set.instance(pick),
+                    heatmap,
+                    &sample.target,
+                    &sample.grid,
+                )
+            })
+            .collect()
+    }
+}
+
+impl ExampleSource for KeypointTask {
+    fn train_items(&self) -> usize {
+        self.set.train.len()
+    }
+
+    fn training_example(
+        &self,
+        item: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
+        let pick = self.set.train[item];
+        let frame = self.set.frame(pick.0)?;
+        let sample = data::instance_sample(
+            &self.config.network,
+            &frame,
+            self.set.instance(pick),
+            Some((&self.config.augment, rng)),
+        )?;
+        Ok((sample.input, sample.target))
+    }
+}
+
+impl Task for KeypointTask {
+    fn input_shape(&self) -> [usize; 3] {
+        let s = self.config.network.input_size;
+        [4, s, s]
+    }
+
+    fn target_shape(&self) -> [usize; 3] {
+        let n = self.config.network.heatmap_size();
+        [self.config.network.depth_bins, n, n]
+    }
+
+    fn network(&self, device: &Device) -> ResNetDeconv {
+        KeypointNet::keypoints(&self.config.network, device)
+    }
+
+    /// The paper's loss, mean squared error of the heatmap against the Gaussian target, with each
+    /// voxel weighted by 1 + positive_weight·target (see [`OptimizerConfig::positive_weight`]).
+    fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
+        let weight = target.clone() * self.config.optimizer.positive_weight + 1.0;
+        ((output - target).powi_scalar(2) * weight).mean()
+    }
+
+    fn validate(&self, net: &ResNetDeconv) -> Result<Vec<(String, f64)>, LearnError> {
+        Ok(evaluation::summarize(&self.evaluate(net)?).named())
+    }
+
+    fn save_model(&self, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
+        KeypointModel::save(&self.config.network, net, dir)
+    }
+}
