@@ -34,6 +34,8 @@ __all__ = [
     "rotation_error_deg",
     "translation_error",
     "iou_3d",
+    "mask_iou",
+    "average_precision",
 ]
 
 _F64 = NDArray[np.float64]
@@ -136,3 +138,10 @@ def translation_error(estimate: _F64, truth: _F64) -> float:
 
 def iou_3d(size_a: _Size, pose_a: _F64, size_b: _Size, pose_b: _F64) -> float:
     """Intersection over union of two oriented boxes."""
+
+def mask_iou(a: NDArray[np.bool_], b: NDArray[np.bool_]) -> float:
+    """Intersection over union of two boolean masks of one image, as COCO's mask IoU."""
+
+def average_precision(images: list[tuple[_F32, _F64]], threshold: float) -> float:
+    """COCO's average precision of one category at IoU `threshold`, as pycocotools computes it:
+    per image (scores (D,) float32, ious (D, G)). NaN when no image has a true instance."""

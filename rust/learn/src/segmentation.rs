@@ -8,6 +8,9 @@
 use std::path::Path;
 
 use boxpose_data::Frame;
+use boxpose_geometry::detection::{
+    ImageDetections, average_precision, bbox_iou, coco_average_precision, greedy_match, mask_iou,
+};
 use burn::prelude::*;
 use burn::tensor::activation::log_sigmoid;
 use rand_chacha::ChaCha8Rng;
@@ -344,86 +347,6 @@ impl SegmenterModel {
     }
 }
 
-/// Intersection over union of two boolean masks.
-pub fn mask_iou(a: &[bool], b: &[bool]) -> f64 {
-    let (mut inter, mut union) = (0usize, 0usize);
-    for (&x, &y) in a.iter().zip(b) {
-        inter += (x && y) as usize;
-        union += (x || y) as usize;
-    }
-    if union == 0 {
-        0.0
-    } else {
-        inter as f64 / union as f64
-    }
-}
-
-/// Intersection over union of two boxes (x_min, y_min, x_max, y_max), max exclusive.
-pub fn bbox_iou(a: &[i32; 4], b: &[i32; 4]) -> f64 {
-    let w = (a[2].min(b[2]) - a[0].max(b[0])).max(0) as f64;
-    let h = (a[3].min(b[3]) - a[1].max(b[1])).max(0) as f64;
-    let area = |r: &[i32; 4]| ((r[2] - r[0]) * (r[3] - r[1])) as f64;
-    let inter = w * h;
-    if inter == 0.0 {
-        0.0
-    } else {
-        inter / (area(a) + area(b) - inter)
-    }
-}
-
-/// COCO-style average precision at one IoU threshold: detections of every frame ranked by score,
-/// each greedily matched to the unmatched true instance of its frame it overlaps most (at least
-/// `threshold`); precision interpolated at 101 recall points. `ious[f][d][g]` is the IoU of frame
-/// f's detection d with its true instance g, `scores[f][d]` the detection's score.
-pub fn average_precision(
-    ious: &[Vec<Vec<f64>>],
-    scores: &[Vec<f32>],
-    true_count: usize,
-    threshold: f64,
-) -> f64 {
-    if true_count == 0 {
-        return f64::NAN;
-    }
-    let mut ranked: Vec<(f32, usize, usize)> = scores
-        .iter()
-        .enumerate()
-        .flat_map(|(f, s)| s.iter().enumerate().map(move |(d, &score)| (score, f, d)))
-        .collect();
-    ranked.sort_by(|a, b| b.0.total_cmp(&a.0));
-    let mut taken: Vec<Vec<bool>> = ious
-        .iter()
-        .map(|frame| vec![false; frame.first().map_or(0, Vec::len)])
-        .collect();
-    let (mut tp, mut fp) = (0usize, 0usize);
-    let mut curve = Vec::with_capacity(ranked.len());
-    for (_, f, d) in ranked {
-        let best = ious[f][d]
-            .iter()
-            .enumerate()
-            .filter(|(g, iou)| !taken[f][*g] && **iou >= threshold)
-            .max_by(|a, b| a.1.total_cmp(b.1));
-        match best {
-            Some((g, _)) => {
-                taken[f][g] = true;
-                tp += 1;
-            }
-            None => fp += 1,
-        }
-        curve.push((tp as f64 / true_count as f64, tp as f64 / (tp + fp) as f64));
-    }
-    (0..=100)
-        .map(|r| {
-            let recall = r as f64 / 100.0;
-            curve
-                .iter()
-                .filter(|(rec, _)| *rec >= recall)
-                .map(|(_, p)| *p)
-                .fold(0.0, f64::max)
-        })
-        .sum::<f64>()
-        / 101.0
-}
-
 /// Mask and bounding-box AP of detections against a frame's true visible instances.
 #[derive(Debug, Clone, Copy, Default, Serialize, Deserialize)]
 pub struct SegmentationScores {
@@ -456,51 +379,41 @@ pub fn true_masks(frame: &Frame) -> Vec<TrueMask> {
         .collect()
 }
 
-/// Mask and box AP over frames scored one at a time: it keeps each detection's score and its
-/// overlaps with the frame's true instances, not the masks, so a dataset can stream through.
+/// Mask and box AP over frames scored one at a time (COCO's definitions,
+/// [`boxpose_geometry::detection`]): it keeps each detection's score and its overlaps with the
+/// frame's true instances, not the masks, so a dataset can stream through.
 #[derive(Debug, Default)]
 pub struct DetectionScorer {
-    /// Per frame, per detection.
-    scores: Vec<Vec<f32>>,
-    /// Per frame, per detection, per true instance.
-    mask_ious: Vec<Vec<Vec<f64>>>,
-    bbox_ious: Vec<Vec<Vec<f64>>>,
-    true_instances: usize,
+    masks: Vec<ImageDetections>,
+    boxes: Vec<ImageDetections>,
 }
 
 impl DetectionScorer {
     /// Adds one frame's detections, matched against its true visible instances.
     pub fn add(&mut self, frame: &Frame, detections: &[Detection]) {
         let truths = true_masks(frame);
-        self.true_instances += truths.len();
-        self.scores
-            .push(detections.iter().map(|d| d.score).collect());
-        let ious = |overlap: &dyn Fn(&Detection, &TrueMask) -> f64| -> Vec<Vec<f64>> {
-            detections
+        let scores: Vec<f32> = detections.iter().map(|d| d.score).collect();
+        let overlaps = |overlap: &dyn Fn(&Detection, &TrueMask) -> f64| ImageDetections {
+            scores: scores.clone(),
+            ious: detections
                 .iter()
                 .map(|d| truths.iter().map(|g| overlap(d, g)).collect())
-                .collect()
+                .collect(),
+            true_count: truths.len(),
         };
-        self.mask_ious.push(ious(&|d, g| mask_iou(&d.mask, &g.1)));
-        self.bbox_ious.push(ious(&|d, g| bbox_iou(&d.bbox, &g.2)));
+        self.masks.push(overlaps(&|d, g| mask_iou(&d.mask, &g.1)));
+        self.boxes.push(overlaps(&|d, g| bbox_iou(&d.bbox, &g.2)));
     }
 
     /// AP50 and COCO's AP over every frame added.
     pub fn scores(&self) -> SegmentationScores {
-        let true_count = self.true_instances;
-        let coco = |ious: &[Vec<Vec<f64>>]| {
-            (0..10)
-                .map(|k| average_precision(ious, &self.scores, true_count, 0.5 + 0.05 * k as f64))
-                .sum::<f64>()
-                / 10.0
-        };
         SegmentationScores {
-            mask_ap50: average_precision(&self.mask_ious, &self.scores, true_count, 0.5),
-            mask_ap: coco(&self.mask_ious),
-            bbox_ap50: average_precision(&self.bbox_ious, &self.scores, true_count, 0.5),
-            bbox_ap: coco(&self.bbox_ious),
-            true_instances: true_count,
-            detections: self.scores.iter().map(Vec::len).sum(),
+            mask_ap50: average_precision(&self.masks, 0.5),
+            mask_ap: coco_average_precision(&self.masks),
+            bbox_ap50: average_precision(&self.boxes, 0.5),
+            bbox_ap: coco_average_precision(&self.boxes),
+            true_instances: self.masks.iter().map(|i| i.true_count).sum(),
+            detections: self.masks.iter().map(|i| i.scores.len()).sum(),
         }
     }
 }
@@ -627,9 +540,8 @@ impl Task for SegmenterTask {
     }
 }
 
-/// For each of the frame's instances, the detection (index into `detections`, sorted by score)
-/// that found it: detections in score order each take the unmatched instance they overlap most,
-/// if its mask IoU is at least `threshold`.
+/// For each of the frame's instances, the detection (index into `detections`) that found it:
+/// COCO's matching ([`greedy_match`]) on mask IoU at `threshold`.
 pub fn match_detections(
     frame: &Frame,
     detections: &[Detection],
@@ -646,16 +558,17 @@ pub fn match_detections(
                 .collect()
         })
         .collect();
+    let ious: Vec<Vec<f64>> = detections
+        .iter()
+        .map(|d| masks.iter().map(|mask| mask_iou(mask, &d.mask)).collect())
+        .collect();
+    let scores: Vec<f32> = detections.iter().map(|d| d.score).collect();
     let mut found = vec![None; frame.instances.len()];
-    for (d, detection) in detections.iter().enumerate() {
-        let best = masks
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| found[*i].is_none())
-            .map(|(i, mask)| (i, mask_iou(mask, &detection.mask)))
-            .filter(|(_, iou)| *iou >= threshold)
-            .max_by(|a, b| a.1.total_cmp(&b.1));
-        if let Some((i, _)) = best {
+    for (d, instance) in greedy_match(&ious, &scores, threshold)
+        .into_iter()
+        .enumerate()
+    {
+        if let Some(i) = instance {
             found[i] = Some(d);
         }
     }

@@ -11,7 +11,9 @@ use boxpose_geometry::heatmap::{
     self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord,
     VoxelGrid,
 };
-use boxpose_geometry::{BoxModel, GeometryError, align, correspondence, metrics, robust, size_fit};
+use boxpose_geometry::{
+    BoxModel, GeometryError, align, correspondence, detection, metrics, robust, size_fit,
+};
 use nalgebra::{
     Isometry3, Matrix3, Matrix4, Point3, RowVector4, Translation3, UnitQuaternion, Vector3,
 };
@@ -589,6 +591,59 @@ fn iou_3d(
     .map_err(value_error)
 }
 
+/// Intersection over union of two boolean masks of one image, as COCO's mask IoU.
+#[pyfunction]
+fn mask_iou(a: PyReadonlyArray2<bool>, b: PyReadonlyArray2<bool>) -> PyResult<f64> {
+    let (a, b) = (a.as_array(), b.as_array());
+    if a.dim() != b.dim() {
+        return Err(PyValueError::new_err(format!(
+            "masks of different shapes {:?} and {:?}",
+            a.dim(),
+            b.dim()
+        )));
+    }
+    let flat = |m: numpy::ndarray::ArrayView2<bool>| m.iter().copied().collect::<Vec<bool>>();
+    Ok(detection::mask_iou(&flat(a), &flat(b)))
+}
+
+/// COCO's average precision of one category at IoU `threshold`, as pycocotools computes it:
+/// `images` holds per image (scores (D,) float32, ious (D, G)), `ious[d, g]` the IoU of detection
+/// d with true instance g. NaN when no image has a true instance.
+#[pyfunction]
+fn average_precision(
+    py: Python<'_>,
+    images: Vec<(PyReadonlyArray1<f32>, PyReadonlyArray2<f64>)>,
+    threshold: f64,
+) -> PyResult<f64> {
+    if !(0.0..=1.0).contains(&threshold) {
+        return Err(PyValueError::new_err(format!(
+            "threshold {threshold} is not in [0, 1]"
+        )));
+    }
+    let mut converted = Vec::with_capacity(images.len());
+    for (index, (scores, ious)) in images.iter().enumerate() {
+        let (scores, ious) = (scores.as_array(), ious.as_array());
+        let (rows, true_count) = ious.dim();
+        if rows != scores.len() {
+            return Err(PyValueError::new_err(format!(
+                "image {index}: {} scores for {rows} rows of IoUs",
+                scores.len()
+            )));
+        }
+        if scores.iter().any(|s| !s.is_finite()) || ious.iter().any(|v| !(0.0..=1.0).contains(v)) {
+            return Err(PyValueError::new_err(format!(
+                "image {index}: scores must be finite and IoUs in [0, 1]"
+            )));
+        }
+        converted.push(detection::ImageDetections {
+            scores: scores.to_vec(),
+            ious: ious.rows().into_iter().map(|r| r.to_vec()).collect(),
+            true_count,
+        });
+    }
+    Ok(py.detach(|| detection::average_precision(&converted, threshold)))
+}
+
 #[pymodule]
 fn boxpose(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(box_corners, m)?)?;
@@ -607,5 +662,7 @@ fn boxpose(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(rotation_error_deg, m)?)?;
     m.add_function(wrap_pyfunction!(translation_error, m)?)?;
     m.add_function(wrap_pyfunction!(iou_3d, m)?)?;
+    m.add_function(wrap_pyfunction!(mask_iou, m)?)?;
+    m.add_function(wrap_pyfunction!(average_precision, m)?)?;
     Ok(())
 }
