@@ -11,9 +11,8 @@ use boxpose_data::Dataset;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;
-use boxpose_learn::data::{self, Sample};
-use boxpose_learn::evaluation::{self, InstanceEval};
-use boxpose_learn::inference::CropRequest;
+use boxpose_learn::data;
+use boxpose_learn::evaluation::{self, CropSource, InstanceEval};
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::{self, SegmenterModel};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -85,68 +84,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             .iter()
             .filter(|i| i.visible_fraction >= args.min_visible_fraction && i.visible_bbox.is_some())
             .collect();
-        // each chosen instance's sample, or None when the segmenter missed it
-        let samples: Vec<Option<Sample>> = match &segmenter {
-            None => chosen
-                .iter()
-                .map(|instance| {
-                    data::instance_sample(&model.config, frame, instance, None).map(Some)
-                })
-                .collect::<Result<_, _>>()
-                .with_context(|| format!("scene {} frame {}", frame.scene_id, frame.frame_id))?,
-            Some(segmenter) => {
-                let detections = segmenter.segment(&[frame])?.remove(0);
-                let found = segmentation::match_detections(frame, &detections, 0.5);
-                let samples = chosen
-                    .iter()
-                    .map(|instance| {
-                        let index = frame
-                            .instances
-                            .iter()
-                            .position(|i| i.object_id == instance.object_id)
-                            .expect("an instance of this frame");
-                        let Some(d) = found[index] else {
-                            return Ok(None);
-                        };
-                        let detection = &detections[d];
-                        let Some(crop) =
-                            CropRequest::around(frame, &model.config, detection.bbox, |i| {
-                                detection.mask[i]
-                            })
-                        else {
-                            return Ok(None);
-                        };
-                        data::sample_at(
-                            &model.config,
-                            frame,
-                            &crop.window,
-                            crop.z_ref,
-                            &instance.corners_camera,
-                            None,
-                        )
-                        .map(Some)
-                    })
-                    .collect::<Result<Vec<_>, boxpose_learn::LearnError>>()?;
-                detection_scorer.add(frame, &detections);
-                samples
-            }
+        let crops = match &segmenter {
+            Some(segmenter) => CropSource::Segmenter(segmenter),
+            None => CropSource::GroundTruth,
         };
-        let inputs: Vec<Vec<f32>> = samples.iter().flatten().map(|s| s.input.clone()).collect();
-        let mut heatmaps = model.heatmaps(&inputs, args.batch_size)?.into_iter();
-        for (instance, sample) in chosen.iter().zip(&samples) {
-            let eval = match sample {
-                Some(sample) => {
-                    let heatmap = heatmaps.next().expect("one heatmap per found instance");
-                    evaluation::evaluate_instance(
-                        &model.config,
-                        instance,
-                        &heatmap,
-                        &sample.target,
-                        &sample.grid,
-                    )?
-                }
-                None => evaluation::missed_instance(instance)?,
-            };
+        let evaluated = evaluation::evaluate_frame(&model, frame, &chosen, crops, args.batch_size)?;
+        if let Some(detections) = &evaluated.detections {
+            detection_scorer.add(frame, detections);
+        }
+        for (instance, eval) in chosen.iter().zip(evaluated.evals) {
             for (method, outcome) in &eval.fits {
                 fit_rows.push(FitRow {
                     scene_id: instance.scene_id,

@@ -1,7 +1,8 @@
 //! Scores of the network on ground-truth instances: the heatmap loss, corner recall, and every
-//! pose fit's metrics. Shared by validation during training and by `boxpose eval`.
+//! pose fit's metrics; and the crops they are scored on, from the ground truth or the segmenter.
+//! Shared by validation during training, `boxpose eval` and the counterexample search.
 
-use boxpose_data::Instance;
+use boxpose_data::{Frame, Instance};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::heatmap::VoxelGrid;
 use boxpose_geometry::pipeline::{self, Method, Scores};
@@ -9,7 +10,9 @@ use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::LearnError;
 use crate::config::NetworkConfig;
-use crate::inference;
+use crate::data::{self, Sample};
+use crate::inference::{self, CropRequest, KeypointModel};
+use crate::segmentation::{self, Detection, SegmenterModel};
 
 /// A true corner counts as found when a back-projected peak lies within this distance (metres).
 pub const CORNER_RECALL_RADIUS_M: f64 = 0.02;
@@ -175,4 +178,126 @@ pub fn summarize(evals: &[InstanceEval]) -> Summary {
             .copied()
             .unwrap_or(f64::NAN),
     }
+}
+
+/// Where the keypoint network's crops come from.
+#[derive(Clone, Copy)]
+pub enum CropSource<'a> {
+    /// Each box's ground-truth visible mask and box.
+    GroundTruth,
+    /// The segmenter's detection matched to each box (COCO's matching at mask IoU 0.5).
+    Segmenter(&'a SegmenterModel),
+}
+
+/// The crops of some instances of a frame, and the segmenter's detections when it ran.
+pub struct FrameSamples {
+    /// Per instance asked for, its crop and target; None for a box the segmenter did not find.
+    pub samples: Vec<Option<Sample>>,
+    pub detections: Option<Vec<Detection>>,
+}
+
+/// The crops of `instances` (of `frame`) for the keypoint network, with their targets.
+pub fn instance_samples(
+    config: &NetworkConfig,
+    frame: &Frame,
+    instances: &[&Instance],
+    crops: CropSource,
+) -> Result<FrameSamples, LearnError> {
+    let with_frame = |e: LearnError| {
+        LearnError::Data(format!(
+            "scene {} frame {}: {e}",
+            frame.scene_id, frame.frame_id
+        ))
+    };
+    let CropSource::Segmenter(segmenter) = crops else {
+        let samples = instances
+            .iter()
+            .map(|instance| data::instance_sample(config, frame, instance, None).map(Some))
+            .collect::<Result<_, _>>()
+            .map_err(with_frame)?;
+        return Ok(FrameSamples {
+            samples,
+            detections: None,
+        });
+    };
+    let detections = segmenter.segment(&[frame])?.remove(0);
+    let found = segmentation::match_detections(frame, &detections, 0.5);
+    let samples = instances
+        .iter()
+        .map(|instance| {
+            let index = frame
+                .instances
+                .iter()
+                .position(|i| i.object_id == instance.object_id)
+                .ok_or_else(|| {
+                    LearnError::Data(format!(
+                        "object {} is not in this frame",
+                        instance.object_id
+                    ))
+                })?;
+            let Some(detection) = found[index].map(|d| &detections[d]) else {
+                return Ok(None);
+            };
+            let Some(crop) =
+                CropRequest::around(frame, config, detection.bbox, |i| detection.mask[i])
+            else {
+                return Ok(None);
+            };
+            data::sample_at(
+                config,
+                frame,
+                &crop.window,
+                crop.z_ref,
+                &instance.corners_camera,
+                None,
+            )
+            .map(Some)
+        })
+        .collect::<Result<_, LearnError>>()
+        .map_err(with_frame)?;
+    Ok(FrameSamples {
+        samples,
+        detections: Some(detections),
+    })
+}
+
+/// One frame evaluated: each chosen instance's scores, and the segmenter's detections.
+pub struct FrameEvaluation {
+    pub evals: Vec<InstanceEval>,
+    pub detections: Option<Vec<Detection>>,
+}
+
+/// Evaluates the keypoint network on `instances` of `frame`, on crops from `crops` (a box the
+/// segmenter missed scores as missed), `batch_size` crops per forward pass.
+pub fn evaluate_frame(
+    model: &KeypointModel,
+    frame: &Frame,
+    instances: &[&Instance],
+    crops: CropSource,
+    batch_size: usize,
+) -> Result<FrameEvaluation, LearnError> {
+    let FrameSamples {
+        samples,
+        detections,
+    } = instance_samples(&model.config, frame, instances, crops)?;
+    let inputs: Vec<Vec<f32>> = samples.iter().flatten().map(|s| s.input.clone()).collect();
+    let mut heatmaps = model.heatmaps(&inputs, batch_size)?.into_iter();
+    let evals = instances
+        .iter()
+        .zip(&samples)
+        .map(|(instance, sample)| match sample {
+            Some(sample) => {
+                let heatmap = heatmaps.next().expect("one heatmap per found instance");
+                evaluate_instance(
+                    &model.config,
+                    instance,
+                    &heatmap,
+                    &sample.target,
+                    &sample.grid,
+                )
+            }
+            None => missed_instance(instance),
+        })
+        .collect::<Result<_, _>>()?;
+    Ok(FrameEvaluation { evals, detections })
 }

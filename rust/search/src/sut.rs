@@ -10,9 +10,9 @@ use boxpose_geometry::BoxModel;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::{self, Method, Scores};
 use boxpose_learn::data;
-use boxpose_learn::evaluation;
-use boxpose_learn::inference::{self, CropRequest, KeypointModel};
-use boxpose_learn::segmentation::{self, SegmenterModel};
+use boxpose_learn::evaluation::{self, CropSource};
+use boxpose_learn::inference::{self, KeypointModel};
+use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_physics::RecipePhysics;
 use boxpose_render::{RenderRequest, Renderer};
 use nalgebra::{Point3, Vector3};
@@ -379,35 +379,14 @@ impl SystemUnderTest {
     ) -> Result<(Perceived, Vec<[f64; 3]>)> {
         let start = Instant::now();
         let config = &self.model.config;
-        let sample = match &self.segmenter {
-            Some(segmenter) if self.crops == Crops::Predicted => {
-                let detections = segmenter.segment(&[frame])?.remove(0);
-                let index = frame
-                    .instances
-                    .iter()
-                    .position(|i| i.object_id == instance.object_id)
-                    .expect("the target is one of the frame's instances");
-                let found = segmentation::match_detections(frame, &detections, 0.5)[index];
-                let Some(detection) = found.map(|d| &detections[d]) else {
-                    seconds.inference = start.elapsed().as_secs_f64();
-                    return Ok((Perceived::NotDetected, Vec::new()));
-                };
-                let Some(crop) =
-                    CropRequest::around(frame, config, detection.bbox, |i| detection.mask[i])
-                else {
-                    seconds.inference = start.elapsed().as_secs_f64();
-                    return Ok((Perceived::NotDetected, Vec::new()));
-                };
-                data::sample_at(
-                    config,
-                    frame,
-                    &crop.window,
-                    crop.z_ref,
-                    &instance.corners_camera,
-                    None,
-                )?
-            }
-            _ => data::instance_sample(config, frame, instance, None)?,
+        let crops = match &self.segmenter {
+            Some(segmenter) if self.crops == Crops::Predicted => CropSource::Segmenter(segmenter),
+            _ => CropSource::GroundTruth,
+        };
+        let mut crop = evaluation::instance_samples(config, frame, &[instance], crops)?;
+        let Some(sample) = crop.samples.remove(0) else {
+            seconds.inference = start.elapsed().as_secs_f64();
+            return Ok((Perceived::NotDetected, Vec::new()));
         };
         let heatmap = self
             .model
