@@ -130,7 +130,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             .iter()
             .filter(|r| r.method == method)
             .filter_map(|r| {
-                let scores = r.outcome.as_ref().ok()?;
+                let scores = r.outcome.scores()?;
                 Some(normalized_paper_error(scores.paper_error, r.diameter_m))
             })
             .collect()

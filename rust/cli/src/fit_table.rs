@@ -3,7 +3,7 @@
 use std::sync::Arc;
 
 use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, StringArray};
-use boxpose_geometry::pipeline::{Method, Scores};
+use boxpose_geometry::pipeline::{FitOutcome, Method, Scores};
 
 pub struct FitRow {
     pub scene_id: i64,
@@ -11,7 +11,7 @@ pub struct FitRow {
     pub object_id: i32,
     pub method: Method,
     pub diameter_m: f64,
-    pub outcome: Result<Scores, String>,
+    pub outcome: FitOutcome,
 }
 
 /// The columns of [`boxpose_data::schema::EVAL_GEOMETRY`] (documented there), in order.
@@ -19,7 +19,7 @@ pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
     let metric = |get: fn(&Scores) -> f64| -> ArrayRef {
         Arc::new(
             rows.iter()
-                .map(|r| r.outcome.as_ref().ok().map(get))
+                .map(|r| r.outcome.scores().map(get))
                 .collect::<Float64Array>(),
         )
     };
@@ -44,17 +44,17 @@ pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
         metric(|s| s.noise_scale_m),
         Arc::new(
             rows.iter()
-                .map(|r| r.outcome.as_ref().ok().map(|s| s.inliers as i32))
+                .map(|r| r.outcome.scores().map(|s| s.inliers as i32))
                 .collect::<Int32Array>(),
         ),
         Arc::new(
             rows.iter()
-                .map(|r| r.outcome.as_ref().ok().map(|s| s.mirror_ambiguous))
+                .map(|r| r.outcome.scores().map(|s| s.mirror_ambiguous))
                 .collect::<BooleanArray>(),
         ),
         Arc::new(
             rows.iter()
-                .map(|r| r.outcome.as_ref().err().map(String::as_str))
+                .map(|r| r.outcome.failure())
                 .collect::<StringArray>(),
         ),
     ]
@@ -87,7 +87,7 @@ pub fn print(rows: &[FitRow]) {
         let of_method: Vec<&FitRow> = rows.iter().filter(|r| r.method == method).collect();
         let scored: Vec<(&Scores, f64)> = of_method
             .iter()
-            .filter_map(|r| r.outcome.as_ref().ok().map(|s| (s, r.diameter_m)))
+            .filter_map(|r| r.outcome.scores().map(|s| (s, r.diameter_m)))
             .collect();
         let name = method.name();
         if scored.is_empty() {

@@ -183,8 +183,49 @@ pub struct Scores {
     pub fitted_corners: [[f64; 3]; 8],
 }
 
+/// What became of one pose fit of one box.
+// Nearly every outcome is `Scored`, so boxing the scores would only add an allocation per fit.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, PartialEq)]
+pub enum FitOutcome {
+    /// The fit returned a pose, scored against the truth.
+    Scored(Scores),
+    /// The fit ran and failed: the geometry error (too few peaks, a degenerate set, …).
+    Failed(String),
+    /// No fit ran: the detector (the segmenter) did not find the box.
+    NotDetected,
+}
+
+impl FitOutcome {
+    /// The scores, when the fit returned a pose.
+    pub fn scores(&self) -> Option<&Scores> {
+        match self {
+            Self::Scored(scores) => Some(scores),
+            Self::Failed(_) | Self::NotDetected => None,
+        }
+    }
+
+    /// Why there is no pose, as the result tables' `fit_error` column says it; None when scored.
+    pub fn failure(&self) -> Option<&str> {
+        match self {
+            Self::Scored(_) => None,
+            Self::Failed(error) => Some(error),
+            Self::NotDetected => Some("not found by the segmenter"),
+        }
+    }
+}
+
+impl From<Result<Scores, GeometryError>> for FitOutcome {
+    fn from(result: Result<Scores, GeometryError>) -> Self {
+        match result {
+            Ok(scores) => Self::Scored(scores),
+            Err(e) => Self::Failed(e.to_string()),
+        }
+    }
+}
+
 /// Runs every [`Method`] on `points` (with NMS `scores`, best first) and scores each against the
-/// true pose of `model`; a fit that fails gives its error message instead of scores.
+/// true pose of `model`; a fit that fails gives its error instead of scores.
 ///
 /// The size-known fits are scored with the true model. The size-and-pose fits are scored as the
 /// box they fitted: their MSSD compares their own corners with the true ones and their ADD-S their
@@ -195,7 +236,7 @@ pub fn fit_and_score(
     truth: &Isometry3<f64>,
     points: &[Point3<f64>],
     scores: &[f64],
-) -> Vec<(Method, Result<Scores, String>)> {
+) -> Vec<(Method, FitOutcome)> {
     fit_and_score_methods(&Method::ALL, model, truth, points, scores)
 }
 
@@ -205,35 +246,32 @@ fn fit_and_score_methods(
     truth: &Isometry3<f64>,
     points: &[Point3<f64>],
     scores: &[f64],
-) -> Vec<(Method, Result<Scores, String>)> {
+) -> Vec<(Method, FitOutcome)> {
     let truth_corners: Vec<Point3<f64>> = model.corners().iter().map(|c| truth * c).collect();
-    let text = |e: GeometryError| e.to_string();
-    let score = |fitted: &Fitted, fit_time_us: f64| -> Result<Scores, String> {
-        let confidence = fitted.confidence(points).map_err(text)?;
+    let score = |fitted: &Fitted, fit_time_us: f64| -> Result<Scores, GeometryError> {
+        let confidence = fitted.confidence(points)?;
         let (mssd_m, add_s_m, rotation_error_deg) = if fitted.fits_size {
             let (relabelled, _, mssd_m) =
                 closest_labelling(&fitted.model, &fitted.pose, &truth_corners);
-            let add_s_m =
-                metrics::add_s_between(&fitted.model, &fitted.pose, model, truth).map_err(text)?;
+            let add_s_m = metrics::add_s_between(&fitted.model, &fitted.pose, model, truth)?;
             (
                 mssd_m,
                 add_s_m,
-                metrics::rotation_error_deg(model, &relabelled, truth).map_err(text)?,
+                metrics::rotation_error_deg(model, &relabelled, truth)?,
             )
         } else {
             (
-                metrics::mssd(model, &fitted.pose, truth).map_err(text)?,
-                metrics::add_s(model, &fitted.pose, truth).map_err(text)?,
-                metrics::rotation_error_deg(model, &fitted.pose, truth).map_err(text)?,
+                metrics::mssd(model, &fitted.pose, truth)?,
+                metrics::add_s(model, &fitted.pose, truth)?,
+                metrics::rotation_error_deg(model, &fitted.pose, truth)?,
             )
         };
         Ok(Scores {
-            paper_error: metrics::paper_error(&fitted.model, &fitted.pose, &truth_corners)
-                .map_err(text)?,
+            paper_error: metrics::paper_error(&fitted.model, &fitted.pose, &truth_corners)?,
             mssd_m,
             add_s_m,
             rotation_error_deg,
-            translation_error_m: metrics::translation_error(&fitted.pose, truth).map_err(text)?,
+            translation_error_m: metrics::translation_error(&fitted.pose, truth)?,
             fit_time_us,
             confidence: confidence.confidence,
             margin_nats: confidence.margin_nats,
@@ -252,10 +290,7 @@ fn fit_and_score_methods(
             let start = Instant::now();
             let fitted = fit_method(method, model, points, scores);
             let fit_time_us = start.elapsed().as_secs_f64() * 1e6;
-            (
-                method,
-                fitted.map_err(text).and_then(|f| score(&f, fit_time_us)),
-            )
+            (method, fitted.and_then(|f| score(&f, fit_time_us)).into())
         })
         .collect()
 }
@@ -267,7 +302,7 @@ pub fn fit_and_score_one(
     truth: &Isometry3<f64>,
     points: &[Point3<f64>],
     scores: &[f64],
-) -> Result<Scores, String> {
+) -> FitOutcome {
     fit_and_score_methods(&[method], model, truth, points, scores)
         .remove(0)
         .1

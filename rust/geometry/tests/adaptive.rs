@@ -213,7 +213,7 @@ fn pipeline_scores_every_method_with_a_confidence() {
         ]
     );
     for (method, outcome) in &scored {
-        let s = outcome.as_ref().unwrap();
+        let s = outcome.scores().expect("a scored fit");
         assert!(
             (0.0..1.0).contains(&s.confidence),
             "{}: {}",

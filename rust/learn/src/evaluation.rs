@@ -5,7 +5,7 @@
 use boxpose_data::{Frame, Instance};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::heatmap::VoxelGrid;
-use boxpose_geometry::pipeline::{self, Method, Scores};
+use boxpose_geometry::pipeline::{self, FitOutcome, Method};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::LearnError;
@@ -26,7 +26,7 @@ pub struct InstanceEval {
     pub heatmap_mse: f64,
     /// True corners with a peak within [`CORNER_RECALL_RADIUS_M`], of 8.
     pub corners_found: usize,
-    pub fits: Vec<(Method, Result<Scores, String>)>,
+    pub fits: Vec<(Method, FitOutcome)>,
 }
 
 /// The box's true pose in the camera frame.
@@ -83,7 +83,7 @@ pub fn missed_instance(instance: &Instance) -> Result<InstanceEval, LearnError> 
         corners_found: 0,
         fits: Method::ALL
             .into_iter()
-            .map(|m| (m, Err("not found by the segmenter".to_string())))
+            .map(|m| (m, FitOutcome::NotDetected))
             .collect(),
     })
 }
@@ -131,7 +131,9 @@ fn mssd_recall(evals: &[InstanceEval], method: Method, fraction: f64) -> f64 {
         .iter()
         .filter(|e| {
             e.fits.iter().any(|(m, s)| {
-                *m == method && s.as_ref().is_ok_and(|s| s.mssd_m < fraction * e.diameter_m)
+                *m == method
+                    && s.scores()
+                        .is_some_and(|s| s.mssd_m < fraction * e.diameter_m)
             })
         })
         .count();
@@ -156,7 +158,7 @@ pub fn summarize(evals: &[InstanceEval]) -> Summary {
             e.fits
                 .iter()
                 .find(|(m, _)| *m == Method::PaperExact)
-                .and_then(|(_, s)| s.as_ref().ok())
+                .and_then(|(_, s)| s.scores())
                 .map(|s| s.paper_error)
         })
         .collect();

@@ -69,6 +69,9 @@ fn crops_targets_and_batching_do_not_use_burn() {
             .join(format!("{module}.rs"));
         let text = std::fs::read_to_string(path).expect("read a module");
         assert!(!text.contains("burn::"), "{module}.rs uses burn");
-        assert!(!text.contains("crate::training"), "{module}.rs uses training");
+        assert!(
+            !text.contains("crate::training"),
+            "{module}.rs uses training"
+        );
     }
 }

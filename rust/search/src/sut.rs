@@ -8,7 +8,7 @@ use arrow::record_batch::RecordBatch;
 use boxpose_data::{Frame, Instance, Object, Scene};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
-use boxpose_geometry::pipeline::{self, Method, Scores};
+use boxpose_geometry::pipeline::{self, FitOutcome, Method, Scores};
 use boxpose_learn::data;
 use boxpose_learn::evaluation::{self, CropSource};
 use boxpose_learn::inference::{self, KeypointModel};
@@ -406,11 +406,15 @@ impl SystemUnderTest {
             &scores,
         );
         seconds.fit = start.elapsed().as_secs_f64();
-        let perceived = match outcome.map(|s| Metrics::of(&s, instance.size)) {
-            Ok(m) if m.is_finite() => Perceived::Fitted(m),
-            // a committed sample must read back: a NaN metric is a fit that failed, named as such
-            Ok(m) => Perceived::FitFailed(format!("the fit's metrics are not finite: {m:?}")),
-            Err(e) => Perceived::FitFailed(e),
+        let perceived = match outcome {
+            FitOutcome::Scored(s) => match Metrics::of(&s, instance.size) {
+                m if m.is_finite() => Perceived::Fitted(m),
+                // a committed sample must read back: a NaN metric is a fit that failed, named as
+                // such
+                m => Perceived::FitFailed(format!("the fit's metrics are not finite: {m:?}")),
+            },
+            FitOutcome::Failed(e) => Perceived::FitFailed(e),
+            FitOutcome::NotDetected => Perceived::NotDetected,
         };
         Ok((
             perceived,
