@@ -7,7 +7,7 @@ use anyhow::{Context, bail};
 use boxpose_data::{Pose, schema, shard_file_name, write_shard};
 use boxpose_render::arrow::array::{Array, AsArray};
 use boxpose_render::arrow::record_batch::RecordBatch;
-use boxpose_render::{RenderRequest, Renderer, conform, scene_rows};
+use boxpose_render::{RenderRequest, Renderer, scene_rows};
 
 /// Re-render frames of one scene of a dataset with the embedded Blender.
 ///
@@ -163,18 +163,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         instances.push(out.instances);
     }
     let name = shard_file_name(0, 1);
-    write_shard(
-        &args.out,
-        &schema::SCENES,
-        &name,
-        &[conform(&scenes, &schema::SCENES)?],
-    )?;
-    write_shard(
-        &args.out,
-        &schema::OBJECTS,
-        &name,
-        &[conform(&objects, &schema::OBJECTS)?],
-    )?;
+    // scene_rows returned them in the contract's schema
+    write_shard(&args.out, &schema::SCENES, &name, &[scenes])?;
+    write_shard(&args.out, &schema::OBJECTS, &name, &[objects])?;
     write_shard(&args.out, &schema::INSTANCES, &name, &instances)?;
     write_shard(&args.out, &schema::FRAMES, &name, &frames)?;
     println!("rows: {}", args.out.display());

@@ -13,7 +13,7 @@ pub mod support;
 mod writer;
 
 pub use error::{DataError, Result};
-pub use reader::{Dataset, FrameEntry, FrameIter, ShardBatch, decode_frames, read_shard};
+pub use reader::{Dataset, FrameEntry, FrameIter, ShardBatch, conform, decode_frames, read_shard};
 pub use rows::{Frame, Instance, Intrinsics, Object, Pose, Scene, Visibility};
 pub use writer::{shard_file_name, write_file_atomically, write_parquet, write_shard, write_table};
 

@@ -3,7 +3,8 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use arrow::array::{Array, AsArray};
+use arrow::array::{Array, AsArray, BooleanArray};
+use arrow::compute::{cast, concat_batches, filter_record_batch};
 use arrow::datatypes::{DataType, Float32Type, Float64Type, Int32Type, Int64Type};
 use arrow::record_batch::RecordBatch;
 use parquet::arrow::ProjectionMask;
@@ -206,6 +207,37 @@ impl Dataset {
             }
         }
         Ok(out)
+    }
+
+    /// The `scenes` row of `scene_id` and its `objects` rows, as batches of the contract's schema
+    /// ([`conform`]ed): what a renderer loads a scene from. None when there is no such scene.
+    pub fn scene_batches(&self, scene_id: i64) -> Result<Option<(RecordBatch, RecordBatch)>> {
+        let pick = |table: &'static Table| -> Result<RecordBatch> {
+            let mut parts = Vec::new();
+            for sb in self.read_table(table)? {
+                let ids = key_column::<Int64Type>(&sb, "scene_id")?;
+                let keep: BooleanArray = ids.iter().map(|&id| Some(id == scene_id)).collect();
+                let arrow_error = |source| DataError::Arrow {
+                    path: sb.path.clone(),
+                    source,
+                };
+                let part = filter_record_batch(&sb.batch, &keep).map_err(arrow_error)?;
+                if part.num_rows() > 0 {
+                    parts.push(conform(&sb.path, &part, table)?);
+                }
+            }
+            concat_batches(&Arc::new(table.arrow_schema()), &parts).map_err(|source| {
+                DataError::Arrow {
+                    path: self.root.join(table.name),
+                    source,
+                }
+            })
+        };
+        let scenes = pick(&schema::SCENES)?;
+        if scenes.num_rows() == 0 {
+            return Ok(None);
+        }
+        Ok(Some((scenes, pick(&schema::OBJECTS)?)))
     }
 
     /// Decoded frames, each with its instances, shard by shard. Instances are loaded up front
@@ -606,6 +638,27 @@ pub fn decode_frames(
             Ok(frame)
         })
         .collect()
+}
+
+/// `batch` (from `source`, for messages) with exactly the contract schema of `table`: columns in
+/// contract order, cast to the contract types (Parquet writers name list items differently).
+pub fn conform(source: &Path, batch: &RecordBatch, table: &Table) -> Result<RecordBatch> {
+    let arrow_error = |source_error| DataError::Arrow {
+        path: source.to_path_buf(),
+        source: source_error,
+    };
+    let mut columns = Vec::with_capacity(table.columns.len());
+    for column in table.columns {
+        let array = batch
+            .column_by_name(column.name)
+            .ok_or_else(|| DataError::MissingColumn {
+                path: source.to_path_buf(),
+                table: table.name,
+                column: column.name,
+            })?;
+        columns.push(cast(array, &column.arrow_type()).map_err(arrow_error)?);
+    }
+    RecordBatch::try_new(Arc::new(table.arrow_schema()), columns).map_err(arrow_error)
 }
 
 /// Reads and validates one shard of `table`.
