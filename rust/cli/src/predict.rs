@@ -348,16 +348,14 @@ fn finish(
 }
 
 fn find_frame(dataset: &Path, scene: i64, frame_id: i32) -> anyhow::Result<Frame> {
-    for frame in Dataset::open(dataset)?.frames()? {
-        let frame = frame?;
-        if frame.scene_id == scene && frame.frame_id == frame_id {
-            return Ok(frame);
-        }
-    }
-    bail!(
-        "{}: no frame {frame_id} of scene {scene} (`boxpose inspect` lists them)",
-        dataset.display()
-    )
+    Dataset::open(dataset)?
+        .frame(scene, frame_id)?
+        .with_context(|| {
+            format!(
+                "{}: no frame {frame_id} of scene {scene} (`boxpose inspect` lists them)",
+                dataset.display()
+            )
+        })
 }
 
 fn gt_targets(frame: &Frame, model: &KeypointModel) -> Vec<Target> {

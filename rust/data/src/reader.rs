@@ -276,6 +276,16 @@ impl Dataset {
             .collect())
     }
 
+    /// Frame `frame_id` of scene `scene_id`, decoded alone (the others' images are not read);
+    /// None when the dataset has no such frame.
+    pub fn frame(&self, scene_id: i64, frame_id: i32) -> Result<Option<Frame>> {
+        self.frame_index()?
+            .into_iter()
+            .find(|entry| (entry.scene_id, entry.frame_id) == (scene_id, frame_id))
+            .map(|entry| entry.read())
+            .transpose()
+    }
+
     /// The frames' keys (only the key columns are read) and instances, joins checked.
     fn frame_keys(&self) -> Result<FrameKeys> {
         let shards = self.shards(&schema::FRAMES)?;

@@ -161,6 +161,17 @@ pub fn crop_input(
     )
 }
 
+/// The pixel of an image of `len` pixels nearest to the centre of pixel `index` of a grid that
+/// advances `image_pixels / grid_pixels` image pixels per grid pixel, both with pixel centres at
+/// +0.5 (the convention of [`CropTransform`]), clamped to the image. The ratio is kept as two
+/// numbers so that ties round the same whichever way a caller scales.
+pub fn nearest_source(index: usize, image_pixels: f64, grid_pixels: f64, len: usize) -> usize {
+    (((index as f64 + 0.5) * image_pixels / grid_pixels - 0.5)
+        .round()
+        .max(0.0) as usize)
+        .min(len - 1)
+}
+
 /// The network input `[4, height, width]` (R, G, B, depth) of the image region that starts at
 /// pixel `origin` and advances `step` image pixels per input pixel: RGB resampled bilinearly,
 /// depth by nearest neighbour (interpolating across a box's edge would invent surfaces), both

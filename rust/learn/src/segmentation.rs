@@ -157,9 +157,9 @@ fn output_labels(config: &SegmenterConfig, frame: &Frame) -> Vec<u16> {
     let [sx, sy] = input_step(config, frame);
     let mut labels = vec![0u16; w * h];
     for v in 0..h {
-        let y = (((v as f64 + 0.5) * 4.0 * sy - 0.5).round() as usize).min(frame.height - 1);
+        let y = data::nearest_source(v, 4.0 * sy, 1.0, frame.height);
         for u in 0..w {
-            let x = (((u as f64 + 0.5) * 4.0 * sx - 0.5).round() as usize).min(frame.width - 1);
+            let x = data::nearest_source(u, 4.0 * sx, 1.0, frame.width);
             labels[v * w + u] = frame.instance_mask[y * frame.width + x];
         }
     }
@@ -260,10 +260,9 @@ pub fn decode(config: &SegmenterConfig, frame: &Frame, output: &[f32]) -> Vec<De
         let mut mask = vec![false; frame.width * frame.height];
         let mut bbox = [i32::MAX, i32::MAX, i32::MIN, i32::MIN];
         for y in 0..frame.height {
-            let v = (((y as f64 + 0.5) / (4.0 * sy) - 0.5).round().max(0.0) as usize).min(h - 1);
+            let v = data::nearest_source(y, 1.0, 4.0 * sy, h);
             for x in 0..frame.width {
-                let u =
-                    (((x as f64 + 0.5) / (4.0 * sx) - 0.5).round().max(0.0) as usize).min(w - 1);
+                let u = data::nearest_source(x, 1.0, 4.0 * sx, w);
                 if owner[v * w + u] == k {
                     mask[y * frame.width + x] = true;
                     bbox = [
