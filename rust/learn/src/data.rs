@@ -95,7 +95,7 @@ pub fn voxel_grid(
     }
 }
 
-pub fn heatmap_dims(config: &NetworkConfig) -> HeatmapDims {
+pub(crate) fn heatmap_dims(config: &NetworkConfig) -> HeatmapDims {
     let n = config.heatmap_size();
     HeatmapDims {
         depth: config.depth_bins,
@@ -107,7 +107,7 @@ pub fn heatmap_dims(config: &NetworkConfig) -> HeatmapDims {
 /// The crop's reference depth: the median depth of the pixels inside the window that `belongs`
 /// to the box (its mask, ground truth or predicted), or of all valid pixels of the window when
 /// none does. `None` when the window has no depth at all.
-pub fn reference_depth(
+pub(crate) fn reference_depth(
     frame: &Frame,
     window: &CropWindow,
     belongs: impl Fn(usize) -> bool,
@@ -143,7 +143,7 @@ pub fn reference_depth(
 }
 
 /// The network input `[4, S, S]` (R, G, B, depth) of a square window.
-pub fn crop_input(
+pub(crate) fn crop_input(
     frame: &Frame,
     window: &CropWindow,
     z_ref: f64,
@@ -165,7 +165,12 @@ pub fn crop_input(
 /// advances `image_pixels / grid_pixels` image pixels per grid pixel, both with pixel centres at
 /// +0.5 (the convention of [`CropTransform`]), clamped to the image. The ratio is kept as two
 /// numbers so that ties round the same whichever way a caller scales.
-pub fn nearest_source(index: usize, image_pixels: f64, grid_pixels: f64, len: usize) -> usize {
+pub(crate) fn nearest_source(
+    index: usize,
+    image_pixels: f64,
+    grid_pixels: f64,
+    len: usize,
+) -> usize {
     (((index as f64 + 0.5) * image_pixels / grid_pixels - 0.5)
         .round()
         .max(0.0) as usize)
@@ -176,7 +181,7 @@ pub fn nearest_source(index: usize, image_pixels: f64, grid_pixels: f64, len: us
 /// pixel `origin` and advances `step` image pixels per input pixel: RGB resampled bilinearly,
 /// depth by nearest neighbour (interpolating across a box's edge would invent surfaces), both
 /// with the half-pixel-centre convention of [`CropTransform`]. Outside the image: grey, no depth.
-pub fn resample_input(
+pub(crate) fn resample_input(
     frame: &Frame,
     origin: [f64; 2],
     step: [f64; 2],
@@ -280,7 +285,7 @@ pub struct Sample {
 
 /// The crop of a ground-truth instance: its visible bbox (jittered when augmenting) and the
 /// median depth of its own mask.
-pub fn instance_sample(
+pub(crate) fn instance_sample(
     config: &NetworkConfig,
     frame: &Frame,
     instance: &Instance,
@@ -322,7 +327,7 @@ pub fn instance_sample(
 }
 
 /// The sample of a box with true corners `corners_camera` in any crop (a predicted one, say).
-pub fn sample_at(
+pub(crate) fn sample_at(
     config: &NetworkConfig,
     frame: &Frame,
     window: &CropWindow,

@@ -38,7 +38,7 @@ pub fn true_pose(instance: &Instance) -> Isometry3<f64> {
 }
 
 /// Scores one heatmap (from the crop `grid`) against its instance's truth and `target`.
-pub fn evaluate_instance(
+pub(crate) fn evaluate_instance(
     config: &NetworkConfig,
     instance: &Instance,
     heatmap: &[f32],
@@ -74,7 +74,7 @@ pub fn evaluate_instance(
 }
 
 /// An instance the segmenter missed: no corner found, every fit a failure.
-pub fn missed_instance(instance: &Instance) -> Result<InstanceEval, LearnError> {
+pub(crate) fn missed_instance(instance: &Instance) -> Result<InstanceEval, LearnError> {
     let model = BoxModel::new(Vector3::from(instance.size))?;
     Ok(InstanceEval {
         diameter_m: model.diameter(),

@@ -17,9 +17,9 @@ use crate::data::{self, CropWindow};
 use crate::model::KeypointNet;
 use crate::model_dir::{load_model_dir, save_model_dir};
 
-pub const NETWORK_FILE: &str = "network.toml";
+pub(crate) const NETWORK_FILE: &str = "network.toml";
 /// Peaks taken from each heatmap: one per box corner, as the paper.
-pub const PEAK_COUNT: usize = 8;
+pub(crate) const PEAK_COUNT: usize = 8;
 
 /// A trained keypoint network, ready for inference on one device.
 pub struct KeypointModel {

@@ -113,7 +113,7 @@ impl Task for KeypointTask {
     }
 
     /// The paper's loss, mean squared error of the heatmap against the Gaussian target, with each
-    /// voxel weighted by 1 + positive_weight·target (see [`OptimizerConfig::positive_weight`]).
+    /// voxel weighted by 1 + positive_weight·target (see [`crate::config::OptimizerConfig::positive_weight`]).
     fn loss(&self, output: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
         let weight = target.clone() * self.config.optimizer.positive_weight + 1.0;
         ((output - target).powi_scalar(2) * weight).mean()

@@ -26,7 +26,7 @@ pub trait ExampleSource: Send + Sync + 'static {
 type Example = (Vec<f32>, Vec<f32>);
 
 /// A batch as flat arrays: inputs `[B, C, H, W]`, targets `[B, C', H', W']`.
-pub struct Batch {
+pub(crate) struct Batch {
     pub step: usize,
     pub size: usize,
     pub inputs: Vec<f32>,
@@ -55,7 +55,7 @@ fn sampled_item(
 /// Prepares training batches of `task` for steps `start_step..end_step`, on `threads` worker
 /// threads, at most two batches ahead of the optimizer; each example's augmentation is seeded by
 /// (seed, step, slot), so the batches do not depend on the thread count.
-pub fn spawn_loader<T: ExampleSource>(
+pub(crate) fn spawn_loader<T: ExampleSource>(
     task: Arc<T>,
     batch_size: usize,
     seed: u64,

@@ -10,7 +10,7 @@ use serde::de::DeserializeOwned;
 use crate::LearnError;
 use crate::model::ResNetDeconv;
 
-pub const WEIGHTS_FILE: &str = "model.bpk";
+pub(crate) const WEIGHTS_FILE: &str = "model.bpk";
 
 /// Reads a trained network's folder: its config (TOML, `config_file`), checked by `validate`,
 /// and its weights (`model.bpk`), loaded into the untrained network `build` makes from it.
@@ -67,7 +67,7 @@ pub(crate) fn save_model_dir<C: Serialize>(
 
 /// Writes a folder by filling `dir.tmp` and renaming it over `dir`, so a reader never sees a
 /// half-written one (an interrupted write leaves the previous folder intact).
-pub fn write_dir_atomically(
+pub(crate) fn write_dir_atomically(
     dir: &Path,
     fill: impl FnOnce(&Path) -> Result<(), LearnError>,
 ) -> Result<(), LearnError> {
@@ -97,7 +97,7 @@ pub fn write_dir_atomically(
 
 /// If a write was interrupted between its two renames, `dir` is missing and `dir.old` is the last
 /// complete folder: put it back.
-pub fn restore_interrupted(dir: &Path, old: &Path) -> Result<(), LearnError> {
+pub(crate) fn restore_interrupted(dir: &Path, old: &Path) -> Result<(), LearnError> {
     if !dir.exists() && old.exists() {
         std::fs::rename(old, dir).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
     }

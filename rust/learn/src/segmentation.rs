@@ -24,7 +24,7 @@ use crate::model::ResNetDeconv;
 use crate::model_dir::{load_model_dir, save_model_dir};
 use crate::training::Task;
 
-pub const SEGMENTER_FILE: &str = "segmenter.toml";
+pub(crate) const SEGMENTER_FILE: &str = "segmenter.toml";
 /// Output channels: foreground logit, centre heatmap, offset to the centre (x, y) in output pixels.
 const OUTPUTS: usize = 4;
 /// Target channels: the outputs' targets and the mask of pixels whose offset is supervised.
@@ -130,7 +130,7 @@ fn input_step(config: &SegmenterConfig, frame: &Frame) -> [f64; 2] {
 }
 
 /// The frame resized to the input, depth relative to the frame's median depth.
-pub fn frame_input(
+pub(crate) fn frame_input(
     config: &SegmenterConfig,
     frame: &Frame,
     augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
@@ -359,10 +359,10 @@ pub struct SegmentationScores {
 }
 
 /// A ground-truth instance for matching: (object id, full-frame mask, bounding box x0, y0, x1, y1).
-pub type TrueMask = (i32, Vec<bool>, [i32; 4]);
+pub(crate) type TrueMask = (i32, Vec<bool>, [i32; 4]);
 
 /// True instances a detector is asked to find: every box with a visible pixel.
-pub fn true_masks(frame: &Frame) -> Vec<TrueMask> {
+pub(crate) fn true_masks(frame: &Frame) -> Vec<TrueMask> {
     frame
         .instances
         .iter()
