@@ -36,7 +36,6 @@ import subprocess
 import sys
 import threading
 import time
-import tomllib
 from collections import deque
 from pathlib import Path
 
@@ -460,17 +459,18 @@ def claim_dataset(args, manifest: dict) -> None:
 
 
 def run(args) -> int:
-    from blender_scripts.recipe import RecipeError, parse_render_recipe
+    from blender_scripts.recipe import parse_render_recipe
+    from drake_scenes.recipe import Recipe, RecipeError
 
     args.recipe_path = resolve_recipe(args.recipe)
     text = args.recipe_path.read_text()
     try:
+        # Both stages' readers, up front: a bad recipe fails before any process starts.
         recipe = parse_render_recipe(text, str(args.recipe_path))
-        num_scenes = (
-            int(tomllib.loads(text)["num_scenes"]) if args.num_scenes is None else args.num_scenes
-        )
-    except (RecipeError, KeyError, ValueError) as e:
+        scene_recipe = Recipe.from_toml(text, str(args.recipe_path))
+    except RecipeError as e:
         raise DriverError(str(e)) from e
+    num_scenes = scene_recipe.num_scenes if args.num_scenes is None else args.num_scenes
     args.dataset = (
         args.dataset or REPO / "datasets" / "generated" / args.recipe_path.stem
     ).resolve()
