@@ -113,7 +113,13 @@ def main(argv: list[str] | None = None) -> int:
 
     from blender_scripts.recipe import RecipeError
     from blender_scripts.session import RenderInputError
-    from boxpose_io import ShardError, shard_path, table_from_rows, write_shard
+    from boxpose_io import (
+        ShardError,
+        publish_atomically,
+        shard_path,
+        table_from_rows,
+        write_shard,
+    )
 
     try:
         scenes, _objects, by_scene = read_shard_rows(args.dataset, args.shard, args.num_shards)
@@ -146,9 +152,10 @@ def main(argv: list[str] | None = None) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
         for name in ("instances", "frames"):
             path = args.out / f"{name}-{start:06d}-{stop:06d}.parquet"
-            tmp = path.with_name(path.name + ".tmp")
-            pq.write_table(tables[name], tmp, compression="zstd")
-            os.replace(tmp, path)
+            table = tables[name]
+            publish_atomically(
+                path, lambda tmp, t=table: pq.write_table(t, tmp, compression="zstd")
+            )
     _emit(event="done", frames=len(frames))
     return 0
 

@@ -450,12 +450,7 @@ def claim_dataset(args, manifest: dict) -> None:
                 target.unlink()
         print(f"--regenerate: deleted the outputs of the previous settings in {args.dataset}")
     args.dataset.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f"{MANIFEST}.{os.getpid()}.tmp")
-    with open(tmp, "w") as f:
-        json.dump(manifest, f, indent=2)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    boxpose_io.publish_atomically(path, lambda tmp: tmp.write_text(json.dumps(manifest, indent=2)))
 
 
 def run(args) -> int:

@@ -15,7 +15,14 @@ from boxpose_io.schema import (
     arrow_schema,
     column_names,
 )
-from boxpose_io.shards import ShardError, shard_file_name, shard_path, table_from_rows, write_shard
+from boxpose_io.shards import (
+    ShardError,
+    publish_atomically,
+    shard_file_name,
+    shard_path,
+    table_from_rows,
+    write_shard,
+)
 
 __all__ = [
     "BIN_WALL_THICKNESS_M",
@@ -27,6 +34,7 @@ __all__ = [
     "ShardError",
     "arrow_schema",
     "column_names",
+    "publish_atomically",
     "shard_file_name",
     "shard_path",
     "table_from_rows",

@@ -3,6 +3,7 @@
 import math
 import os
 import secrets
+from collections.abc import Callable
 from pathlib import Path
 
 import pyarrow as pa
@@ -88,26 +89,35 @@ def table_from_rows(table: str, rows: list[dict]) -> pa.Table:
 
 
 def write_shard(path: Path, table: pa.Table) -> Path:
-    """Writes `table` to `path` through a temporary file renamed once complete and synced."""
+    """Writes `table` to `path` atomically ([`publish_atomically`])."""
     path = Path(path)
     expected = arrow_schema(path.parent.name)
     if not table.schema.equals(expected, check_metadata=True):
         raise ShardError(f"{path}: table schema differs from the contract of `{path.parent.name}`")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    # A name of its own per writer, so that two writers of one shard never share a temporary.
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     # Small row groups where the schema asks for them (frames): a reader holds a whole row group.
     row_group_rows = TABLES[path.parent.name].get("row_group_rows")
+    return publish_atomically(
+        path,
+        lambda tmp: pq.write_table(table, tmp, compression="zstd", row_group_size=row_group_rows),
+    )
+
+
+def publish_atomically(path: Path, write: Callable[[Path], object]) -> Path:
+    """Makes `path` appear only when complete: `write` fills a temporary beside it, unique to
+    this writer (two writers of one file never share one), which is synced and renamed over
+    `path`, and the folder is synced (the rename survives a power cut). On any failure (a full
+    disk, an I/O error, an interrupt) the temporary is removed."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.{secrets.token_hex(4)}.tmp")
     try:
-        pq.write_table(table, tmp, compression="zstd", row_group_size=row_group_rows)
+        write(tmp)
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
     except BaseException:
-        # A full disk or an I/O error leaves no temporary behind.
         tmp.unlink(missing_ok=True)
         raise
-    # The rename survives a power cut once the folder is synced too.
     folder = os.open(path.parent, os.O_RDONLY)
     try:
         os.fsync(folder)

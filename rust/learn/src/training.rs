@@ -391,9 +391,7 @@ fn trim_history(run_dir: &Path, step: usize) -> Result<(), LearnError> {
     if kept == text {
         return Ok(());
     }
-    let partial = run_dir.join(format!("{HISTORY_FILE}.partial"));
-    std::fs::write(&partial, kept).map_err(|e| LearnError::Io(partial.clone(), e))?;
-    std::fs::rename(&partial, &path).map_err(|e| LearnError::Io(path, e))
+    Ok(boxpose_data::write_file_atomically(&path, kept.as_bytes())?)
 }
 
 fn append_history(run_dir: &Path, v: &Validation) -> Result<(), LearnError> {
