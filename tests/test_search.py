@@ -18,7 +18,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from conftest import REPO
+from conftest import REPO, run_boxpose
 
 SPACE = """
 name = "test_single_box"
@@ -544,3 +544,78 @@ def test_ground_truth_crops_render_a_region_unless_whole_frames_are_asked_for(
         frames = pd.read_parquet(out / "counterexamples" / "frames")
         widths[name] = set(frames.width) | set(frames.height)
     assert widths["whole"] == {96} and max(widths["region"]) < 96, widths
+
+
+def test_fine_tuning_on_variants_of_the_counterexamples(failing_run, spaces, boxpose_bin, tmp_path):
+    """The learning loop at tiny settings: scenes around each counterexample, the run's network
+    fine-tuned on them mixed with the counterexamples themselves, and a fresh-seed search with
+    the fine-tuned network. (The figures of 2 steps mean nothing; the plumbing is tested.)"""
+    variants = tmp_path / "variants"
+    args = ["variants", failing_run, "--out", variants, "--per-failure", 2, "--threads", 1]
+    r = search(boxpose_bin, *args)
+    scenes = pd.read_parquet(variants / "scenes")
+    frames = pd.read_parquet(variants / "frames")
+    assert 1 <= len(scenes) <= 4 and sorted(frames.scene_id) == sorted(scenes.scene_id)
+    # whole frames at the recipe's size, not the run's target regions
+    assert (frames.width == 96).all() and (frames.height == 96).all()
+    assert "fine-tune: boxpose train --init" in r.stdout
+    assert run_boxpose(boxpose_bin, "inspect", variants).returncode == 0
+    # one shard per failure: a second command finds them done and rewrites nothing
+    shard = next((variants / "frames").glob("*.parquet"))
+    written = shard.stat().st_mtime_ns
+    search(boxpose_bin, *args)
+    assert shard.stat().st_mtime_ns == written
+
+    def train(out, *init):
+        return run_boxpose(
+            boxpose_bin,
+            "train",
+            "--config",
+            REPO / "configs" / "keypoint-slim.toml",
+            "--dataset",
+            failing_run / "counterexamples",
+            "--dataset",
+            variants,
+            "--steps",
+            2,
+            "--batch-size",
+            2,
+            "--validate-every",
+            2,
+            "--out",
+            out,
+            *init,
+        )
+
+    train(tmp_path / "tuned", "--init", REPO / "models" / "keypoint-slim")
+    train(tmp_path / "scratch")
+    tuned = pd.read_csv(tmp_path / "tuned" / "history.csv").iloc[-1]
+    scratch = pd.read_csv(tmp_path / "scratch" / "history.csv").iloc[-1]
+    # the shipped weights already fit these crops far better than random ones
+    assert tuned.train_loss < scratch.train_loss / 3, (tuned.train_loss, scratch.train_loss)
+
+    after = tmp_path / "after"
+    search(
+        boxpose_bin, spaces["single"], "--out", after, "--model", tmp_path / "tuned" / "model",
+        "--samples", 2, "--batch-size", 2, "--seed", 11, "--fail-when", "mssd:0.000001",
+        "--threads", 1,
+    )  # fmt: skip
+    summary = json.loads((after / "summary.json").read_text())
+    assert summary["samples_spent"] == 2
+
+
+def test_fine_tuning_from_another_network_is_one_clear_error(failing_run, boxpose_bin, tmp_path):
+    r = run_boxpose(
+        boxpose_bin,
+        "train",
+        "--config",
+        REPO / "configs" / "tiny.toml",
+        "--dataset",
+        failing_run / "counterexamples",
+        "--init",
+        REPO / "models" / "keypoint-slim",
+        "--out",
+        tmp_path / "run",
+        check=False,
+    )
+    assert r.returncode == 1 and "fine-tuning needs the same network settings" in r.stderr

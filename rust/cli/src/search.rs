@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
+use boxpose_data::{Object, Scene, schema, shard_file_name, write_shard};
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::SegmenterModel;
@@ -18,6 +19,9 @@ use boxpose_search::space::SearchSpace;
 use boxpose_search::sut::{self, Crops, Predicate, SystemUnderTest};
 use boxpose_search_stats::{CeConfig, ImportanceEstimate, clopper_pearson};
 use indicatif::{ProgressBar, ProgressStyle};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::Distribution;
 
 use crate::search_report;
 
@@ -81,6 +85,33 @@ enum Command {
         /// Folder for the replayed frame's overlay and 3D view.
         #[arg(long, default_value = "results/replay")]
         out: PathBuf,
+        /// Cycles threads (0 = all cores).
+        #[arg(long, default_value_t = 0)]
+        threads: usize,
+        #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
+        backend: BackendKind,
+    },
+    /// A training dataset around a run's counterexamples: for each failing sample, scenes whose
+    /// inputs are its own moved by Gaussian noise (in the space's standard-normal coordinates),
+    /// settled and rendered as whole frames like the run's. Fine-tune on it mixed with the
+    /// original data: `boxpose train --init MODEL --dataset ORIGINAL --dataset OUT`. One shard per
+    /// failure: an interrupted command resumes where it stopped.
+    Variants {
+        /// Run folder.
+        run: PathBuf,
+        /// Dataset folder to write (scenes, objects, frames, instances).
+        #[arg(long)]
+        out: PathBuf,
+        /// Scenes drawn around each failing sample.
+        #[arg(long, default_value_t = 8)]
+        per_failure: usize,
+        /// Standard deviation of the move, in the space's standard-normal coordinates (0: the
+        /// failing scene itself, K times).
+        #[arg(long, default_value_t = 0.3)]
+        sigma: f64,
+        /// Seed of the moves.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
         /// Cycles threads (0 = all cores).
         #[arg(long, default_value_t = 0)]
         threads: usize,
@@ -201,6 +232,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             threads,
             backend,
         }) => replay(run, *sample, model.as_deref(), out, *threads, *backend),
+        Some(Command::Variants {
+            run,
+            out,
+            per_failure,
+            sigma,
+            seed,
+            threads,
+            backend,
+        }) => variants(run, out, *per_failure, *sigma, *seed, *threads, *backend),
         Some(Command::Merge { run }) => {
             let run = Run::open(run)?;
             let summary = run.merge()?;
@@ -290,6 +330,119 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A run's search space and system under test, as the run ran it (with another keypoint network
+/// when `model` is given).
+fn system_of(
+    run: &Run,
+    model: Option<&Path>,
+    threads: usize,
+    backend: BackendKind,
+) -> anyhow::Result<(SearchSpace, SystemUnderTest)> {
+    let space = SearchSpace::from_texts(&run.record.space_toml, &run.record.recipe_toml)?;
+    let settings = &run.record.settings;
+    let device = backend.device()?;
+    let model_dir = model.map_or_else(|| PathBuf::from(&settings.model), Path::to_path_buf);
+    let network = KeypointModel::load(&model_dir, device.clone())?;
+    let segmenter = match (&settings.crops, &settings.segmenter) {
+        (Crops::Predicted, Some(dir)) => Some(SegmenterModel::load(Path::new(dir), device)?),
+        _ => None,
+    };
+    let method = sut::method_named(&settings.fit).map_err(anyhow::Error::msg)?;
+    let mut sut = SystemUnderTest::new(
+        &space,
+        Renderer::new(threads)?,
+        network,
+        segmenter,
+        settings.crops,
+        method,
+    )?;
+    sut.whole_frames = settings.whole_frames;
+    Ok((space, sut))
+}
+
+#[allow(clippy::too_many_arguments)]
+fn variants(
+    run_dir: &Path,
+    out: &Path,
+    per_failure: usize,
+    sigma: f64,
+    seed: u64,
+    threads: usize,
+    backend: BackendKind,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(per_failure >= 1, "--per-failure must be at least 1");
+    anyhow::ensure!(
+        sigma.is_finite() && sigma >= 0.0,
+        "--sigma {sigma} must be finite and non-negative"
+    );
+    let run = Run::open(run_dir)?;
+    let (rows, _) = run.rows()?;
+    let failures: Vec<_> = rows.iter().filter(|r| r.valid && r.failed).collect();
+    anyhow::ensure!(
+        !failures.is_empty(),
+        "{}: no valid sample failed, so there is nothing to vary",
+        run_dir.display()
+    );
+    let (space, mut sut) = system_of(&run, None, threads, backend)?;
+    // Whole frames: a training frame shows every box, not only the target's region.
+    sut.whole_frames = true;
+    let bar = ProgressBar::new(failures.len() as u64).with_style(ProgressStyle::with_template(
+        "rendering variants {bar:30} {pos}/{len} failures [{elapsed_precise}<{eta_precise}]",
+    )?);
+    let noise = rand_distr::Normal::new(0.0, sigma)?;
+    let mut written = 0usize;
+    for (index, failure) in failures.iter().enumerate() {
+        let name = shard_file_name(index, failures.len());
+        // frames are written last: their shard marks a finished failure
+        if out.join(schema::FRAMES.name).join(&name).is_file() {
+            bar.inc(1);
+            continue;
+        }
+        let (mut scenes, mut objects, mut frames, mut instances) = (vec![], vec![], vec![], vec![]);
+        for k in 0..per_failure {
+            let scene_id = (index * per_failure + k) as i64;
+            let mut rng = ChaCha8Rng::seed_from_u64(
+                seed ^ (failure.sample_id as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+                    ^ (k as u64).wrapping_mul(0xD1B5_4A32_D192_ED03),
+            );
+            let z: Vec<f64> = failure
+                .z
+                .iter()
+                .map(|z| z + noise.sample(&mut rng))
+                .collect();
+            let parameters = space.parameters(&z, failure.stratum as u32)?;
+            let outcome = sut.run(&space, &parameters, scene_id, failure.seed + k as i64)?;
+            // a scene that did not settle is not rendered, and is not training data
+            let Some((frame, frame_instances)) = outcome.rendered else {
+                continue;
+            };
+            scenes.push(outcome.scene);
+            objects.extend(outcome.objects);
+            frames.push(frame);
+            instances.push(frame_instances);
+        }
+        written += scenes.len();
+        write_shard(out, &schema::SCENES, &name, &[Scene::to_batch(&scenes)])?;
+        write_shard(out, &schema::OBJECTS, &name, &[Object::to_batch(&objects)])?;
+        write_shard(out, &schema::INSTANCES, &name, &instances)?;
+        write_shard(out, &schema::FRAMES, &name, &frames)?;
+        bar.inc(1);
+    }
+    bar.finish_and_clear();
+    println!(
+        "{written} scenes rendered around {} failures of {} in {}",
+        failures.len(),
+        run_dir.display(),
+        out.display()
+    );
+    println!(
+        "fine-tune: boxpose train --init {} --dataset ORIGINAL --dataset {} --out RUN",
+        run.record.settings.model,
+        out.display()
+    );
+    Ok(())
+}
+
 fn replay(
     run_dir: &Path,
     sample: i64,
@@ -310,25 +463,7 @@ fn replay(
                 rows.len()
             )
         })?;
-    let space = SearchSpace::from_texts(&run.record.space_toml, &run.record.recipe_toml)?;
-    let settings = &run.record.settings;
-    let device = backend.device()?;
-    let model_dir = model.map_or_else(|| PathBuf::from(&settings.model), Path::to_path_buf);
-    let network = KeypointModel::load(&model_dir, device.clone())?;
-    let segmenter = match (&settings.crops, &settings.segmenter) {
-        (Crops::Predicted, Some(dir)) => Some(SegmenterModel::load(Path::new(dir), device)?),
-        _ => None,
-    };
-    let method = sut::method_named(&settings.fit).map_err(anyhow::Error::msg)?;
-    let mut sut = SystemUnderTest::new(
-        &space,
-        Renderer::new(threads)?,
-        network,
-        segmenter,
-        settings.crops,
-        method,
-    )?;
-    sut.whole_frames = settings.whole_frames;
+    let (space, mut sut) = system_of(&run, model, threads, backend)?;
     let (replayed, outcome) = run.replay(&space, &mut sut, recorded)?;
     let describe = |r: &SampleRow| match (r.valid, r.score) {
         (false, _) => format!("invalid ({})", r.invalid_reason.as_deref().unwrap_or("")),

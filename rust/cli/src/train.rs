@@ -45,6 +45,11 @@ pub struct RunArgs {
     /// Stop after this many steps of this session, with a checkpoint (resume later).
     #[arg(long)]
     stop_after: Option<usize>,
+    /// Fine-tune: start from the weights of this finished model folder (e.g. models/keypoint-slim)
+    /// instead of random ones. Its network must be the config's; give the original datasets
+    /// beside the new ones (--dataset twice) so that nothing is forgotten.
+    #[arg(long, value_name = "MODEL")]
+    init: Option<PathBuf>,
     /// Backend that runs the network (those not compiled in say how to enable them).
     #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
     backend: BackendKind,
@@ -74,6 +79,7 @@ impl RunArgs {
             device: self.backend.device()?,
             restart: self.restart,
             stop_after: self.stop_after,
+            init: self.init.clone(),
         };
         let report = training::train(
             Arc::new(task),

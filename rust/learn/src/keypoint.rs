@@ -11,9 +11,10 @@ use crate::LearnError;
 use crate::config::TrainConfig;
 use crate::data::{self, InstanceSet};
 use crate::evaluation::{self, InstanceEval};
-use crate::inference::KeypointModel;
+use crate::inference::{KeypointModel, NETWORK_FILE};
 use crate::loader::ExampleSource;
 use crate::model::{KeypointNet, ResNetDeconv};
+use crate::model_dir;
 use crate::training::Task;
 
 /// The keypoint network's task: crops of ground-truth instances, heatmap MSE.
@@ -125,5 +126,9 @@ impl Task for KeypointTask {
 
     fn save_model(&self, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
         KeypointModel::save(&self.config.network, net, dir)
+    }
+
+    fn check_same_network(&self, dir: &Path) -> Result<(), LearnError> {
+        model_dir::check_same_network(dir, NETWORK_FILE, &self.config.network)
     }
 }

@@ -20,12 +20,8 @@ pub(crate) fn load_model_dir<C: DeserializeOwned>(
     validate: impl FnOnce(&C) -> Result<(), LearnError>,
     build: impl FnOnce(&C) -> ResNetDeconv,
 ) -> Result<(C, ResNetDeconv), LearnError> {
-    let config_path = dir.join(config_file);
-    let text = std::fs::read_to_string(&config_path)
-        .map_err(|e| LearnError::Io(config_path.clone(), e))?;
-    let config: C = toml::from_str(&text)
-        .map_err(|e| LearnError::Checkpoint(config_path.clone(), e.to_string()))?;
-    validate(&config).map_err(|e| LearnError::Checkpoint(config_path, e.to_string()))?;
+    let config: C = read_model_config(dir, config_file)?;
+    validate(&config).map_err(|e| LearnError::Checkpoint(dir.join(config_file), e.to_string()))?;
     let weights = dir.join(WEIGHTS_FILE);
     if !weights.is_file() {
         return Err(LearnError::Checkpoint(
@@ -41,6 +37,35 @@ pub(crate) fn load_model_dir<C: DeserializeOwned>(
         )
     })?;
     Ok((config, net.valid()))
+}
+
+/// A model folder's network config (`config_file`, TOML).
+pub(crate) fn read_model_config<C: DeserializeOwned>(
+    dir: &Path,
+    config_file: &str,
+) -> Result<C, LearnError> {
+    let config_path = dir.join(config_file);
+    let text = std::fs::read_to_string(&config_path)
+        .map_err(|e| LearnError::Io(config_path.clone(), e))?;
+    toml::from_str(&text).map_err(|e| LearnError::Checkpoint(config_path, e.to_string()))
+}
+
+/// Checks that the model folder `dir` holds `expected`'s network (its `config_file`), so that its
+/// weights fit a run that trains that network: what fine-tuning starts from.
+pub(crate) fn check_same_network<C: DeserializeOwned + PartialEq + std::fmt::Debug>(
+    dir: &Path,
+    config_file: &str,
+    expected: &C,
+) -> Result<(), LearnError> {
+    let found: C = read_model_config(dir, config_file)?;
+    if &found != expected {
+        return Err(LearnError::Config(format!(
+            "{}: its network ({found:?}) is not the one this run trains ({expected:?}); \
+             fine-tuning needs the same network settings",
+            dir.join(config_file).display()
+        )));
+    }
+    Ok(())
 }
 
 /// Writes a trained network's folder (`config_file` and `model.bpk`) atomically: into `dir.tmp`,

@@ -21,7 +21,7 @@ use crate::config::{self, AugmentConfig, Backbone, DataConfig, OptimizerConfig};
 use crate::data::{self, InstanceSet};
 use crate::loader::ExampleSource;
 use crate::model::ResNetDeconv;
-use crate::model_dir::{load_model_dir, save_model_dir};
+use crate::model_dir::{check_same_network, load_model_dir, save_model_dir};
 use crate::training::Task;
 
 pub(crate) const SEGMENTER_FILE: &str = "segmenter.toml";
@@ -536,6 +536,10 @@ impl Task for SegmenterTask {
 
     fn save_model(&self, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError> {
         SegmenterModel::save(&self.config.segmenter, net, dir)
+    }
+
+    fn check_same_network(&self, dir: &Path) -> Result<(), LearnError> {
+        check_same_network(dir, SEGMENTER_FILE, &self.config.segmenter)
     }
 }
 

@@ -43,6 +43,9 @@ pub trait Task: ExampleSource {
     fn validate(&self, net: &ResNetDeconv) -> Result<Vec<(String, f64)>, LearnError>;
     /// Writes the finished model folder.
     fn save_model(&self, net: &ResNetDeconv, dir: &Path) -> Result<(), LearnError>;
+    /// Checks that the finished model folder `dir` holds this task's network, whose weights a
+    /// run can then start from (fine-tuning).
+    fn check_same_network(&self, dir: &Path) -> Result<(), LearnError>;
 }
 
 /// What a checkpoint records beside the weights: where the run stands.
@@ -79,6 +82,9 @@ pub struct TrainOptions {
     /// Stop (with a checkpoint) after this many steps of this session; for tests and time-boxed
     /// jobs. The run resumes from there later.
     pub stop_after: Option<usize>,
+    /// Start from the weights of this finished model folder (fine-tuning) instead of random
+    /// ones; used when the run starts, ignored when it resumes from its checkpoint.
+    pub init: Option<PathBuf>,
 }
 
 /// What a run reports as it goes, for a progress display: the library prints nothing.
@@ -195,6 +201,13 @@ pub fn train<T: Task, C: RunConfig>(
     } else {
         // a run that stopped before its first checkpoint starts again from step 0, with a new history
         remove_if_present(&run_dir.join(HISTORY_FILE))?;
+        if let Some(init) = &options.init {
+            task.check_same_network(init)?;
+            let path = init.join(WEIGHTS_FILE);
+            model = model
+                .try_load_file(&path)
+                .map_err(|e| LearnError::Checkpoint(path.clone(), e.to_string()))?;
+        }
     }
 
     let last_step = match options.stop_after {
