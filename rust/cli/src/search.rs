@@ -411,7 +411,8 @@ fn variants(
                 .map(|z| z + noise.sample(&mut rng))
                 .collect();
             let parameters = space.parameters(&z, failure.stratum as u32)?;
-            let outcome = sut.run(&space, &parameters, scene_id, failure.seed + k as i64)?;
+            let scene_seed = failure.seed.wrapping_add(k as i64);
+            let outcome = sut.run(&space, &parameters, scene_id, scene_seed)?;
             // a scene that did not settle is not rendered, and is not training data
             let Some((frame, frame_instances)) = outcome.rendered else {
                 continue;

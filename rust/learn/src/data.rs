@@ -465,6 +465,9 @@ impl FrameCache {
         // decode one frame at once; the second copy is dropped).
         let frame = Arc::new(entry.read()?);
         let size = decoded_bytes(&frame);
+        if size > self.budget_bytes {
+            return Ok(frame); // larger than the whole cache: used once, not kept
+        }
         let mut state = self.state.lock().unwrap_or_else(|e| e.into_inner());
         while state.bytes + size > self.budget_bytes && !state.frames.is_empty() {
             let oldest = state
@@ -477,11 +480,9 @@ impl FrameCache {
                 state.bytes -= decoded_bytes(&dropped);
             }
         }
-        if size <= self.budget_bytes {
-            let tick = state.tick;
-            if state.frames.insert(index, (frame.clone(), tick)).is_none() {
-                state.bytes += size;
-            }
+        let tick = state.tick;
+        if state.frames.insert(index, (frame.clone(), tick)).is_none() {
+            state.bytes += size;
         }
         Ok(frame)
     }
