@@ -560,6 +560,8 @@ def test_fine_tuning_on_variants_of_the_counterexamples(failing_run, spaces, box
     assert (frames.width == 96).all() and (frames.height == 96).all()
     assert "fine-tune: boxpose train --init" in r.stdout
     assert run_boxpose(boxpose_bin, "inspect", variants).returncode == 0
+    inside = search(boxpose_bin, "variants", failing_run, "--out", failing_run / "v", check=False)
+    assert inside.returncode == 1 and "inside the run folder" in inside.stderr
     # one shard per failure: a second command finds them done and rewrites nothing
     shard = next((variants / "frames").glob("*.parquet"))
     written = shard.stat().st_mtime_ns

@@ -376,6 +376,13 @@ fn variants(
         "--sigma {sigma} must be finite and non-negative"
     );
     let run = Run::open(run_dir)?;
+    let inside_run = std::path::absolute(out)?.starts_with(std::path::absolute(run_dir)?);
+    anyhow::ensure!(
+        !inside_run,
+        "--out {} is inside the run folder {}: choose a folder of its own",
+        out.display(),
+        run_dir.display()
+    );
     let (rows, _) = run.rows()?;
     let failures: Vec<_> = rows.iter().filter(|r| r.valid && r.failed).collect();
     anyhow::ensure!(

@@ -411,7 +411,7 @@ impl InstanceSet {
         }
         Ok(Self {
             frames,
-            cache: FrameCache::new(data.frame_cache_mib << 20),
+            cache: FrameCache::new(data.frame_cache_mib.saturating_mul(1 << 20)),
             train,
             val,
             train_frames,
