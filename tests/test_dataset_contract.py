@@ -5,6 +5,8 @@ clear error naming the file and the problem."""
 import io
 import json
 import math
+import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -625,3 +627,49 @@ def test_python_writer_rejects_nan_and_unknown_columns(tmp_path):
     with pytest.raises(boxpose_io.ShardError, match="unknown columns \\['colour'\\]"):
         boxpose_io.table_from_rows("objects", rows)
     assert not list(tmp_path.iterdir())
+
+
+def test_read_dataset_returns_every_table_in_the_contract(dataset):
+    """`boxpose_io.read_dataset`: the tables with pyarrow alone, checked against the contract."""
+    root, tables = dataset
+    read = boxpose_io.read_dataset(root)
+    assert {name: t.num_rows for name, t in read.items()} == {
+        name: len(rows) for name, rows in tables.items()
+    }
+    for name, table in read.items():
+        assert table.schema.equals(boxpose_io.arrow_schema(name)), name
+    frames = boxpose_io.read_dataset(root, ["frames"], pandas=True)["frames"]
+    assert len(frames) == 4 and (frames.rgb_png.map(len) > 0).all()
+
+
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        ("foreign name", "not a shard name"),
+        ("two shard counts", "shards of 2 shard counts"),
+        ("copied over another", "appears more than once"),
+        ("missing", "shards [1] of 2 are missing"),
+        ("other version", "schema version 99"),
+        ("other table", "a shard of table `scenes` among `objects` shards"),
+    ],
+)
+def test_read_dataset_refuses_a_damaged_dataset_naming_the_file(dataset, damage, message):
+    root, _ = dataset
+    first, second = (boxpose_io.shard_path(root, "objects", i, NUM_SHARDS) for i in (0, 1))
+    if damage == "foreign name":
+        shutil.copy(first, first.with_name("copy.parquet"))
+    elif damage == "two shard counts":
+        shutil.copy(first, first.with_name("part-00000-of-00001.parquet"))
+    elif damage == "copied over another":
+        shutil.copy(first, second)
+    elif damage == "missing":
+        second.unlink()
+    elif damage == "other version":
+        rewrite(first, lambda t: t.replace_schema_metadata({
+            **t.schema.metadata, b"boxpose.schema_version": b"99"
+        }))  # fmt: skip
+    else:
+        shutil.copy(boxpose_io.shard_path(root, "scenes", 0, NUM_SHARDS), first)
+    with pytest.raises(boxpose_io.DatasetError, match=re.escape(message)) as error:
+        boxpose_io.read_dataset(root)
+    assert "objects" in str(error.value)

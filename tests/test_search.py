@@ -18,6 +18,7 @@ import pandas as pd
 import pytest
 from PIL import Image
 
+import boxpose_io
 from conftest import REPO, run_boxpose
 
 SPACE = """
@@ -560,6 +561,9 @@ def test_fine_tuning_on_variants_of_the_counterexamples(failing_run, spaces, box
     assert (frames.width == 96).all() and (frames.height == 96).all()
     assert "fine-tune: boxpose train --init" in r.stdout
     assert run_boxpose(boxpose_bin, "inspect", variants).returncode == 0
+    # written by the Rust writer, read back with pyarrow alone against the contract
+    read = boxpose_io.read_dataset(variants)
+    assert read["frames"].num_rows == len(frames) and read["scenes"].num_rows == len(scenes)
     inside = search(boxpose_bin, "variants", failing_run, "--out", failing_run / "v", check=False)
     assert inside.returncode == 1 and "inside the run folder" in inside.stderr
     # one shard per failure: a second command finds them done and rewrites nothing

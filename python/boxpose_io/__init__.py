@@ -5,6 +5,7 @@ The schema is defined once, in Rust (`rust/data/src/schema.rs`, and the support 
 and a Rust test fails when the two disagree.
 """
 
+from boxpose_io.reader import DatasetError, read_dataset, read_table
 from boxpose_io.schema import (
     BIN_WALL_THICKNESS_M,
     PALLET_HEIGHT_M,
@@ -31,10 +32,13 @@ __all__ = [
     "SUPPORT",
     "SUPPORT_FRICTION",
     "TABLES",
+    "DatasetError",
     "ShardError",
     "arrow_schema",
     "column_names",
     "publish_atomically",
+    "read_dataset",
+    "read_table",
     "shard_file_name",
     "shard_path",
     "table_from_rows",
