@@ -83,6 +83,24 @@ def _read_fd(fd: int) -> bytes:
     return os.pread(fd, os.fstat(fd).st_size, 0)
 
 
+# Ancillary PNG chunks that Blender fills with the wall clock (the date, render times): left in,
+# two renders of one scene differ in their bytes though not in a pixel.
+_CLOCK_CHUNKS = (b"tEXt", b"zTXt", b"iTXt", b"tIME")
+
+
+def without_text_chunks(png: bytes) -> bytes:
+    """`png` without its text and time chunks (each chunk carries its own CRC, so the rest
+    stays valid): the same pixels give the same bytes."""
+    out, i = [png[:8]], 8
+    while i < len(png):
+        length = int.from_bytes(png[i : i + 4], "big")
+        end = i + 12 + length  # length, type, data, CRC
+        if png[i + 4 : i + 8] not in _CLOCK_CHUNKS:
+            out.append(png[i:end])
+        i = end
+    return b"".join(out)
+
+
 class BlenderScene:
     def __init__(self, threads: int = 0):
         bpy.ops.wm.read_factory_settings(use_empty=True)
@@ -337,7 +355,7 @@ class BlenderScene:
         im.color_depth = "8"
         im.compression = 15
         result.save_render(filepath=f"/proc/self/fd/{self._png_fd}", scene=s)
-        rgb_png = _read_fd(self._png_fd)
+        rgb_png = without_text_chunks(_read_fd(self._png_fd))
         seconds = time.perf_counter() - start
         try:
             depth = channels["ViewLayer.Depth.Z"]
