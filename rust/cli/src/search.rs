@@ -189,6 +189,17 @@ struct RunArgs {
     /// variance. Default: all.
     #[arg(long, value_delimiter = ',')]
     ce_tilt: Vec<String>,
+    /// Print the work a scheduler can hand out now as one JSON line (the current iteration, its
+    /// uncommitted batches, whether the run is complete), passing every finished iteration's
+    /// cross-entropy barrier first, and exit: what `python -m boxpose_ray search` asks between
+    /// batches.
+    #[arg(long, conflicts_with_all = ["shard", "num_shards", "batch"])]
+    pending: bool,
+    /// Run only batch INDEX of iteration ITERATION (`ITERATION:INDEX`, as `--pending` lists
+    /// them) and exit without merging: one task of a scheduler. A committed batch is skipped.
+    #[arg(long, value_name = "ITERATION:INDEX", value_parser = parse_batch,
+          conflicts_with_all = ["shard", "num_shards"])]
+    batch: Option<(u32, usize)>,
     /// This process's shard (batches b with b mod N = shard).
     #[arg(long, default_value_t = 0)]
     shard: usize,
@@ -293,6 +304,17 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     let record = RunRecord::new(&space, settings)?;
     let method = sut::method_named(&args.fit).map_err(anyhow::Error::msg)?;
     let run = Run::create(out, record)?;
+    if args.pending {
+        println!("{}", serde_json::to_string(&run.pending()?)?);
+        return Ok(());
+    }
+    if let Some((iteration, batch)) = args.batch {
+        let mut sut = system_under_test(args, &space, crops, method)?;
+        let ran = run.sample_batch(&space, &mut sut, iteration, batch, &mut Silent)?;
+        let what = if ran { "done" } else { "was already done" };
+        println!("batch {iteration}:{batch} {what}");
+        return Ok(());
+    }
     let _shard_lock = run.lock_shard(args.shard, args.num_shards)?;
     if run.complete()? {
         println!("{}: every batch is already done", out.display());
@@ -300,15 +322,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
             return Ok(()); // shard 0 merges
         }
     } else {
-        let device = args.backend.device()?;
-        let model = KeypointModel::load(&args.model, device.clone())?;
-        let segmenter = match crops {
-            Crops::Predicted => Some(SegmenterModel::load(&args.segmenter, device)?),
-            Crops::Gt => None,
-        };
-        let renderer = Renderer::new(args.threads)?;
-        let mut sut = SystemUnderTest::new(&space, renderer, model, segmenter, crops, method)?;
-        sut.whole_frames = args.whole_frames;
+        let mut sut = system_under_test(args, &space, crops, method)?;
         let mut progress = Progress::new();
         run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
         progress.bar.finish_and_clear();
@@ -328,6 +342,26 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     print_warnings(&summary.warnings);
     search_report::write(out, 6)?;
     Ok(())
+}
+
+/// The networks, the embedded Blender and the fit under test, as the arguments ask (models and
+/// Blender load here: everything that can be refused is checked before).
+fn system_under_test(
+    args: &RunArgs,
+    space: &SearchSpace,
+    crops: Crops,
+    method: boxpose_geometry::pipeline::Method,
+) -> anyhow::Result<SystemUnderTest> {
+    let device = args.backend.device()?;
+    let model = KeypointModel::load(&args.model, device.clone())?;
+    let segmenter = match crops {
+        Crops::Predicted => Some(SegmenterModel::load(&args.segmenter, device)?),
+        Crops::Gt => None,
+    };
+    let renderer = Renderer::new(args.threads)?;
+    let mut sut = SystemUnderTest::new(space, renderer, model, segmenter, crops, method)?;
+    sut.whole_frames = args.whole_frames;
+    Ok(sut)
 }
 
 /// A run's search space and system under test, as the run ran it (with another keypoint network
@@ -583,6 +617,19 @@ fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
 /// The progress bar: samples/s, failures so far, the running estimate of this iteration's
 /// samples (Monte Carlo: p̂ with its Clopper–Pearson interval; the cross-entropy final stage: the
 /// ratio estimate Σ w·1{fail} / Σ w·1{valid}), counting the batches already committed.
+/// `--batch`: one batch of a scheduler, whose driver draws the progress.
+struct Silent;
+
+impl Observer for Silent {}
+
+fn parse_batch(text: &str) -> Result<(u32, usize), String> {
+    let parse = || {
+        let (iteration, index) = text.split_once(':')?;
+        Some((iteration.parse().ok()?, index.parse().ok()?))
+    };
+    parse().ok_or_else(|| format!("`{text}` is not ITERATION:INDEX (two whole numbers, e.g. 0:3)"))
+}
+
 struct Progress {
     bar: ProgressBar,
     stage: String,

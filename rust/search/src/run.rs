@@ -159,6 +159,18 @@ pub trait Observer {
     fn waiting(&mut self, _what: &str) {}
 }
 
+/// What [`Run::pending`] finds: iteration `iteration`'s uncommitted batches (each
+/// `batch_size` samples of its `samples`), or `complete` when none is left in the last one.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PendingWork {
+    pub iteration: u32,
+    pub stage: String,
+    pub samples: usize,
+    pub batch_size: usize,
+    pub batches: Vec<usize>,
+    pub complete: bool,
+}
+
 /// One row of the `samples` table (see [`schema::SEARCH_SAMPLES`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SampleRow {
@@ -499,6 +511,67 @@ impl Run {
             self.advance(iteration, &plan)?;
             iteration += 1;
         }
+    }
+
+    /// The work a scheduler can hand out now: the batches of the current iteration that nobody
+    /// has committed. Every barrier whose iteration is complete is passed first (the step is
+    /// deterministic and published atomically, so any number of processes may call this at
+    /// once); `complete` when the last iteration's batches are all committed.
+    pub fn pending(&self) -> Result<PendingWork> {
+        let mut iteration = 0u32;
+        loop {
+            let plan = self.plan(iteration)?.ok_or_else(|| SearchError::Run {
+                path: self.plan_path(iteration),
+                problem: "missing although the previous iteration is complete".into(),
+            })?;
+            let batches: Vec<usize> = (0..self.batches(plan.samples))
+                .filter(|&b| !self.batch_path(&SEARCH_SAMPLES, iteration, b).exists())
+                .collect();
+            if !batches.is_empty() || plan.stage != "tune" {
+                return Ok(PendingWork {
+                    iteration,
+                    stage: plan.stage,
+                    samples: plan.samples,
+                    batch_size: self.settings().batch_size,
+                    complete: batches.is_empty(),
+                    batches,
+                });
+            }
+            self.advance(iteration, &plan)?;
+            iteration += 1;
+        }
+    }
+
+    /// Runs batch `batch` of iteration `iteration` alone, a scheduler's unit of work (see
+    /// [`Run::pending`], which makes the iteration's proposal). Returns false, doing nothing,
+    /// when the batch is already committed, so a retried task costs nothing.
+    pub fn sample_batch(
+        &self,
+        space: &SearchSpace,
+        sut: &mut SystemUnderTest,
+        iteration: u32,
+        batch: usize,
+        observer: &mut dyn Observer,
+    ) -> Result<bool> {
+        let plan = self.plan(iteration)?.ok_or_else(|| {
+            SearchError::Sample(format!(
+                "iteration {iteration} has no proposal yet: iteration {} is unfinished \
+                 (`boxpose search … --pending` makes the proposal once it is done)",
+                iteration.saturating_sub(1)
+            ))
+        })?;
+        let batches = self.batches(plan.samples);
+        if batch >= batches {
+            return Err(SearchError::Sample(format!(
+                "iteration {iteration} has {batches} batches (0 to {}), not batch {batch}",
+                batches - 1
+            )));
+        }
+        if self.batch_path(&SEARCH_SAMPLES, iteration, batch).exists() {
+            return Ok(false);
+        }
+        self.run_batch(space, sut, iteration, batch, &plan, observer)?;
+        Ok(true)
     }
 
     fn wait_for_plan(&self, iteration: u32, observer: &mut dyn Observer) -> Result<IterationPlan> {
