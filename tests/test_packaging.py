@@ -17,7 +17,12 @@ import boxpose
 
 REPO = Path(__file__).resolve().parent.parent
 STUB = REPO / "rust" / "python" / "boxpose.pyi"
-PURE_PACKAGES = {"boxpose_io": REPO / "python", "drake_scenes": REPO, "blender_scripts": REPO}
+PURE_PACKAGES = {
+    "boxpose_io": REPO / "python",
+    "boxpose_ray": REPO / "python",
+    "drake_scenes": REPO,
+    "blender_scripts": REPO,
+}
 
 # ---------------------------------------------------------------- the stub and the compiled module
 
@@ -167,9 +172,9 @@ def test_the_packages_import_from_any_directory(tmp_path):
     editable install alone finds the packages (and the ones in this tree, not other copies)."""
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     code = (
-        "import json, boxpose_io, drake_scenes, blender_scripts, drake_scenes.cli\n"
+        "import json, boxpose_io, boxpose_ray, drake_scenes, blender_scripts, drake_scenes.cli\n"
         "print(json.dumps({m.__name__: m.__file__ for m in "
-        "(boxpose_io, drake_scenes, blender_scripts)}))\n"
+        "(boxpose_io, boxpose_ray, drake_scenes, blender_scripts)}))\n"
         "assert boxpose_io.TABLES, 'schema.json not loaded'\n"
     )
     r = subprocess.run(
@@ -195,5 +200,9 @@ def test_pyproject_lists_every_package_folder():
         for init in (root / name).rglob("__init__.py")
     }
     assert listed == found, f"pyproject.toml packages {sorted(listed)} != folders {sorted(found)}"
-    assert config["package-dir"] == {"boxpose_io": "python/boxpose_io"}
+    assert config["package-dir"] == {
+        name: str(root.relative_to(REPO) / name)
+        for name, root in PURE_PACKAGES.items()
+        if root != REPO
+    }
     assert "schema.json" in config["package-data"]["boxpose_io"]
