@@ -17,19 +17,19 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search lint fuzz test-faults clean
+.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-search bench-scale-out lint fuzz test-faults clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
 
-$(VENV)/.stamp: requirements.txt pyproject.toml
+$(VENV)/.stamp: requirements.txt
 	@$(PYTHON_BOOTSTRAP) -c 'import sys; assert sys.version_info[:2] == (3, 11), "boxpose needs Python 3.11 (bpy 5.0.1); found " + sys.version' 
 	test -x $(PY) || $(PYTHON_BOOTSTRAP) -m venv $(VENV)
 	$(PY) -m pip install --quiet -r requirements.txt
-	# boxpose_io (python/) and the stage packages (drake_scenes, blender_scripts): an editable
-	# install (pyproject.toml), so they import from this tree. A venv made before it had a .pth.
+	# What earlier layouts installed: a .pth, then a `boxpose-stages` distribution. The packages
+	# now come with the `boxpose` distribution (pyproject.toml), installed by `make rust`.
 	rm -f $$($(PY) -c 'import sysconfig; print(sysconfig.get_paths()["purelib"])')/boxpose.pth
-	$(PY) -m pip install --quiet --no-deps -e .
+	$(PY) -m pip uninstall --quiet --yes boxpose-stages 2>/dev/null || true
 	touch $@
 
 $(MUJOCO_LINK_DIR)/.stamp: $(VENV)/.stamp
@@ -38,12 +38,14 @@ $(MUJOCO_LINK_DIR)/.stamp: $(VENV)/.stamp
 	  ln -sf "$$lib" $(MUJOCO_LINK_DIR)/libmujoco.so && ln -sf "$$lib" $(MUJOCO_LINK_DIR)/$$(basename "$$lib")
 	touch $@
 
-rust: $(MUJOCO_LINK_DIR)/.stamp ## Build the Rust workspace (release) and install the `boxpose` Python module into .venv
+rust: $(MUJOCO_LINK_DIR)/.stamp ## Build the Rust workspace (release) and install the `boxpose` Python distribution into .venv
 	# --all-targets: the same feature unification as `cargo test`, so the tests reuse this build.
 	cargo build --release --workspace --all-targets
-	# maturin builds into its own target dir: it sets PYO3_BUILD_EXTENSION_MODULE, which would
-	# otherwise invalidate the workspace's pyo3 build on every alternation.
-	VIRTUAL_ENV=$(CURDIR)/$(VENV) CARGO_TARGET_DIR=target/maturin $(VENV)/bin/maturin develop --release --quiet -m rust/python/Cargo.toml
+	# The `boxpose` distribution (pyproject.toml): the compiled module into python/boxpose/ and
+	# every package of python/ importable from this tree. maturin builds into its own target dir:
+	# it sets PYO3_BUILD_EXTENSION_MODULE, which would otherwise invalidate the workspace's pyo3
+	# build on every alternation.
+	VIRTUAL_ENV=$(CURDIR)/$(VENV) CARGO_TARGET_DIR=target/maturin $(VENV)/bin/maturin develop --release --quiet --skip-install
 
 setup: $(VENV)/.stamp $(MUJOCO_LINK_DIR)/.stamp rust ## Create .venv with pinned deps, prepare MuJoCo linking, build Rust
 
@@ -104,7 +106,7 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
 
-bench: bench-geometry bench-settle bench-render bench-learn bench-search ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
+bench: bench-geometry bench-settle bench-render bench-learn bench-search bench-scale-out ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
 
 bench-geometry: setup ## Geometry core (criterion), then fast exact search vs a batched NumPy brute force on the same inputs
 	cargo bench -p boxpose-geometry --bench geometry
@@ -118,6 +120,9 @@ bench-render: setup ## Cycles seconds per 640×480 frame by samples and denoisin
 
 bench-search: setup ## Search: CPU-seconds per sample by stage (ground-truth and segmenter crops), Monte Carlo vs cross-entropy samples for 20% relative error on a real event
 	$(PY) scripts/bench_search.py
+
+bench-scale-out: setup ## python -m boxpose_ray on a loopback Ray head with 1 and 2 CPUs against one process (search and scenes)
+	scripts/bench_scale_out.sh
 
 # PyTorch only for the comparison benchmark: PyPI's torch wheel brings CUDA libraries (≈ 6 GB).
 TORCH_VENV := build/torch-venv

@@ -1,6 +1,7 @@
-"""Packaging: the pure-Python packages are installed (root pyproject.toml, editable install by
-`make setup`), and the `boxpose` module's type stub (rust/python/boxpose.pyi) matches the
-compiled module: same functions, same parameters (names, order, kinds, defaults)."""
+"""Packaging: the `boxpose` distribution (root pyproject.toml, maturin) — its packages import from
+this tree in .venv (`make setup`), `pip install .` puts all of them into a fresh venv, and the
+compiled module's type stub (python/boxpose/boxpose.pyi) matches the compiled module: same
+functions, same parameters (names, order, kinds, defaults)."""
 
 import ast
 import inspect
@@ -14,15 +15,12 @@ from pathlib import Path
 import pytest
 
 import boxpose
+from boxpose import boxpose as compiled
 
 REPO = Path(__file__).resolve().parent.parent
-STUB = REPO / "rust" / "python" / "boxpose.pyi"
-PURE_PACKAGES = {
-    "boxpose_io": REPO / "python",
-    "boxpose_ray": REPO / "python",
-    "drake_scenes": REPO,
-    "blender_scripts": REPO,
-}
+PACKAGES = REPO / "python"
+STUB = PACKAGES / "boxpose" / "boxpose.pyi"
+PURE_PACKAGES = ("boxpose_io", "boxpose_ray", "drake_scenes", "blender_scripts")
 
 # ---------------------------------------------------------------- the stub and the compiled module
 
@@ -87,7 +85,7 @@ def stub_parameters(node: ast.FunctionDef) -> list[tuple[str, inspect._Parameter
 def runtime_functions() -> dict[str, object]:
     return {
         name: value
-        for name, value in vars(boxpose).items()
+        for name, value in vars(compiled).items()
         if not name.startswith("_") and callable(value)
     }
 
@@ -112,21 +110,29 @@ def test_the_stub_declares_exactly_the_module_functions():
 
 
 def test_every_public_stub_name_exists_at_run_time():
-    missing = {n for n in stub_public_names() if not hasattr(boxpose, n)}
+    missing = {n for n in stub_public_names() if not hasattr(compiled, n)}
     assert not missing, (
-        f"{STUB.name} declares names that `import boxpose` lacks (prefix stub-only types with _)"
+        f"{STUB.name} declares names the compiled module lacks (prefix stub-only types with _)"
     )
 
 
 def test_the_stub_all_matches_the_module_all():
-    """`__all__` (PyO3 lists every added function) decides what `from boxpose import *` takes."""
+    """`__all__` (PyO3 lists every added function) decides what `import boxpose` re-exports."""
     [declared] = [
         ast.literal_eval(node.value)
         for node in stub_tree().body
         if isinstance(node, ast.Assign)
         and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets)
     ]
-    assert sorted(declared) == sorted(boxpose.__all__), f"{STUB.name}: __all__ differs"
+    assert sorted(declared) == sorted(compiled.__all__), f"{STUB.name}: __all__ differs"
+
+
+def test_the_package_is_the_compiled_module_and_read_dataset():
+    assert sorted(boxpose.__all__) == sorted([*compiled.__all__, "DatasetError", "read_dataset"])
+    assert all(getattr(boxpose, name) is getattr(compiled, name) for name in compiled.__all__)
+    import boxpose_io
+
+    assert boxpose.read_dataset is boxpose_io.read_dataset
 
 
 @pytest.mark.parametrize("name", sorted(runtime_functions()))
@@ -152,16 +158,13 @@ def test_stub_functions_are_fully_annotated(name):
     assert node.returns is not None, f"{STUB.name}: {name} has no return type"
 
 
-def test_the_installed_module_ships_this_stub():
-    """maturin installs the stub as boxpose/__init__.pyi with a py.typed marker; a different
-    copy there means the module was not rebuilt since the stub changed (`make rust`)."""
-    package = Path(boxpose.__file__).parent
-    installed = package / "__init__.pyi"
-    assert installed.is_file(), f"{installed} is missing: rebuild the module (`make rust`)"
-    assert (package / "py.typed").is_file(), f"{package} has no py.typed marker"
-    assert installed.read_text() == STUB.read_text(), (
-        f"{installed} differs from {STUB.relative_to(REPO)}: rebuild the module (`make rust`)"
+def test_the_compiled_module_sits_beside_its_stub():
+    """`maturin develop` builds the compiled module into python/boxpose/, where the stub and the
+    py.typed marker are: a module imported from elsewhere is a stale install (`make rust`)."""
+    assert Path(compiled.__file__).parent == STUB.parent, (
+        f"boxpose.boxpose imported from {compiled.__file__}, not {STUB.parent}: run `make rust`"
     )
+    assert (STUB.parent / "py.typed").is_file(), f"{STUB.parent} has no py.typed marker"
 
 
 # ----------------------------------------------------------------------- the pure-Python packages
@@ -181,28 +184,64 @@ def test_the_packages_import_from_any_directory(tmp_path):
         [sys.executable, "-c", code], cwd=tmp_path, env=env, capture_output=True, text=True
     )
     assert r.returncode == 0, (
-        "the Python packages do not import outside the repository: run `make setup` "
-        f"(pip install --no-deps -e .)\n{r.stderr}"
+        f"the Python packages do not import outside the repository: run `make setup`\n{r.stderr}"
     )
     files = {name: Path(f) for name, f in json.loads(r.stdout).items()}
-    for name, root in PURE_PACKAGES.items():
-        assert files[name] == root / name / "__init__.py", f"{name} imported from {files[name]}"
+    for name in PURE_PACKAGES:
+        assert files[name] == PACKAGES / name / "__init__.py", f"{name} imported from {files[name]}"
 
 
 def test_pyproject_lists_every_package_folder():
-    """setuptools' package list is written by hand (two roots): a new subpackage must be added,
-    or a wheel build would leave it out."""
-    config = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]
-    listed = set(config["packages"])
-    found = {
-        ".".join(init.parent.relative_to(root).parts)
-        for name, root in PURE_PACKAGES.items()
-        for init in (root / name).rglob("__init__.py")
-    }
-    assert listed == found, f"pyproject.toml packages {sorted(listed)} != folders {sorted(found)}"
-    assert config["package-dir"] == {
-        name: str(root.relative_to(REPO) / name)
-        for name, root in PURE_PACKAGES.items()
-        if root != REPO
-    }
-    assert "schema.json" in config["package-data"]["boxpose_io"]
+    """maturin's list of the pure-Python packages is written by hand: a new package folder in
+    python/ must be added, or `pip install .` would leave it out."""
+    config = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["maturin"]
+    found = {init.parent.name for init in PACKAGES.glob("*/__init__.py")} - {"boxpose"}
+    assert set(config["python-packages"]) == found == set(PURE_PACKAGES)
+    assert (config["python-source"], config["module-name"]) == ("python", "boxpose.boxpose")
+
+
+def test_pip_install_puts_every_package_into_a_fresh_venv(tmp_path):
+    """`pip install .` (maturin builds the wheel) into a new venv with nothing else: boxpose
+    with its stub, read_dataset reading a dataset, and every package, imported from the venv."""
+    from test_dataset_contract import synthetic_rows, write_dataset
+
+    dataset = tmp_path / "dataset"
+    write_dataset(dataset, synthetic_rows(__import__("numpy").random.default_rng(0)))
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", venv], check=True)
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    # the geometry crate's build from `make setup` is reused; requirements.txt's pins as
+    # constraints: the versions that install together (and are in pip's cache)
+    env["CARGO_TARGET_DIR"] = str(REPO / "target" / "maturin")
+    r = subprocess.run(
+        [venv / "bin" / "pip", "install", "--quiet", "-c", REPO / "requirements.txt", REPO],
+        env=env, capture_output=True, text=True, timeout=1200,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stdout + r.stderr
+    probe = (
+        "import importlib.util, json, sys\n"
+        "from pathlib import Path\n"
+        "import boxpose\n"
+        "tables = boxpose.read_dataset(sys.argv[1])\n"
+        "package = Path(boxpose.__file__).parent\n"
+        "print(json.dumps({\n"
+        "    'rows': {name: t.num_rows for name, t in tables.items()},\n"
+        "    'origins': {m: importlib.util.find_spec(m).origin for m in sys.argv[2:]},\n"
+        "    'typed': sorted(\n"
+        "        p.name for p in package.iterdir() if p.name.endswith(('.pyi', '.typed'))\n"
+        "    ),\n"
+        "    'corners': boxpose.box_corners([0.1, 0.2, 0.3]).shape,\n"
+        "}))\n"
+    )
+    r = subprocess.run(
+        [venv / "bin" / "python", "-c", probe, dataset, "boxpose", *PURE_PACKAGES],
+        cwd=tmp_path, env=env, capture_output=True, text=True,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    found = json.loads(r.stdout)
+    expected = boxpose.read_dataset(dataset)
+    assert found["rows"] == {name: t.num_rows for name, t in expected.items()}
+    assert found["typed"] == ["boxpose.pyi", "py.typed"] and found["corners"] == [8, 3]
+    site = next((venv / "lib").glob("python3*/site-packages"))
+    for name, origin in found["origins"].items():
+        assert Path(origin).is_relative_to(site), f"{name} imported from {origin}, not the venv"

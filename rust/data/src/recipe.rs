@@ -1,6 +1,6 @@
 //! What a scene recipe (`datasets/recipes/*.toml`) may hold, written once: every key, the support
 //! kinds, and the bound on a settle's length. Three readers apply it: the Drake stage
-//! (`drake_scenes/recipe.py`), the Blender stage (`blender_scripts/recipe.py`) and MuJoCo
+//! (`python/drake_scenes/recipe.py`), the Blender stage (`python/blender_scripts/recipe.py`) and MuJoCo
 //! (`boxpose-physics`'s `RecipePhysics`). The Python readers load it from
 //! `python/boxpose_io/schema.json` (its `"recipe"` object, generated from [`to_json`]); the
 //! schema's drift test fails when that file disagrees with this module, and

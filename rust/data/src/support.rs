@@ -1,6 +1,6 @@
 //! The support geometries, written once: what the `scenes.support` values "floor", "bin" and
 //! "pallet" mean. Every stage builds its support from these constants: the Drake scene stage
-//! (`drake_scenes/plant.py`), the Blender stage (`blender_scripts/scene.py`, `synthetic.py`) and
+//! (`python/drake_scenes/plant.py`), the Blender stage (`python/blender_scripts/scene.py`, `synthetic.py`) and
 //! MuJoCo (`boxpose-physics`). The Python stages read them from `python/boxpose_io/schema.json`
 //! (its `"support"` object, generated from [`to_json`] by `boxpose schema`); the schema's drift
 //! test fails when that file disagrees with this module.

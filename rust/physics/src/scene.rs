@@ -79,7 +79,7 @@ impl SupportKind {
 }
 
 /// The surface the boxes are dropped on, the geometry of [`boxpose_data::support`] (as in
-/// drake_scenes/plant.py and blender_scripts/scene.py). World frame: z up, gravity along −z, the
+/// python/drake_scenes/plant.py and python/blender_scripts/scene.py). World frame: z up, gravity along −z, the
 /// ground's top surface at z = 0, the support region |x| ≤ half_extent_m[0],
 /// |y| ≤ half_extent_m[1] centred on the origin.
 ///
@@ -151,7 +151,7 @@ impl Support {
 /// ‖ω‖ ≤ `max_angular_speed_radps` at every step spanning the last `window_s` of simulated time,
 /// before `max_time_s`. Stable: settled, no two bodies (support included) interpenetrating by
 /// more than `max_penetration_m`, and every box centre still over the support region and above
-/// its top. This is the Drake stage's test (drake_scenes/settle.py).
+/// its top. This is the Drake stage's test (python/drake_scenes/settle.py).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SettleParams {
@@ -178,7 +178,7 @@ impl Default for SettleParams {
 }
 
 impl SettleParams {
-    /// The Drake stage's rules (`drake_scenes/recipe.py`), which `tests/test_fuzz_inputs.py`
+    /// The Drake stage's rules (`python/drake_scenes/recipe.py`), which `tests/test_fuzz_inputs.py`
     /// holds this to: finite values, positive thresholds, 0 < time step < window < max time,
     /// and at most [`MAX_SETTLE_STEPS`] steps.
     pub fn validate(&self) -> Result<()> {

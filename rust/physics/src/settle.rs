@@ -46,7 +46,7 @@ pub enum Rejection {
 }
 
 impl Rejection {
-    /// The reason as the Drake stage words it (drake_scenes/settle.py).
+    /// The reason as the Drake stage words it (python/drake_scenes/settle.py).
     pub fn as_str(self) -> &'static str {
         match self {
             Self::NotSettled => "not settled in time",

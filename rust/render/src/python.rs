@@ -143,21 +143,19 @@ pub(crate) fn check_python(py: Python<'_>) -> Result<()> {
             venv.display()
         )));
     }
-    // The repository (blender_scripts) and python/ (boxpose_io) on sys.path, even in a venv
+    // The repository's python/ (blender_scripts, boxpose_io) on sys.path, even in a venv
     // without the editable install.
-    let repo = venv.parent().map(Path::to_path_buf);
-    if let Some(repo) = repo.filter(|r| r.join("blender_scripts").is_dir()) {
+    let packages = venv.parent().map(|repo| repo.join("python"));
+    if let Some(dir) = packages.filter(|p| p.join("blender_scripts").is_dir()) {
         let path = sys.getattr("path").map_err(|e| py_err(py, e))?;
-        for dir in [repo.join("python"), repo] {
-            let dir = dir.to_string_lossy().into_owned();
-            let present: bool = path
-                .call_method1("__contains__", (&dir,))
-                .and_then(|v| v.extract())
+        let dir = dir.to_string_lossy().into_owned();
+        let present: bool = path
+            .call_method1("__contains__", (&dir,))
+            .and_then(|v| v.extract())
+            .map_err(|e| py_err(py, e))?;
+        if !present {
+            path.call_method1("insert", (0, dir))
                 .map_err(|e| py_err(py, e))?;
-            if !present {
-                path.call_method1("insert", (0, dir))
-                    .map_err(|e| py_err(py, e))?;
-            }
         }
     }
     Ok(())

@@ -16,7 +16,7 @@ pub const TARGET_OBJECT_ID: i32 = 0;
 /// Vertical gap between boxes stacked for the drop, metres: they start apart and fall in turn.
 const STACK_GAP_M: f64 = 0.02;
 
-/// Linear RGB of plain cardboard, as drake_scenes/sampling.py draws it.
+/// Linear RGB of plain cardboard, as python/drake_scenes/sampling.py draws it.
 const CARDBOARD_LINEAR_RGB: [f64; 3] = [0.43, 0.25, 0.11];
 
 /// A sampled scene before and after settling.

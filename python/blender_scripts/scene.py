@@ -25,8 +25,8 @@ from blender_scripts.exr import read_exr
 from blender_scripts.materials import cardboard_material, support_material
 from blender_scripts.recipe import SupportSpec
 
-# Same support geometry as the physics (drake_scenes/plant.py: support_boxes), from the dataset
-# contract (rust/data/src/support.rs, via schema.json): the ground's top is z = 0; bin walls
+# Same support geometry as the physics (python/drake_scenes/plant.py: support_boxes), from the
+# dataset contract (rust/data/src/support.rs, via schema.json): the ground's top is z = 0; bin walls
 # stand on it with their inner faces on the support region's edges; a pallet is a slab of exactly
 # the support region, PALLET_HEIGHT_M high, standing on the ground.
 from boxpose_io import BIN_WALL_THICKNESS_M, PALLET_HEIGHT_M

@@ -1,6 +1,6 @@
-"""Type stub of `boxpose`, the geometry core on numpy arrays (rust/python/src/lib.rs).
+"""Type stub of `boxpose.boxpose`, the compiled geometry core on numpy arrays
+(rust/python/src/lib.rs), which `import boxpose` re-exports.
 
-maturin ships this file in the wheel as `boxpose/__init__.pyi`, with a `py.typed` marker.
 tests/test_packaging.py fails when a function's name, parameters, their kinds or defaults here
 disagree with the compiled module's; the types follow the Rust extraction rules:
 
