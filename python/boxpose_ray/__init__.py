@@ -35,6 +35,7 @@ MAKE_SCENES = REPO / "scripts" / "make_scenes.py"
 __all__ = [
     "StageFailed",
     "StageInterrupted",
+    "TaskResources",
     "check_search_args",
     "connect",
     "generate_scenes",
@@ -118,22 +119,37 @@ def _local(command: list[str]) -> str:
     return r.stdout
 
 
+@dataclass(frozen=True)
+class TaskResources:
+    """What Ray reserves for each task: CPUs (also each task's Cycles threads) and GPUs (for a
+    search with `--backend cuda` or `wgpu`; Ray sets CUDA_VISIBLE_DEVICES to the task's)."""
+
+    cpus: float = 1
+    gpus: float = 0
+
+    def threads(self) -> int:
+        return max(1, int(self.cpus))
+
+
 def _run_all(
     commands: Iterable[tuple[list[str], int]],
-    num_cpus: float,
-    max_in_flight: int,
+    resources: TaskResources,
     advance: Callable[[int], None],
 ) -> None:
-    """Runs every (command, weight) as a task of `num_cpus` CPUs, at most `max_in_flight` at once
-    (`ray.wait` as backpressure); `advance(weight)` as each finishes. The first failure cancels
-    the rest and is raised (what finished is kept in the output folder)."""
+    """Runs every (command, weight) as a task with `resources`, at most twice as many queued as
+    the cluster runs at once (`ray.wait` as backpressure, enough that no CPU waits for the
+    driver); `advance(weight)` as each finishes. The first failure cancels the rest and is
+    raised (what finished is kept in the output folder)."""
     queue = list(commands)
+    cpus = ray.cluster_resources().get("CPU", 1)
+    max_in_flight = max(1, int(2 * cpus // max(resources.cpus, 1e-9)))
+    task = run_stage.options(num_cpus=resources.cpus, num_gpus=resources.gpus)
     in_flight: dict[ray.ObjectRef, int] = {}
     try:
         while queue or in_flight:
             while queue and len(in_flight) < max_in_flight:
                 command, weight = queue.pop(0)
-                in_flight[run_stage.options(num_cpus=num_cpus).remote(command)] = weight
+                in_flight[task.remote(command)] = weight
             ready, _ = ray.wait(list(in_flight), num_returns=1)
             for ref in ready:
                 weight = in_flight.pop(ref)
@@ -144,19 +160,13 @@ def _run_all(
             ray.cancel(ref, force=True)
 
 
-def _max_in_flight(num_cpus: float) -> int:
-    """Twice what the cluster runs at once: enough queued that no CPU waits for the driver."""
-    return max(1, int(2 * ray.cluster_resources().get("CPU", 1) // max(num_cpus, 1e-9)))
-
-
 def generate_scenes(
     recipe: str,
     dataset: Path,
     num_shards: int,
     *,
     num_scenes: int | None = None,
-    cpus_per_task: float = 1,
-    threads: int | None = None,
+    resources: TaskResources = TaskResources(),
     progress: Progress = lambda *_: None,
 ) -> None:
     """`make scenes` with one Ray task per shard (Drake scenes, then Blender renders), then
@@ -167,9 +177,8 @@ def generate_scenes(
     base += ["--num-shards", str(num_shards)]
     if num_scenes is not None:
         base += ["--num-scenes", str(num_scenes)]
-    threads = threads if threads is not None else max(1, int(cpus_per_task))
     # A retried shard may start while its killed predecessor still stops its Blender workers.
-    task = [*base, "--no-inspect", "--threads", str(threads), "--lock-wait", "60"]
+    task = [*base, "--no-inspect", "--threads", str(resources.threads()), "--lock-wait", "60"]
     commands = [([*task, "--shards", str(shard)], 1) for shard in range(num_shards)]
     done = 0
 
@@ -179,7 +188,7 @@ def generate_scenes(
         progress("shards", done, num_shards)
 
     progress("shards", 0, num_shards)
-    _run_all(commands, cpus_per_task, _max_in_flight(cpus_per_task), advance)
+    _run_all(commands, resources, advance)
     _local([*base, "--boxpose", str(BOXPOSE)])
 
 
@@ -223,7 +232,7 @@ def check_search_args(search_args: list[str]) -> None:
 def search(
     search_args: list[str],
     *,
-    cpus_per_task: float = 1,
+    resources: TaskResources = TaskResources(),
     progress: Progress = lambda *_: None,
 ) -> str:
     """`boxpose search SEARCH_ARGS` (which must hold `--out RUN`) with one Ray task per batch.
@@ -234,7 +243,7 @@ def search(
     check_search_args(search_args)
     if _option(search_args, "--threads") is None:
         # one Cycles thread per CPU the task holds, not every core of the node
-        search_args = [*search_args, "--threads", str(max(1, int(cpus_per_task)))]
+        search_args = [*search_args, "--threads", str(resources.threads())]
     command = [str(BOXPOSE), "search", *search_args]
     while True:
         pending = PendingWork(**json.loads(_local([*command, "--pending"])))
@@ -253,7 +262,7 @@ def search(
             ([*command, "--batch", f"{pending.iteration}:{b}"], pending.batch_samples(b))
             for b in pending.batches
         ]
-        _run_all(tasks, cpus_per_task, _max_in_flight(cpus_per_task), advance)
+        _run_all(tasks, resources, advance)
     out = _option(search_args, "--out")
     estimate = _local([str(BOXPOSE), "search", "merge", out])
     _local([str(BOXPOSE), "search", "report", out])

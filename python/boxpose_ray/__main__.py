@@ -36,6 +36,12 @@ def main(argv: list[str] | None = None) -> int:
         default=1,
         help="CPUs Ray reserves per task; also each task's Cycles threads (default 1)",
     )
+    common.add_argument(
+        "--gpus-per-task",
+        type=float,
+        default=0,
+        help="GPUs Ray reserves per task (default 0; for a search with --backend cuda or wgpu)",
+    )
     commands = ap.add_subparsers(dest="command", required=True)
     scenes = commands.add_parser(
         "scenes",
@@ -60,6 +66,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     search.add_argument("search_args", nargs=argparse.REMAINDER, help="boxpose search's options")
     args = ap.parse_args(argv)
+    if not args.cpus_per_task > 0 or not args.gpus_per_task >= 0:
+        ap.error("--cpus-per-task must be positive and --gpus-per-task not negative")
 
     import ray
 
@@ -81,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
 
     search_args = getattr(args, "search_args", [])
     search_args = search_args[1:] if search_args[:1] == ["--"] else search_args
+    resources = boxpose_ray.TaskResources(args.cpus_per_task, args.gpus_per_task)
     try:
         if args.command == "search":
             boxpose_ray.check_search_args(search_args)
@@ -91,15 +100,13 @@ def main(argv: list[str] | None = None) -> int:
                 args.dataset,
                 args.num_shards,
                 num_scenes=args.num_scenes,
-                cpus_per_task=args.cpus_per_task,
+                resources=resources,
                 progress=progress,
             )
             close()
             print(f"dataset: {args.dataset.resolve()}")
         else:
-            estimate = boxpose_ray.search(
-                search_args, cpus_per_task=args.cpus_per_task, progress=progress
-            )
+            estimate = boxpose_ray.search(search_args, resources=resources, progress=progress)
             close()
             print(estimate, end="")
     except (boxpose_ray.StageFailed, boxpose_ray.StageInterrupted, ray.exceptions.RayError) as e:
