@@ -45,7 +45,7 @@ rust: $(MUJOCO_LINK_DIR)/.stamp ## Build the Rust workspace (release) and instal
 	# every package of python/ importable from this tree. maturin builds into its own target dir:
 	# it sets PYO3_BUILD_EXTENSION_MODULE, which would otherwise invalidate the workspace's pyo3
 	# build on every alternation.
-	VIRTUAL_ENV=$(CURDIR)/$(VENV) CARGO_TARGET_DIR=target/maturin $(VENV)/bin/maturin develop --release --quiet --skip-install
+	VIRTUAL_ENV=$(CURDIR)/$(VENV) CARGO_TARGET_DIR=target/maturin $(VENV)/bin/maturin develop --release --quiet
 
 setup: $(VENV)/.stamp $(MUJOCO_LINK_DIR)/.stamp rust ## Create .venv with pinned deps, prepare MuJoCo linking, build Rust
 
