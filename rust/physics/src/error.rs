@@ -26,6 +26,8 @@ pub enum PhysicsError {
     },
     #[error("{count} initial poses given for a scene of {expected} boxes")]
     PoseCount { count: usize, expected: usize },
+    #[error("box {index} cannot be moved: the pile has {count} boxes")]
+    NoSuchBox { index: usize, count: usize },
     #[error("support: {0}")]
     BadSupport(String),
     #[error("settle parameters: {0}")]

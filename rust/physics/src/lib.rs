@@ -18,15 +18,17 @@ mod settle;
 pub use boxpose_data::Pose;
 pub use error::{PhysicsError, Result};
 pub use mjcf::{
-    CONTACT_SOLIMP, CONTACT_SOLREF, Cone, IMPRATIO, Integrator, MujocoOptions, Solver, to_mjcf,
-    to_mjcf_with,
+    CONTACT_SOLIMP, CONTACT_SOLREF, Cone, IMPRATIO, Integrator, MujocoOptions,
+    RESETTLE_SLEEP_TOLERANCE, Solver, to_mjcf, to_mjcf_with,
 };
 pub use scene::{
     BIN_WALL_THICKNESS_M, BoxBody, GRAVITY_MPS2, PALLET_HEIGHT_M, QUATERNION_NORM_TOLERANCE,
     RecipePhysics, SUPPORT_FRICTION, SceneDescription, SettleParams, Support, SupportKind,
     combined_friction,
 };
-pub use settle::{Certificate, DISTANCE_HORIZON_M, Rejection, SettleOutcome, Settler, settle};
+pub use settle::{
+    Certificate, DISTANCE_HORIZON_M, Rejection, SettleOutcome, Settler, resettle, settle,
+};
 
 /// The MuJoCo version this crate binds and links (the `mujoco` wheel's library).
 pub const MUJOCO_VERSION: &str = "3.17.0";

@@ -24,7 +24,9 @@
 //!   pairs' bounding-sphere test is cheap next to the solver.
 //! - No noslip iterations (not needed at these thresholds) and no sleeping: sleeping trees report
 //!   zero velocity, which would hollow out the certificate (`MujocoOptions::sleep_tolerance`
-//!   turns it on for callers who only want poses).
+//!   turns it on for callers who only want poses). The exception is a re-settle
+//!   ([`crate::resettle`]): the boxes of the settled pile start asleep (`sleep="init"`, each woken
+//!   when touched, asleep again under [`RESETTLE_SLEEP_TOLERANCE`]), the moved box never sleeps.
 
 use std::fmt::Write;
 
@@ -36,6 +38,9 @@ use crate::scene::{
 pub const CONTACT_SOLREF: [f64; 2] = [0.01, 1.0];
 pub const CONTACT_SOLIMP: [f64; 5] = [0.95, 0.99, 0.001, 0.5, 2.0];
 pub const IMPRATIO: f64 = 10.0;
+/// MuJoCo's sleep velocity tolerance for the boxes of a pile being re-settled, once woken: a
+/// fifth of the certificate's linear threshold (5 mm/s), so that only a box at rest sleeps again.
+pub const RESETTLE_SLEEP_TOLERANCE: f64 = 1e-3;
 /// Torsional and rolling coefficients (unused with condim 3, kept at MuJoCo's defaults).
 const FRICTION_TAIL: &str = "0.005 0.0001";
 /// The same for a `<pair>`, which has two rolling coefficients.
@@ -151,6 +156,12 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
     };
     // Automatic collision detection only when the pairs are not listed explicitly.
     let contype = u8::from(!o.drake_friction);
+    // A pile being re-settled: its boxes at rest start asleep, the others never sleep (their
+    // speeds are the certificate).
+    let resting = scene.boxes.iter().any(|b| b.at_rest);
+    let sleep_tolerance = o
+        .sleep_tolerance
+        .or(resting.then_some(RESETTLE_SLEEP_TOLERANCE));
     // `writeln!` into a String cannot fail.
     let _ = writeln!(s, r#"<mujoco model="boxpose">"#);
     let _ = writeln!(s, r#"  <compiler angle="radian" autolimits="true"/>"#);
@@ -165,7 +176,7 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
         o.ls_iterations,
         o.noslip_iterations,
         if o.dense { "dense" } else { "auto" },
-        o.sleep_tolerance
+        sleep_tolerance
             .map(|t| format!(r#" sleep_tolerance="{t}""#))
             .unwrap_or_default()
     );
@@ -173,7 +184,7 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
         s,
         r#"    <flag island="{}" sleep="{}"/>"#,
         if o.islands { "enable" } else { "disable" },
-        if o.sleep_tolerance.is_some() {
+        if sleep_tolerance.is_some() {
             "enable"
         } else {
             "disable"
@@ -234,9 +245,14 @@ pub fn to_mjcf_with(scene: &SceneDescription, params: &SettleParams, o: &MujocoO
     }
     for (i, b) in scene.boxes.iter().enumerate() {
         let name = box_name(i);
+        let sleep = match (resting, b.at_rest) {
+            (false, _) => "",
+            (true, true) => r#" sleep="init""#,
+            (true, false) => r#" sleep="never""#,
+        };
         let _ = writeln!(
             s,
-            r#"    <body name="{name}" pos="{}" quat="{}">"#,
+            r#"    <body name="{name}" pos="{}" quat="{}"{sleep}>"#,
             v(&b.initial.translation),
             v(&b.initial.quat_wxyz)
         );

@@ -38,6 +38,9 @@ pub struct BoxBody {
     pub friction: f64,
     /// `T_world_box` before the drop.
     pub initial: Pose,
+    /// The box rests at `initial` in an already settled pile: it starts asleep and moves only
+    /// once something touches it ([`crate::resettle`]).
+    pub at_rest: bool,
 }
 
 impl BoxBody {
@@ -48,6 +51,7 @@ impl BoxBody {
             mass_kg: object.mass_kg,
             friction: object.friction,
             initial: object.initial_world_box,
+            at_rest: false,
         }
     }
 

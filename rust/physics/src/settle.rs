@@ -103,6 +103,37 @@ pub fn settle(scene: &SceneDescription, params: &SettleParams) -> Result<SettleO
     Settler::new(scene, params)?.settle()
 }
 
+/// Re-settles a pile after one box moved: every box of `pile` rests at its `settled` pose except
+/// box `moved`, dropped from `drop`. The resting boxes start asleep and wake only when something
+/// touches them (MuJoCo's sleeping islands), so the cost is that of the boxes the drop disturbs,
+/// not of the whole pile. The certificate is measured on every awake box — the moved one never
+/// sleeps — and a woken box sleeps again only below [`crate::RESETTLE_SLEEP_TOLERANCE`]; the
+/// penetration and support checks cover every box.
+pub fn resettle(
+    pile: &SceneDescription,
+    settled: &[Pose],
+    moved: usize,
+    drop: Pose,
+    params: &SettleParams,
+) -> Result<SettleOutcome> {
+    let settled = check_poses(settled, pile.boxes.len())?;
+    if moved >= pile.boxes.len() {
+        return Err(PhysicsError::NoSuchBox {
+            index: moved,
+            count: pile.boxes.len(),
+        });
+    }
+    let mut scene = pile.clone();
+    for (i, (body, pose)) in scene.boxes.iter_mut().zip(settled).enumerate() {
+        (body.initial, body.at_rest) = if i == moved {
+            (drop, false)
+        } else {
+            (pose, true)
+        };
+    }
+    Settler::new(&scene, params)?.settle()
+}
+
 impl Settler {
     /// Validates `scene` and `params` and compiles the scene's MJCF (default [`MujocoOptions`]).
     pub fn new(scene: &SceneDescription, params: &SettleParams) -> Result<Self> {

@@ -47,6 +47,7 @@ pub fn dropped_box(
         mass_kg: 150.0 * size.iter().product::<f64>(),
         friction,
         initial: pose,
+        at_rest: false,
     }
 }
 

@@ -6,7 +6,7 @@ use std::f64::consts::PI;
 
 use boxpose_physics::{
     BoxBody, Face, PhysicsError, Pose, RecipePhysics, Rejection, SceneDescription, SettleParams,
-    Settler, Support, SupportKind, down_face, settle,
+    Settler, Support, SupportKind, down_face, resettle, settle,
 };
 use common::*;
 
@@ -242,6 +242,79 @@ fn multi_box_drop_is_stable_without_penetration() {
             );
         }
     }
+}
+
+/// A settled 8-box pile, its highest box lifted and dropped back: the re-settle with the pile
+/// asleep certifies the drop, leaves the boxes the drop never touched exactly where they rested,
+/// and lands the dropped box where the all-awake reference does.
+#[test]
+fn a_box_dropped_onto_a_settled_pile_wakes_only_what_it_touches() {
+    let mut rng = Rng(21);
+    let boxes: Vec<BoxBody> = (0..8)
+        .map(|i| {
+            let size = [
+                rng.uniform(0.06, 0.16),
+                rng.uniform(0.05, 0.14),
+                rng.uniform(0.04, 0.10),
+            ];
+            // two rows of four, well apart: a pile of separate little stacks
+            let xy = [
+                -0.3 + 0.2 * (i % 4) as f64,
+                if i < 4 { -0.15 } else { 0.15 },
+            ];
+            dropped_box(size, rng.quat(), xy, 0.02, rng.uniform(0.5, 0.9))
+        })
+        .collect();
+    let pile = SceneDescription {
+        support: Support {
+            half_extent_m: [0.5, 0.5],
+            ..Support::floor()
+        },
+        boxes,
+    };
+    let settled = settle(&pile, &params()).unwrap();
+    assert_at_rest(&settled, "the pile");
+    let moved = 5;
+    let mut drop = settled.poses[moved];
+    drop.translation[2] += 0.1;
+    drop.quat_wxyz = qmul(axis_angle([0.0, 0.0, 1.0], 0.5), drop.quat_wxyz);
+    let asleep = resettle(&pile, &settled.poses, moved, drop, &params()).unwrap();
+    assert_at_rest(&asleep, "re-settle, pile asleep");
+    let mut start = settled.poses.clone();
+    start[moved] = drop;
+    let awake = Settler::new(&pile, &params())
+        .unwrap()
+        .settle_from(&start)
+        .unwrap();
+    assert_at_rest(&awake, "re-settle, pile awake");
+    // boxes far from the drop slept through it: their poses are the stored ones, bit for bit
+    let untouched = (0..8)
+        .filter(|&i| i != moved && asleep.poses[i] == settled.poses[i])
+        .count();
+    assert!(
+        untouched >= 6,
+        "only {untouched} of 7 boxes slept through the drop"
+    );
+    // awake, the soft contacts move every box a little: bit-identical poses come from sleeping
+    let awake_untouched = (0..8)
+        .filter(|&i| i != moved && awake.poses[i] == settled.poses[i])
+        .count();
+    assert_eq!(awake_untouched, 0);
+    let (a, b) = (asleep.poses[moved], awake.poses[moved]);
+    assert_eq!(down_face(a.quat_wxyz).0, down_face(b.quat_wxyz).0);
+    let gap = (0..3)
+        .map(|k| (a.translation[k] - b.translation[k]).powi(2))
+        .sum::<f64>();
+    assert!(
+        gap.sqrt() < 0.01,
+        "dropped box {:.1} mm from the reference",
+        gap.sqrt() * 1e3
+    );
+    let out_of_range = resettle(&pile, &settled.poses, 8, drop, &params()).unwrap_err();
+    assert!(matches!(
+        out_of_range,
+        PhysicsError::NoSuchBox { index: 8, count: 8 }
+    ));
 }
 
 #[test]
