@@ -108,7 +108,8 @@ pub fn settle(scene: &SceneDescription, params: &SettleParams) -> Result<SettleO
 /// touches them (MuJoCo's sleeping islands), so the cost is that of the boxes the drop disturbs,
 /// not of the whole pile. The certificate is measured on every awake box — the moved one never
 /// sleeps — and a woken box sleeps again only below [`crate::RESETTLE_SLEEP_TOLERANCE`]; the
-/// penetration and support checks cover every box.
+/// penetration and support checks cover every box. `drop` should be clear of the pile: boxes it
+/// starts in contact with cannot start asleep (MuJoCo keeps their island awake and logs a warning).
 pub fn resettle(
     pile: &SceneDescription,
     settled: &[Pose],
