@@ -7,7 +7,7 @@ from pathlib import Path
 
 from blender_scripts.synthetic import synthetic_scene
 
-RECIPE = Path(__file__).resolve().parent.parent / "datasets" / "recipes" / "clutter.toml"
+RECIPE = Path(__file__).resolve().parents[2] / "datasets" / "recipes" / "clutter.toml"
 
 
 def bench_scene(boxes: int = 12, seed: int = 2024) -> tuple[dict, list[dict]]:

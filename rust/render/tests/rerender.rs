@@ -21,7 +21,7 @@ fn scene_batches(scene_id: i64, boxes: usize) -> (RecordBatch, RecordBatch) {
             r#"
 import pathlib, boxpose_io, blender_scripts
 from blender_scripts.synthetic import synthetic_scene
-root = pathlib.Path(blender_scripts.__file__).resolve().parent.parent
+root = pathlib.Path(blender_scripts.__file__).resolve().parents[2]  # python/blender_scripts/__init__.py
 text = (root / "datasets/recipes/tiny.toml").read_text().replace("width = 64", "width = {W}").replace("height = 64", "height = {H}")
 text = text.replace("frames_per_scene = 1", "frames_per_scene = 2")
 scene, objects = synthetic_scene({scene_id}, text, {boxes}, seed=21, stack=True, spread_m=0.1)
