@@ -73,12 +73,17 @@ def connect(address: str) -> None:
             ) from e
 
 
+# Looked up here, not in the forked child: between fork and exec the child may not take the
+# dynamic loader's lock, which another thread of the Ray worker could hold.
+_prctl = ctypes.CDLL(None, use_errno=True).prctl
+PR_SET_PDEATHSIG = 1
+
+
 def _die_with_parent() -> None:
     """In the stage process: SIGTERM when the Ray worker that started it dies (a killed worker
     must not leave its stage writing beside the retried one; SIGTERM lets make_scenes stop its
     Blender workers)."""
-    PR_SET_PDEATHSIG = 1
-    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    _prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _tail(text: str, lines: int = 20) -> str:
