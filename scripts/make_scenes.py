@@ -458,9 +458,13 @@ def claim_dataset(args, manifest: dict) -> None:
     """A dataset folder remembers what it is being generated from (DIR/manifest.json, written
     atomically on the first run). A resume with another recipe text, scene count or shard count
     would mix two datasets: it is refused, or with --regenerate the old outputs are deleted."""
-    path = args.dataset / MANIFEST
     # drivers of some shards run side by side: one at a time reads and writes the manifest
-    claim = flock(args.dataset / f"{LOCK}-manifest", fcntl.LOCK_EX, str(args.dataset), 60.0)
+    with flock(args.dataset / f"{LOCK}-manifest", fcntl.LOCK_EX, str(args.dataset), 60.0):
+        _claim_under_lock(args, manifest)
+
+
+def _claim_under_lock(args, manifest: dict) -> None:
+    path = args.dataset / MANIFEST
     if path.is_file():
         try:
             found = json.loads(path.read_text())
@@ -470,7 +474,6 @@ def claim_dataset(args, manifest: dict) -> None:
             ) from e
         differ = [k for k in manifest if found.get(k) != manifest[k]]
         if not differ:
-            claim.close()
             return
         if not args.regenerate:
             what = "; ".join(f"{k} {found.get(k)!r} then, {manifest[k]!r} now" for k in differ)
@@ -488,7 +491,6 @@ def claim_dataset(args, manifest: dict) -> None:
         print(f"--regenerate: deleted the outputs of the previous settings in {args.dataset}")
     args.dataset.mkdir(parents=True, exist_ok=True)
     boxpose_io.publish_atomically(path, lambda tmp: tmp.write_text(json.dumps(manifest, indent=2)))
-    claim.close()
 
 
 def run(args) -> int:

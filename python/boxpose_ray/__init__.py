@@ -90,6 +90,22 @@ def _tail(text: str, lines: int = 20) -> str:
     return "\n".join("    " + line for line in text.strip().splitlines()[-lines:])
 
 
+def _run(command: list[str], where: str, **popen) -> str:
+    """`command` run in the repository; its stdout, or StageInterrupted (killed by a signal) or
+    StageFailed (an error exit) with the end of its stderr, naming `where` it ran."""
+    r = subprocess.run(command, cwd=REPO, capture_output=True, text=True, **popen)
+    if r.returncode < 0:
+        raise StageInterrupted(
+            f"`{shlex.join(command)}` {where} was killed by "
+            f"{signal.Signals(-r.returncode).name}:\n{_tail(r.stderr)}"
+        )
+    if r.returncode != 0:
+        raise StageFailed(
+            f"`{shlex.join(command)}` failed {where} (exit {r.returncode}):\n{_tail(r.stderr)}"
+        )
+    return r.stdout
+
+
 @ray.remote(max_retries=3, retry_exceptions=[StageInterrupted])
 def run_stage(command: list[str]) -> str:
     """One unit of work on a node: `command` run in the repository; its stdout."""
@@ -99,29 +115,12 @@ def run_stage(command: list[str]) -> str:
             f"{node} has no {command[0]}: every node needs the repository at {REPO} with "
             "`make setup` run (docs/scale-out.md)"
         )
-    r = subprocess.run(
-        command, cwd=REPO, capture_output=True, text=True, preexec_fn=_die_with_parent
-    )
-    if r.returncode < 0:
-        raise StageInterrupted(
-            f"`{shlex.join(command)}` on {node} was killed by "
-            f"{signal.Signals(-r.returncode).name}:\n{_tail(r.stderr)}"
-        )
-    if r.returncode != 0:
-        raise StageFailed(
-            f"`{shlex.join(command)}` failed on {node} (exit {r.returncode}):\n{_tail(r.stderr)}"
-        )
-    return r.stdout
+    return _run(command, f"on {node}", preexec_fn=_die_with_parent)
 
 
 def _local(command: list[str]) -> str:
     """A step of the driver itself (planning, merging): run here, its errors are the driver's."""
-    r = subprocess.run(command, cwd=REPO, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise StageFailed(
-            f"`{shlex.join(command)}` failed (exit {r.returncode}):\n{_tail(r.stderr)}"
-        )
-    return r.stdout
+    return _run(command, "on the driver's machine")
 
 
 @dataclass(frozen=True)
