@@ -21,9 +21,12 @@
 //! σ is floored at 1e-6 of the peaks' spread so that exact data keep a finite cost.
 //!
 //! **The confidence.** The cost is a negative log-likelihood, so the difference between the
-//! chosen box's cost and the best cost of a *different* box (one whose corners are farther than a
-//! tenth of the diameter from the chosen ones', the failure criterion of the benchmarks, which is
-//! blind to the box's symmetries) is a log-likelihood ratio in nats: the margin.
+//! chosen box's cost and the best cost of a *different* box is a log-likelihood ratio in nats:
+//! the margin. "Different" is the failure criterion of the fit's own benchmark, a [`Separation`]
+//! of a tenth of the diameter: for a box of known size, its MSSD from the chosen pose (modulo the
+//! box's exact symmetries, so a box whose sides differ by a few per cent turned 90° is different
+//! though its corners nearly coincide); for the size fit, whose failure criterion is blind to axis
+//! labels, the distance between the corner sets.
 
 use nalgebra::{Matrix3, Point3, Rotation3, Vector3};
 
@@ -203,6 +206,22 @@ impl Placed {
         })
     }
 
+    /// MSSD between two placements of one box: min over the corner permutations π of its symmetry
+    /// group of max_i ‖cᵢ − c'_π(i)‖ ([`crate::metrics::mssd`], which this equals for the same
+    /// sides).
+    pub fn mssd_to(&self, other: &Placed, permutations: &[[usize; CORNER_COUNT]]) -> f64 {
+        let (a, b) = (self.corners(), other.corners());
+        permutations
+            .iter()
+            .map(|pi| {
+                (0..CORNER_COUNT)
+                    .map(|i| (a[i] - b[pi[i]]).norm_squared())
+                    .fold(0.0, f64::max)
+            })
+            .fold(f64::INFINITY, f64::min)
+            .sqrt()
+    }
+
     /// Largest distance from a corner of either box to the nearest corner of the other (the
     /// Hausdorff distance of the corner sets): blind to symmetries and to axis labels.
     pub fn corner_distance(&self, other: &Placed) -> f64 {
@@ -298,18 +317,57 @@ impl Refined {
     }
 }
 
-/// From hypotheses sorted by cost, up to `limit` whose boxes differ pairwise by more than
-/// `separation` (corner distance), best first.
-pub(crate) fn distinct(sorted: &[(f64, Placed)], separation: f64, limit: usize) -> Vec<Placed> {
+/// When two placed boxes count as different poses: farther apart than `threshold` (a tenth of the
+/// diameter, the benchmarks' failure criterion) by the fit's failure metric.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Separation {
+    /// MSSD under the given symmetry group's corner permutations (box of known size).
+    Mssd {
+        threshold: f64,
+        permutations: &'static [[usize; CORNER_COUNT]],
+    },
+    /// Distance between the corner sets (box of unknown size, whose failure criterion matches
+    /// corners under the best axis labelling).
+    Corners { threshold: f64 },
+}
+
+impl Separation {
+    pub fn differ(&self, a: &Placed, b: &Placed) -> bool {
+        match *self {
+            Self::Mssd {
+                threshold,
+                permutations,
+            } => a.mssd_to(b, permutations) > threshold,
+            Self::Corners { threshold } => a.corner_distance(b) > threshold,
+        }
+    }
+
+    /// The best cost among `candidates` that differ from `chosen` (infinite when none does).
+    pub fn runner_up_cost<'a>(
+        &self,
+        chosen: &Placed,
+        candidates: impl IntoIterator<Item = &'a Refined>,
+    ) -> f64 {
+        candidates
+            .into_iter()
+            .filter(|r| self.differ(&r.placed, chosen))
+            .map(|r| r.profile.cost)
+            .fold(f64::INFINITY, f64::min)
+    }
+}
+
+/// From hypotheses sorted by cost, up to `limit` that differ pairwise, best first.
+pub(crate) fn distinct(
+    sorted: &[(f64, Placed)],
+    separation: Separation,
+    limit: usize,
+) -> Vec<Placed> {
     let mut chosen: Vec<Placed> = Vec::new();
     for (_, candidate) in sorted {
         if chosen.len() >= limit {
             break;
         }
-        if chosen
-            .iter()
-            .all(|c| c.corner_distance(candidate) > separation)
-        {
+        if chosen.iter().all(|c| separation.differ(c, candidate)) {
             chosen.push(*candidate);
         }
     }
@@ -320,15 +378,11 @@ pub(crate) fn distinct(sorted: &[(f64, Placed)], separation: f64, limit: usize) 
 pub(crate) fn choose(
     mut refined: Vec<Refined>,
     points: &[Point3<f64>],
-    separation: f64,
+    separation: Separation,
 ) -> Option<(Refined, FitConfidence)> {
     refined.sort_by(|a, b| a.cost.total_cmp(&b.cost));
-    let mut iter = refined.into_iter();
-    let best = iter.next()?;
-    let runner_up = iter
-        .filter(|r| r.placed.corner_distance(&best.placed) > separation)
-        .map(|r| r.profile.cost)
-        .fold(f64::INFINITY, f64::min);
+    let best = refined.first()?.clone();
+    let runner_up = separation.runner_up_cost(&best.placed, &refined[1..]);
     let confidence = confidence_of(&best, runner_up - best.profile.cost, points);
     Some((best, confidence))
 }

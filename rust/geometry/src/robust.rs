@@ -8,7 +8,7 @@ use std::sync::OnceLock;
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use crate::adaptive::{self, CostModel, FitConfidence, Placed, Refined};
+use crate::adaptive::{self, CostModel, FitConfidence, Placed, Refined, Separation};
 use crate::align::{kabsch, quaternion_kabsch};
 use crate::box_model::{BoxModel, CORNER_COUNT, ShapeClass};
 use crate::correspondence::ensure_spread_in_two_directions;
@@ -341,8 +341,7 @@ pub fn adaptive_fit(
 ) -> Result<AdaptiveFit> {
     let search = KnownSizeSearch::new(model, points, params)?;
     let refined = search.refined_candidates();
-    let separation = 0.1 * model.diameter();
-    let (best, confidence) = adaptive::choose(refined, points, separation)
+    let (best, confidence) = adaptive::choose(refined, points, search.separation())
         .ok_or(GeometryError::NoConsensus { needed: 3 })?;
     let inlier_set = best.inlier_indices();
     let mut inliers = vec![false; points.len()];
@@ -372,12 +371,7 @@ pub fn assess_pose(
     let search = KnownSizeSearch::new(model, points, &AdaptiveParams::default())?;
     let refined = search.refined_candidates();
     let given = Refined::new(placed_of(model, pose), points, &search.cost_model);
-    let separation = 0.1 * model.diameter();
-    let runner_up = refined
-        .iter()
-        .filter(|r| r.placed.corner_distance(&given.placed) > separation)
-        .map(|r| r.profile.cost)
-        .fold(f64::INFINITY, f64::min);
+    let runner_up = search.separation().runner_up_cost(&given.placed, &refined);
     Ok(adaptive::confidence_of(
         &given,
         runner_up - given.profile.cost,
@@ -482,11 +476,18 @@ impl<'a> KnownSizeSearch<'a> {
         hypotheses
     }
 
+    /// Poses farther apart than the failure criterion, MSSD > 0.1 × diameter.
+    fn separation(&self) -> Separation {
+        Separation::Mssd {
+            threshold: 0.1 * self.model.diameter(),
+            permutations: self.model.symmetry_permutations(),
+        }
+    }
+
     /// The best mutually different hypotheses, each refined.
     fn refined_candidates(&self) -> Vec<Refined> {
         let hypotheses = self.hypotheses();
-        let separation = 0.1 * self.model.diameter();
-        adaptive::distinct(&hypotheses, separation, self.params.refine_top)
+        adaptive::distinct(&hypotheses, self.separation(), self.params.refine_top)
             .into_iter()
             .map(|placed| self.refine(placed))
             .collect()

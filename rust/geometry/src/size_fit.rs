@@ -3,7 +3,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use crate::adaptive::{self, CostModel, FitConfidence, Placed, Refined};
+use crate::adaptive::{self, CostModel, FitConfidence, Placed, Refined, Separation};
 use crate::align::kabsch;
 use crate::box_model::{BoxModel, CORNER_COUNT, corner_signs};
 use crate::error::{GeometryError, Result, ensure_finite_points};
@@ -455,11 +455,13 @@ pub fn robust_size_fit(
 ) -> Result<RobustSizedFit> {
     let search = SizeSearch::new(points, params)?;
     let refined = search.refined_candidates();
-    let separation = 0.1
-        * refined
-            .iter()
-            .map(|r| r.placed.diameter())
-            .fold(f64::INFINITY, f64::min);
+    let separation = Separation::Corners {
+        threshold: 0.1
+            * refined
+                .iter()
+                .map(|r| r.placed.diameter())
+                .fold(f64::INFINITY, f64::min),
+    };
     let (best, confidence) = adaptive::choose(refined, points, separation)
         .ok_or(GeometryError::Degenerate("no box hypothesis"))?;
     let inlier_set = best.inlier_indices();
@@ -498,12 +500,10 @@ pub fn assess_sized_box(
         half: model.size() * 0.5,
     };
     let given = Refined::new(placed, points, &search.cost_model);
-    let separation = 0.1 * model.diameter();
-    let runner_up = refined
-        .iter()
-        .filter(|r| r.placed.corner_distance(&given.placed) > separation)
-        .map(|r| r.profile.cost)
-        .fold(f64::INFINITY, f64::min);
+    let runner_up = Separation::Corners {
+        threshold: 0.1 * model.diameter(),
+    }
+    .runner_up_cost(&given.placed, &refined);
     Ok(adaptive::confidence_of(
         &given,
         runner_up - given.profile.cost,
@@ -665,7 +665,9 @@ impl<'a> SizeSearch<'a> {
     fn refined_candidates(&self) -> Vec<Refined> {
         let hypotheses = self.hypotheses();
         // Distinct by a tenth of the best hypothesis's diameter.
-        let separation = hypotheses.first().map_or(0.0, |h| 0.1 * h.1.diameter());
+        let separation = Separation::Corners {
+            threshold: hypotheses.first().map_or(0.0, |h| 0.1 * h.1.diameter()),
+        };
         adaptive::distinct(&hypotheses, separation, self.params.refine_top)
             .into_iter()
             .map(|placed| self.refine(placed))
