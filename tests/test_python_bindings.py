@@ -268,3 +268,56 @@ def test_huge_inputs_return_quickly_instead_of_hanging_or_aborting():
             [sys.executable, "-c", script], capture_output=True, text=True, timeout=30
         )
         assert result.returncode == 0, (call, result.stderr)
+
+
+def render_depth(size, pose, intrinsics, shape, background_z):
+    """The box's depth image by ray casting (slab test) over a wall at `background_z`."""
+    fx, fy, cx, cy = intrinsics
+    height, width = shape
+    v, u = np.mgrid[0:height, 0:width]
+    rays = np.stack([(u - cx) / fx, (v - cy) / fy, np.ones_like(u, dtype=float)], axis=-1)
+    rotation, origin = pose[:3, :3], -pose[:3, :3].T @ pose[:3, 3]
+    directions = rays @ rotation  # each ray in the box frame
+    half = np.asarray(size) / 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (-half - origin) / directions
+        t2 = (half - origin) / directions
+    near = np.max(np.minimum(t1, t2), axis=-1).clip(min=0)
+    far = np.min(np.maximum(t1, t2), axis=-1)
+    return np.where(near <= far, near, background_z).astype(np.float32)
+
+
+def test_robust_fit_settles_a_mirror_tie_with_the_depth_image():
+    # Only the 4 corners of the face turned away from the camera are detected, plus 4 stray
+    # peaks: the box and its mirror image through that face fit the peaks alike, and the
+    # visibility prior picks the mirror, whose copy of that face the camera would see.
+    size = [0.3, 0.2, 0.12]
+    rng = np.random.default_rng(7)
+    pose = random_pose(rng)
+    corners = transform(pose, boxpose.box_corners(size))
+    centre = pose[:3, 3]
+    face_depths = [
+        (corners[[i for i in range(8) if (i >> axis & 1) == side]][:, 2].mean(), axis, side)
+        for axis in range(3)
+        for side in (0, 1)
+    ]
+    _, axis, side = max(face_depths)
+    back_face = corners[[i for i in range(8) if (i >> axis & 1) == side]]
+    strays = centre + np.array(
+        [[0.25, 0.2, -0.1], [-0.22, 0.18, 0.05], [0.2, -0.25, 0.12], [-0.18, -0.2, -0.15]]
+    )
+    points = np.vstack([back_face, strays])
+    intrinsics = [125.0, 125.0, 79.5, 59.5]
+    depth = render_depth(size, pose, intrinsics, (120, 160), centre[2] + 0.4)
+    diameter = float(np.linalg.norm(size))
+
+    peaks_only = boxpose.robust_fit(size, points)
+    assert peaks_only["mirror_ambiguous"]
+    assert boxpose.mssd(size, peaks_only["pose"], pose) > 0.1 * diameter
+
+    with_depth = boxpose.robust_fit(size, points, depth=depth, intrinsics=intrinsics)
+    assert not with_depth["mirror_ambiguous"]
+    assert boxpose.mssd(size, with_depth["pose"], pose) < 1e-6
+
+    with pytest.raises(ValueError, match="pass both or neither"):
+        boxpose.robust_fit(size, points, depth=depth)

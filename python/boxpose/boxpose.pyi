@@ -113,8 +113,11 @@ def robust_fit(
     inlier_threshold: float | None = None,
     *,
     method: Literal["adaptive", "fixed_threshold"] = "adaptive",
+    depth: NDArray[np.float32] | None = None,
+    intrinsics: Sequence[float] | None = None,
 ) -> _RobustFit:
-    """Pose of a box of known size that survives up to half the points being outliers."""
+    """Pose of a box of known size that survives up to half the points being outliers;
+    with a depth image and its camera's (fx, fy, cx, cy), mirror ties are settled by it."""
 
 def fit_pose_and_size(
     points: _F64, *, method: Literal["robust", "least_squares"] = "robust"

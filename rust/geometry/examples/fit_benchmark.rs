@@ -4,13 +4,27 @@
 //!
 //! cargo run --release -p boxpose-geometry --example fit_benchmark -- [BOXES_PER_CELL] [fits]
 //!
-//! `fits` is a comma-separated subset of: robust_fixed, adaptive, size_ls, size_robust, fast_exact.
+//! `fits` is a comma-separated subset of: oracle, fast_exact, robust, size_and_pose, robust_fixed,
+//! size_and_pose_ls, and `robust+depth`, `size_and_pose+depth`: the fit whose mirror ties are then
+//! settled with the true box's depth image ([`benchmark::Case::depth_image`]; the check is counted
+//! in the time, the rendering is not).
 
 use std::time::Instant;
 
 use boxpose_geometry::benchmark::{self, Case, Outliers, Shape, WRONG_FRACTION_OF_DIAMETER};
 use boxpose_geometry::metrics;
 use boxpose_geometry::pipeline::{Method, fit_method};
+
+/// A row of the tables: the oracle (`None`), or a fit, with or without the depth image.
+type Fit = Option<(Method, bool)>;
+
+fn name(fit: Fit) -> String {
+    match fit {
+        None => "oracle".to_string(),
+        Some((method, false)) => method.name().to_string(),
+        Some((method, true)) => format!("{}+depth", method.name()),
+    }
+}
 
 fn main() {
     let mut args = std::env::args().skip(1);
@@ -19,15 +33,20 @@ fn main() {
         .map(|s| s.parse().expect("a count"))
         .unwrap_or(1000);
     // `None` is the oracle: least squares on the true inliers with their true corners.
-    let methods: Vec<Option<Method>> = match args.next() {
+    let methods: Vec<Fit> = match args.next() {
         Some(list) => list
             .split(',')
-            .map(|name| {
-                (name != "oracle").then(|| {
-                    *Method::ALL
+            .map(|wanted| {
+                (wanted != "oracle").then(|| {
+                    let (method_name, depth) = match wanted.strip_suffix("+depth") {
+                        Some(base) => (base, true),
+                        None => (wanted, false),
+                    };
+                    let method = *Method::ALL
                         .iter()
-                        .find(|m| m.name() == name)
-                        .unwrap_or_else(|| panic!("unknown fit {name}"))
+                        .find(|m| m.name() == method_name)
+                        .unwrap_or_else(|| panic!("unknown fit {wanted}"));
+                    (method, depth)
                 })
             })
             .collect(),
@@ -36,15 +55,19 @@ fn main() {
                 Method::ALL
                     .into_iter()
                     .filter(|m| *m != Method::PaperExact)
-                    .map(Some),
+                    .map(|m| Some((m, false))),
             )
+            .chain([
+                Some((Method::Robust, true)),
+                Some((Method::SizeAndPose, true)),
+            ])
             .collect(),
     };
     let noises = [0.001, 0.003, 0.01, 0.02];
     for method in methods {
         println!(
             "\n## {} ({} boxes per cell, shapes cube/square/plate/generic in turn)",
-            method.map_or("oracle", Method::name),
+            name(method),
             per_cell
         );
         println!(
@@ -103,16 +126,21 @@ fn main() {
 }
 
 /// (wrong, confidence, seconds) of one fit on one case; a failed fit is wrong with confidence 0.
-fn run(method: Option<Method>, case: &Case) -> (bool, f64, f64) {
-    let Some(method) = method else {
+fn run(fit: Fit, case: &Case) -> (bool, f64, f64) {
+    let Some((method, with_depth)) = fit else {
         let wrong = benchmark::oracle_pose(case).is_none_or(|pose| {
             !(metrics::mssd(&case.model, &pose, &case.truth).unwrap()
                 <= WRONG_FRACTION_OF_DIAMETER * case.model.diameter())
         });
         return (wrong, 0.0, 0.0);
     };
+    // rendered before the clock starts: the image is the input, not part of the fit
+    let image = with_depth.then(|| case.depth_image());
     let start = Instant::now();
-    let fit = fit_method(method, &case.model, &case.points, &case.scores);
+    let mut fit = fit_method(method, &case.model, &case.points, &case.scores);
+    if let (Ok(fitted), Some(image)) = (&mut fit, &image) {
+        fitted.resolve_mirror(&case.points, &image.view());
+    }
     let seconds = start.elapsed().as_secs_f64();
     match fit {
         Ok(fit) => {

@@ -168,6 +168,76 @@ pub struct Case {
     pub coplanar_inliers: bool,
 }
 
+/// A depth image rendered by ray casting: what the mirror check of [`crate::depth`] reads.
+#[derive(Debug, Clone)]
+pub struct DepthImage {
+    pub width: usize,
+    pub height: usize,
+    /// fx, fy, cx, cy.
+    pub intrinsics: [f64; 4],
+    pub depth_m: Vec<f32>,
+}
+
+impl DepthImage {
+    pub fn view(&self) -> crate::depth::DepthView<'_> {
+        crate::depth::DepthView {
+            width: self.width,
+            height: self.height,
+            intrinsics: self.intrinsics,
+            depth_m: &self.depth_m,
+        }
+    }
+}
+
+/// The depth image of `model` at `pose` seen by a 160 × 120 camera with a focal length of 125 px
+/// (the field of view of the recipes' 640 × 480 cameras at a quarter of their resolution), in
+/// front of a wall perpendicular to the optical axis at `background_z` (a bin's floor).
+pub fn render_depth(model: &BoxModel, pose: &Isometry3<f64>, background_z: f64) -> DepthImage {
+    let (width, height) = (160, 120);
+    let intrinsics = [125.0, 125.0, 79.5, 59.5];
+    let inverse = pose.inverse();
+    let origin = inverse * Point3::origin();
+    let half = model.size() * 0.5;
+    let depth_m = (0..width * height)
+        .map(|i| {
+            let (u, v) = ((i % width) as f64, (i / width) as f64);
+            // a ray with unit z in the camera frame: its parameter at a hit is the hit's depth
+            let ray = Vector3::new(
+                (u - intrinsics[2]) / intrinsics[0],
+                (v - intrinsics[3]) / intrinsics[1],
+                1.0,
+            );
+            let direction = inverse.rotation * ray;
+            let (mut near, mut far) = (0.0f64, f64::INFINITY);
+            for a in 0..3 {
+                let t1 = (-half[a] - origin[a]) / direction[a];
+                let t2 = (half[a] - origin[a]) / direction[a];
+                near = near.max(t1.min(t2));
+                far = far.min(t1.max(t2));
+            }
+            (if near <= far { near } else { background_z }) as f32
+        })
+        .collect();
+    DepthImage {
+        width,
+        height,
+        intrinsics,
+        depth_m,
+    }
+}
+
+impl Case {
+    /// The true box's depth image ([`render_depth`]) over a background one diameter behind its
+    /// centre.
+    pub fn depth_image(&self) -> DepthImage {
+        render_depth(
+            &self.model,
+            &self.truth,
+            self.truth.translation.z + self.model.diameter(),
+        )
+    }
+}
+
 /// `count` cases from `seed`: shape, `outliers` of the 8 peaks placed as `kind`, Gaussian noise of
 /// `noise_m` per coordinate on the inliers, poses uniform in rotation at 0.8–2 m.
 pub fn generate(

@@ -20,6 +20,7 @@ pub mod align;
 pub mod benchmark;
 pub mod box_model;
 pub mod correspondence;
+pub mod depth;
 pub mod detection;
 pub mod error;
 pub mod heatmap;

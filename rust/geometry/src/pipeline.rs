@@ -9,10 +9,15 @@ use nalgebra::{Isometry3, Matrix3, Point3, Quaternion, Translation3, UnitQuatern
 use crate::adaptive::FitConfidence;
 use crate::box_model::{CORNER_COUNT, corner_signs};
 use crate::correspondence::{fast_exact_search, paper_exact_search};
+use crate::depth::{self, DepthView};
 use crate::{BoxModel, GeometryError, metrics, robust, size_fit};
 
 /// Peaks the paper's search fits (m).
 const PAPER_M: usize = 5;
+
+/// A fit with more inliers than this keeps more than one peak off a face's mirror image, which the
+/// depth image is not asked to overrule.
+const MIRROR_FACE_MAX_INLIERS: usize = 5;
 
 /// The pose fits compared; all but the two size-and-pose fits know the box's size.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,9 +75,79 @@ pub struct Fitted {
     pub pose: Isometry3<f64>,
     pub fits_size: bool,
     pub own_confidence: Option<FitConfidence>,
+    /// Per point, whether the fit counted it as an inlier (the noise-adaptive fits only).
+    pub inliers: Option<Vec<bool>>,
 }
 
 impl Fitted {
+    /// Settles a mirror tie with the depth image. Four inlier peaks on one face of the box fit the
+    /// box and its mirror image through that face alike, so the peaks cannot choose, and a fifth
+    /// peak near a corner of the mirror box (a depth flip of the detector) makes the wrong one
+    /// win. The candidates are the mirror images through the plane of the inliers when they lie in
+    /// one plane (`mirror_ambiguous`), and, for a fit with at most 5 inliers, through each face of
+    /// the fitted box whose 4 corners all have an inlier peak. [`depth::resolve_mirror`] keeps the
+    /// pose that agrees with `view`; the fit stays `mirror_ambiguous` only if the depth image
+    /// cannot tell either.
+    pub fn resolve_mirror(&mut self, points: &[Point3<f64>], view: &DepthView) {
+        let (Some(confidence), Some(inliers)) = (self.own_confidence, &self.inliers) else {
+            return;
+        };
+        let inlier_points: Vec<Point3<f64>> = points
+            .iter()
+            .zip(inliers)
+            .filter(|(_, inlier)| **inlier)
+            .map(|(p, _)| *p)
+            .collect();
+        let mut planes = Vec::new();
+        if confidence.mirror_ambiguous {
+            planes.push(inlier_points.clone());
+        }
+        if inlier_points.len() <= MIRROR_FACE_MAX_INLIERS {
+            planes.extend(self.faces_with_four_inliers(&inlier_points));
+        }
+        let tolerance = depth::depth_tolerance(confidence.noise_scale_m);
+        let mut still_ambiguous = confidence.mirror_ambiguous;
+        for plane in planes {
+            let resolution =
+                depth::resolve_mirror(&self.model, &self.pose, &plane, view, tolerance);
+            if resolution.switched {
+                self.pose = resolution.pose;
+                still_ambiguous = false;
+                break;
+            }
+            if !resolution.still_ambiguous {
+                still_ambiguous = false;
+            }
+        }
+        if let Some(own) = &mut self.own_confidence {
+            own.mirror_ambiguous = still_ambiguous;
+        }
+    }
+
+    /// The inlier peaks on each face of the fitted box whose 4 corners each have one (nearest).
+    fn faces_with_four_inliers(&self, inlier_points: &[Point3<f64>]) -> Vec<Vec<Point3<f64>>> {
+        let corners: Vec<Point3<f64>> =
+            self.model.corners().iter().map(|c| self.pose * c).collect();
+        let mut at_corner: [Option<Point3<f64>>; CORNER_COUNT] = [None; CORNER_COUNT];
+        for p in inlier_points {
+            let nearest = (0..CORNER_COUNT)
+                .min_by(|&a, &b| (corners[a] - p).norm().total_cmp(&(corners[b] - p).norm()))
+                .expect("a box has corners");
+            at_corner[nearest] = Some(*p);
+        }
+        let mut faces = Vec::new();
+        for axis in 0..3 {
+            for sign in [-1.0, 1.0] {
+                let face: Option<Vec<Point3<f64>>> = (0..CORNER_COUNT)
+                    .filter(|&c| corner_signs(c)[axis] == sign)
+                    .map(|c| at_corner[c])
+                    .collect();
+                faces.extend(face);
+            }
+        }
+        faces
+    }
+
     /// The fit's own confidence, or else the noise-adaptive assessment of its box on `points`
     /// ([`robust::assess_pose`] or [`size_fit::assess_sized_box`]).
     pub fn confidence(&self, points: &[Point3<f64>]) -> Result<FitConfidence, GeometryError> {
@@ -109,6 +184,7 @@ pub fn fit_method(
         pose,
         fits_size: false,
         own_confidence,
+        inliers: None,
     };
     Ok(match method {
         Method::PaperExact => known(
@@ -121,7 +197,10 @@ pub fn fit_method(
         ),
         Method::Robust => {
             let fit = robust::adaptive_fit(model, points, &robust::AdaptiveParams::default())?;
-            known(fit.pose, Some(fit.confidence))
+            Fitted {
+                inliers: Some(fit.inliers),
+                ..known(fit.pose, Some(fit.confidence))
+            }
         }
         Method::RobustFixedThreshold => known(
             robust::robust_fit(model, points, &robust::RobustParams::for_box(model))?.pose,
@@ -134,6 +213,7 @@ pub fn fit_method(
                 pose: fit.pose,
                 fits_size: true,
                 own_confidence: Some(fit.confidence),
+                inliers: Some(fit.inliers),
             }
         }
         Method::SizeAndPoseLeastSquares => {
@@ -143,6 +223,7 @@ pub fn fit_method(
                 pose: fit.pose,
                 fits_size: true,
                 own_confidence: None,
+                inliers: None,
             }
         }
     })
@@ -176,7 +257,8 @@ pub struct Scores {
     pub noise_scale_m: f64,
     /// [`FitConfidence::inliers`].
     pub inliers: usize,
-    /// [`FitConfidence::mirror_ambiguous`].
+    /// [`FitConfidence::mirror_ambiguous`], after the depth image's say where the fit had one
+    /// ([`Fitted::resolve_mirror`]).
     pub mirror_ambiguous: bool,
     /// The fitted box's 8 corners (its own size under its pose, in the model's corner order),
     /// in the frame of the points: what an overlay draws.
@@ -225,7 +307,9 @@ impl From<Result<Scores, GeometryError>> for FitOutcome {
 }
 
 /// Runs every [`Method`] on `points` (with NMS `scores`, best first) and scores each against the
-/// true pose of `model`; a fit that fails gives its error instead of scores.
+/// true pose of `model`; a fit that fails gives its error instead of scores. With the frame's
+/// depth image (`depth`), the noise-adaptive fits settle mirror ties with it
+/// ([`Fitted::resolve_mirror`], counted in the fit's time).
 ///
 /// The size-known fits are scored with the true model. The size-and-pose fits are scored as the
 /// box they fitted: their MSSD compares their own corners with the true ones and their ADD-S their
@@ -236,8 +320,9 @@ pub fn fit_and_score(
     truth: &Isometry3<f64>,
     points: &[Point3<f64>],
     scores: &[f64],
+    depth: Option<&DepthView>,
 ) -> Vec<(Method, FitOutcome)> {
-    fit_and_score_methods(&Method::ALL, model, truth, points, scores)
+    fit_and_score_methods(&Method::ALL, model, truth, points, scores, depth)
 }
 
 fn fit_and_score_methods(
@@ -246,6 +331,7 @@ fn fit_and_score_methods(
     truth: &Isometry3<f64>,
     points: &[Point3<f64>],
     scores: &[f64],
+    depth: Option<&DepthView>,
 ) -> Vec<(Method, FitOutcome)> {
     let truth_corners: Vec<Point3<f64>> = model.corners().iter().map(|c| truth * c).collect();
     let score = |fitted: &Fitted, fit_time_us: f64| -> Result<Scores, GeometryError> {
@@ -288,7 +374,12 @@ fn fit_and_score_methods(
         .iter()
         .map(|&method| {
             let start = Instant::now();
-            let fitted = fit_method(method, model, points, scores);
+            let fitted = fit_method(method, model, points, scores).map(|mut fitted| {
+                if let Some(view) = depth {
+                    fitted.resolve_mirror(points, view);
+                }
+                fitted
+            });
             let fit_time_us = start.elapsed().as_secs_f64() * 1e6;
             (method, fitted.and_then(|f| score(&f, fit_time_us)).into())
         })
@@ -302,8 +393,9 @@ pub fn fit_and_score_one(
     truth: &Isometry3<f64>,
     points: &[Point3<f64>],
     scores: &[f64],
+    depth: Option<&DepthView>,
 ) -> FitOutcome {
-    fit_and_score_methods(&[method], model, truth, points, scores)
+    fit_and_score_methods(&[method], model, truth, points, scores, depth)
         .remove(0)
         .1
 }

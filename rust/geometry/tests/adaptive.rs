@@ -7,7 +7,7 @@ use boxpose_geometry::BoxModel;
 use boxpose_geometry::benchmark::{self, Case, Outliers, Shape, WRONG_FRACTION_OF_DIAMETER};
 use boxpose_geometry::correspondence::fast_exact_search;
 use boxpose_geometry::metrics::mssd;
-use boxpose_geometry::pipeline::{Method, fit_and_score, fit_method};
+use boxpose_geometry::pipeline::{FitOutcome, Method, fit_and_score, fit_method};
 use boxpose_geometry::robust::{AdaptiveParams, adaptive_fit};
 use common::*;
 use nalgebra::{Isometry3, Point3};
@@ -236,11 +236,66 @@ fn coplanar_inliers_are_flagged() {
     );
 }
 
+/// The depth image settles what the peaks cannot: on the same coplanar cases, the fits checked
+/// against the true box's depth image are almost all right and no longer ambiguous; and where a
+/// peak sits on a corner of the mirror box (the `mirrored` outliers, so the wrong pose has more
+/// inliers and is not even reported as ambiguous), the face's mirror is checked too.
+#[test]
+fn the_depth_image_settles_mirror_ties() {
+    let coplanar: Vec<Case> = cases(41, 60, 4, Outliers::Uniform, 0.001)
+        .into_iter()
+        .filter(|c| c.coplanar_inliers)
+        .collect();
+    let mirrored = cases(43, 40, 3, Outliers::Mirrored, 0.001);
+    for (name, set, at_most_wrong) in [("coplanar", &coplanar, 1), ("mirrored", &mirrored, 2)] {
+        let (mut wrong_before, mut wrong_after, mut still_flagged) = (0, 0, 0);
+        for c in set {
+            let image = c.depth_image();
+            let peaks_only = fit_and_score(&c.model, &c.truth, &c.points, &c.scores, None);
+            let with_depth = fit_and_score(
+                &c.model,
+                &c.truth,
+                &c.points,
+                &c.scores,
+                Some(&image.view()),
+            );
+            let robust = |scored: &[(Method, FitOutcome)]| {
+                *scored
+                    .iter()
+                    .find(|(m, _)| *m == Method::Robust)
+                    .and_then(|(_, o)| o.scores())
+                    .expect("the robust fit scores")
+            };
+            let limit = WRONG_FRACTION_OF_DIAMETER * c.model.diameter();
+            wrong_before += (robust(&peaks_only).mssd_m > limit) as usize;
+            let after = robust(&with_depth);
+            wrong_after += (after.mssd_m > limit) as usize;
+            still_flagged += after.mirror_ambiguous as usize;
+        }
+        eprintln!(
+            "{name}: {} cases, wrong {wrong_before} -> {wrong_after}, still ambiguous {still_flagged}",
+            set.len()
+        );
+        assert!(
+            wrong_before > at_most_wrong,
+            "{name}: the set no longer tests the depth check"
+        );
+        assert!(
+            wrong_after <= at_most_wrong,
+            "{name}: {wrong_after} wrong with the depth image"
+        );
+        assert!(
+            10 * still_flagged <= set.len(),
+            "{name}: {still_flagged} still ambiguous"
+        );
+    }
+}
+
 /// Every method is scored, with the names other crates key on, and its confidence.
 #[test]
 fn pipeline_scores_every_method_with_a_confidence() {
     let case = &benchmark::generate(5, 1, Shape::Generic, 2, Outliers::Uniform, 0.003)[0];
-    let scored = fit_and_score(&case.model, &case.truth, &case.points, &case.scores);
+    let scored = fit_and_score(&case.model, &case.truth, &case.points, &case.scores, None);
     let names: Vec<&str> = scored.iter().map(|(m, _)| m.name()).collect();
     assert_eq!(
         names,

@@ -7,6 +7,7 @@ use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 
 use boxpose_data::{Dataset, Frame, FrameEntry, Instance, Intrinsics};
+use boxpose_geometry::depth::DepthView;
 use boxpose_geometry::heatmap::{
     self, CropTransform, DepthBins, HeatmapDims, PinholeIntrinsics, VoxelGrid,
 };
@@ -175,6 +176,17 @@ pub(crate) fn nearest_source(
         .round()
         .max(0.0) as usize)
         .min(len - 1)
+}
+
+/// The frame's depth image, as the fits read it to settle mirror ties.
+pub fn depth_view(frame: &Frame) -> DepthView<'_> {
+    let k = &frame.intrinsics;
+    DepthView {
+        width: frame.width,
+        height: frame.height,
+        intrinsics: [k.fx, k.fy, k.cx, k.cy],
+        depth_m: &frame.depth,
+    }
 }
 
 /// The network input `[4, height, width]` (R, G, B, depth) of the image region that starts at

@@ -4,6 +4,7 @@
 
 use boxpose_data::{Frame, Instance};
 use boxpose_geometry::BoxModel;
+use boxpose_geometry::depth::DepthView;
 use boxpose_geometry::heatmap::VoxelGrid;
 use boxpose_geometry::pipeline::{self, FitOutcome, Method};
 use nalgebra::{Isometry3, Point3, Vector3};
@@ -37,13 +38,15 @@ pub fn true_pose(instance: &Instance) -> Isometry3<f64> {
     )
 }
 
-/// Scores one heatmap (from the crop `grid`) against its instance's truth and `target`.
+/// Scores one heatmap (from the crop `grid`) against its instance's truth and `target`; with the
+/// frame's `depth`, the fits settle mirror ties with it.
 pub(crate) fn evaluate_instance(
     config: &NetworkConfig,
     instance: &Instance,
     heatmap: &[f32],
     target: &[f32],
     grid: &VoxelGrid,
+    depth: Option<&DepthView>,
 ) -> Result<InstanceEval, LearnError> {
     let model = BoxModel::new(Vector3::from(instance.size))?;
     let heatmap_mse = heatmap
@@ -63,7 +66,7 @@ pub(crate) fn evaluate_instance(
         })
         .count();
     let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
-    let fits = pipeline::fit_and_score(&model, &true_pose(instance), &points, &scores);
+    let fits = pipeline::fit_and_score(&model, &true_pose(instance), &points, &scores, depth);
     Ok(InstanceEval {
         diameter_m: model.diameter(),
         missed: false,
@@ -296,6 +299,7 @@ pub fn evaluate_frame(
                     &heatmap,
                     &sample.target,
                     &sample.grid,
+                    Some(&data::depth_view(frame)),
                 )
             }
             None => missed_instance(instance),

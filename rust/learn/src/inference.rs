@@ -5,9 +5,9 @@
 use std::path::Path;
 
 use boxpose_data::Frame;
-use boxpose_geometry::GeometryError;
 use boxpose_geometry::heatmap::{self, NmsParams, Peak, VoxelGrid};
 use boxpose_geometry::size_fit::{self, SizedBoxFit};
+use boxpose_geometry::{GeometryError, depth};
 use burn::prelude::*;
 use nalgebra::Point3;
 
@@ -133,6 +133,34 @@ pub fn decode(
     Ok((peaks, points))
 }
 
+/// A size fit whose inliers lie in one plane fits its mirror image through that plane as well:
+/// the frame's depth image decides where it can ([`depth::resolve_mirror`]).
+fn settle_mirror_tie(
+    mut fit: size_fit::RobustSizedFit,
+    points: &[Point3<f64>],
+    frame: &Frame,
+) -> size_fit::RobustSizedFit {
+    if !fit.confidence.mirror_ambiguous {
+        return fit;
+    }
+    let plane: Vec<Point3<f64>> = points
+        .iter()
+        .zip(&fit.inliers)
+        .filter(|(_, inlier)| **inlier)
+        .map(|(p, _)| *p)
+        .collect();
+    let resolution = depth::resolve_mirror(
+        &fit.model,
+        &fit.pose,
+        &plane,
+        &data::depth_view(frame),
+        depth::depth_tolerance(fit.confidence.noise_scale_m),
+    );
+    fit.pose = resolution.pose;
+    fit.confidence.mirror_ambiguous = resolution.still_ambiguous;
+    fit
+}
+
 /// Runs the whole pipeline on crops of one frame.
 pub fn predict(
     model: &KeypointModel,
@@ -154,6 +182,7 @@ pub fn predict(
             // The noise-adaptive pose-and-size fit (survives outlier peaks); `SizedBoxFit::cost` is
             // its plain sum of squared residuals, as `fit_pose_and_size`'s default would give.
             let fit = size_fit::robust_size_fit(&points, &size_fit::RobustSizeParams::default())
+                .map(|f| settle_mirror_tie(f, &points, frame))
                 .map(|f| {
                     let inlier_squares: Vec<f64> = f
                         .residuals

@@ -70,6 +70,8 @@ impl KeypointTask {
                     heatmap,
                     &sample.target,
                     &sample.grid,
+                    // validation keeps no frames in memory: the fits run on the peaks alone
+                    None,
                 )
             })
             .collect()

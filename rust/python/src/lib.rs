@@ -7,12 +7,13 @@
 
 use boxpose_geometry::adaptive::FitConfidence;
 use boxpose_geometry::align::nearest_rotation;
+use boxpose_geometry::depth::DepthView;
 use boxpose_geometry::heatmap::{
     self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord,
     VoxelGrid,
 };
 use boxpose_geometry::{
-    BoxModel, GeometryError, align, correspondence, detection, metrics, robust, size_fit,
+    BoxModel, GeometryError, align, correspondence, detection, metrics, pipeline, robust, size_fit,
 };
 use nalgebra::{
     Isometry3, Matrix3, Matrix4, Point3, RowVector4, Translation3, UnitQuaternion, Vector3,
@@ -348,17 +349,47 @@ fn confidence_items(dict: &Bound<'_, PyDict>, c: &FitConfidence) -> PyResult<()>
 /// confidence of 1, when there is none), "confidence_inliers", "noise_scale_m",
 /// "mirror_ambiguous"}. The fixed-threshold fit's confidence is the noise-adaptive assessment of
 /// its pose (`robust::assess_pose`).
+///
+/// With `depth` (an H × W float32 depth image in metres, 0 where none, as the dataset's `depth`
+/// column) and `intrinsics` (fx, fy, cx, cy of the camera whose frame the points are in), the
+/// adaptive fit settles mirror ties with it (`pipeline::Fitted::resolve_mirror`):
+/// "mirror_ambiguous" is then what is left after the depth image's say.
 #[pyfunction]
-#[pyo3(signature = (size, points, inlier_threshold = None, *, method = "adaptive"))]
+#[pyo3(signature = (size, points, inlier_threshold = None, *, method = "adaptive", depth = None, intrinsics = None))]
 fn robust_fit<'py>(
     py: Python<'py>,
     size: [f64; 3],
     points: PyReadonlyArray2<f64>,
     inlier_threshold: Option<f64>,
     method: &str,
+    depth: Option<PyReadonlyArray2<f32>>,
+    intrinsics: Option<[f64; 4]>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let model = box_model(size)?;
     let pts = self::points(&points, "points")?;
+    let depth_image = match (&depth, intrinsics) {
+        (None, None) => None,
+        (Some(depth), Some(intrinsics)) if method == "adaptive" => {
+            let view = depth.as_array();
+            let (height, width) = view.dim();
+            Some((
+                width,
+                height,
+                intrinsics,
+                view.iter().copied().collect::<Vec<f32>>(),
+            ))
+        }
+        (Some(_), Some(_)) => {
+            return Err(PyValueError::new_err(
+                "depth applies to method=\"adaptive\" only",
+            ));
+        }
+        _ => {
+            return Err(PyValueError::new_err(
+                "depth and intrinsics go together: pass both or neither",
+            ));
+        }
+    };
     let dict = PyDict::new(py);
     dict.set_item("method", method)?;
     match method {
@@ -368,9 +399,27 @@ fn robust_fit<'py>(
                     "inlier_threshold applies to method=\"fixed_threshold\" only",
                 ));
             }
-            let fit = py
+            let mut fit = py
                 .detach(|| robust::adaptive_fit(&model, &pts, &robust::AdaptiveParams::default()))
                 .map_err(value_error)?;
+            if let Some((width, height, intrinsics, depth_m)) = &depth_image {
+                let mut fitted = pipeline::Fitted {
+                    model,
+                    pose: fit.pose,
+                    fits_size: false,
+                    own_confidence: Some(fit.confidence),
+                    inliers: Some(fit.inliers.clone()),
+                };
+                let view = DepthView {
+                    width: *width,
+                    height: *height,
+                    intrinsics: *intrinsics,
+                    depth_m,
+                };
+                fitted.resolve_mirror(&pts, &view);
+                fit.pose = fitted.pose;
+                fit.confidence = fitted.own_confidence.unwrap_or(fit.confidence);
+            }
             dict.set_item("pose", matrix(py, &fit.pose))?;
             dict.set_item("inlier_rms", fit.inlier_rms())?;
             dict.set_item("inliers", fit.inliers)?;

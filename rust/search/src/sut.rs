@@ -404,6 +404,7 @@ impl SystemUnderTest {
             &evaluation::true_pose(instance),
             &points,
             &scores,
+            Some(&boxpose_learn::data::depth_view(frame)),
         );
         seconds.fit = start.elapsed().as_secs_f64();
         let perceived = match outcome {
