@@ -101,6 +101,29 @@ def test_rust_output_is_a_valid_dataset(dataset, boxpose_bin, tmp_path):
     assert r.returncode == 0, r.stderr.splitlines()[0]
 
 
+def test_rust_render_leaves_no_blender_temp_folder(dataset, boxpose_bin, tmp_path):
+    # Blender makes a blender_XXXXXX folder in TMPDIR at start-up; the embedded interpreter never
+    # runs the Python exit handler that removes it, so the binary removes it at exit.
+    temp = tmp_path / "tmp"
+    temp.mkdir()
+    r = boxpose(
+        boxpose_bin,
+        "render",
+        dataset,
+        "--scene",
+        0,
+        "--frame",
+        0,
+        "--samples",
+        1,
+        "--out",
+        tmp_path / "out",
+        env={"TMPDIR": str(temp)},
+    )
+    assert r.returncode == 0, r.stderr
+    assert list(temp.iterdir()) == []
+
+
 def test_rust_crop_and_samples(dataset, boxpose_bin, tmp_path):
     out = tmp_path / "crop"
     r = boxpose(

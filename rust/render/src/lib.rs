@@ -110,17 +110,21 @@ impl Renderer {
     fn start_session(threads: usize) -> Result<Self> {
         Python::attach(|py| {
             check_python(py)?;
-            if let Err(e) = py.import("bpy") {
-                let sys_exe: String = py
-                    .import("sys")
-                    .and_then(|s| s.getattr("executable"))
-                    .and_then(|v| v.extract())
-                    .unwrap_or_default();
-                return Err(RenderError::Setup(format!(
-                    "bpy is not importable by the embedded Python ({sys_exe}): {}",
-                    e.value(py)
-                )));
-            }
+            let bpy = match py.import("bpy") {
+                Ok(bpy) => bpy,
+                Err(e) => {
+                    let sys_exe: String = py
+                        .import("sys")
+                        .and_then(|s| s.getattr("executable"))
+                        .and_then(|v| v.extract())
+                        .unwrap_or_default();
+                    return Err(RenderError::Setup(format!(
+                        "bpy is not importable by the embedded Python ({sys_exe}): {}",
+                        e.value(py)
+                    )));
+                }
+            };
+
             let module = py
                 .import("blender_scripts.session")
                 .map_err(|e| py_err(py, e))?;
@@ -128,7 +132,13 @@ impl Renderer {
                 .getattr("Session")
                 .and_then(|s| s.call1((threads,)))
                 .map_err(|e| py_err(py, e))?;
-            quiet::at_exit();
+            // read after the Session: resetting Blender to factory settings makes a new one
+            let blender_tempdir: String = bpy
+                .getattr("app")
+                .and_then(|app| app.getattr("tempdir"))
+                .and_then(|dir| dir.extract())
+                .map_err(|e| py_err(py, e))?;
+            quiet::at_exit(Path::new(&blender_tempdir));
             Ok(Self {
                 session: session.unbind(),
                 scene_id: None,

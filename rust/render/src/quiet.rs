@@ -34,10 +34,31 @@ extern "C" fn silence_at_exit() {
     }
 }
 
-/// Registers the exit hook. C atexit hooks run in reverse order of registration, so once bpy is
-/// imported this one runs before Blender's leak report (and C++ static destructors).
-pub fn at_exit() {
+/// Blender's session temp folder (`bpy.app.tempdir`), removed at exit.
+static BLENDER_TEMPDIR: std::sync::OnceLock<std::path::PathBuf> = std::sync::OnceLock::new();
+
+/// Blender makes a `blender_XXXXXX` folder in the temp folder at start-up and removes it in its
+/// Python exit handler, which an embedded interpreter that is never finalized does not run: every
+/// process that rendered left one behind (1186 in /tmp here after some weeks of tests).
+extern "C" fn remove_blender_tempdir() {
+    if let Some(dir) = BLENDER_TEMPDIR.get() {
+        let _ = std::fs::remove_dir_all(dir);
+    }
+}
+
+/// Registers the exit hooks: Blender's temp folder `blender_tempdir` is removed (only a
+/// `blender_*` folder, so a misread path cannot remove anything else), and the output silenced.
+/// C atexit hooks run in reverse order of registration, so once bpy is imported these run before
+/// Blender's leak report (and C++ static destructors).
+pub fn at_exit(blender_tempdir: &std::path::Path) {
+    let is_session_folder = blender_tempdir
+        .file_name()
+        .and_then(|name| name.to_str())
+        .is_some_and(|name| name.starts_with("blender_"));
     unsafe {
+        if is_session_folder && BLENDER_TEMPDIR.set(blender_tempdir.to_path_buf()).is_ok() {
+            atexit(remove_blender_tempdir);
+        }
         atexit(silence_at_exit);
     }
 }
