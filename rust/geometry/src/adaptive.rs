@@ -174,11 +174,28 @@ impl Placed {
 
     /// Per point: (nearest corner, squared distance).
     pub fn nearest(&self, points: &[Point3<f64>]) -> Vec<(usize, f64)> {
-        let corners = self.corners();
+        let to_box = self.rotation.inverse();
         points
             .iter()
-            .map(|p| nearest_of(&corners, &p.coords))
+            .map(|p| self.nearest_corner(&to_box, p))
             .collect()
+    }
+
+    /// The corner nearest to `p` and its squared distance, in the box's frame (`to_box` is the
+    /// inverse rotation): the distance to a corner (±h₀, ±h₁, ±h₂) separates by axis, so the
+    /// nearest corner takes the sign of each coordinate, and the squared distance is
+    /// Σ (|qᵢ| − hᵢ)². A tenth of the work of comparing all 8 corners, in the fits' inner loop.
+    fn nearest_corner(&self, to_box: &Rotation3<f64>, p: &Point3<f64>) -> (usize, f64) {
+        let q = to_box * (p.coords - self.centre);
+        let mut corner = 0;
+        let mut squared = 0.0;
+        for axis in 0..3 {
+            if q[axis] > 0.0 {
+                corner |= 1 << axis;
+            }
+            squared += (q[axis].abs() - self.half[axis]).powi(2);
+        }
+        (corner, squared)
     }
 
     /// The profile cost of this box on `points`, using `scratch` for the sorted residuals.
@@ -188,9 +205,9 @@ impl Placed {
         model: &CostModel,
         scratch: &mut Vec<f64>,
     ) -> Profile {
-        let corners = self.corners();
+        let to_box = self.rotation.inverse();
         scratch.clear();
-        scratch.extend(points.iter().map(|p| nearest_of(&corners, &p.coords).1));
+        scratch.extend(points.iter().map(|p| self.nearest_corner(&to_box, p).1));
         sort_small(scratch);
         model.profile(scratch)
     }
@@ -334,10 +351,12 @@ pub(crate) enum Separation {
 impl Separation {
     pub fn differ(&self, a: &Placed, b: &Placed) -> bool {
         match *self {
+            // MSSD is a largest corner distance, at least the distance of the corners' means
+            // (the centres), which settles most pairs without the corners
             Self::Mssd {
                 threshold,
                 permutations,
-            } => a.mssd_to(b, permutations) > threshold,
+            } => (a.centre - b.centre).norm() > threshold || a.mssd_to(b, permutations) > threshold,
             Self::Corners { threshold } => a.corner_distance(b) > threshold,
         }
     }
@@ -354,6 +373,18 @@ impl Separation {
             .map(|r| r.profile.cost)
             .fold(f64::INFINITY, f64::min)
     }
+}
+
+/// Sorts hypotheses by cost, ties in their order of generation (as a stable sort would), moving
+/// only (cost, index) keys: a hypothesis is 16 floats, and a fit sorts hundreds.
+pub(crate) fn sort_by_cost(hypotheses: Vec<(f64, Placed)>) -> Vec<(f64, Placed)> {
+    let mut keys: Vec<(f64, u32)> = hypotheses
+        .iter()
+        .enumerate()
+        .map(|(i, h)| (h.0, i as u32))
+        .collect();
+    keys.sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+    keys.iter().map(|&(_, i)| hypotheses[i as usize]).collect()
 }
 
 /// From hypotheses sorted by cost, up to `limit` that differ pairwise, best first.

@@ -4,7 +4,9 @@
 
 use std::time::Instant;
 
-use nalgebra::{Isometry3, Matrix3, Point3, Quaternion, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{
+    Isometry3, Matrix3, Point3, Quaternion, Rotation3, Translation3, UnitQuaternion, Vector3,
+};
 
 use crate::adaptive::FitConfidence;
 use crate::box_model::{CORNER_COUNT, corner_signs};
@@ -434,7 +436,10 @@ fn closest_labelling(
             }
             let candidate = Isometry3::from_parts(
                 pose.translation,
-                UnitQuaternion::from_matrix(&(axes.matrix() * relabel)),
+                // a rotation times a signed permutation of determinant 1: exactly a rotation
+                UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
+                    axes.matrix() * relabel,
+                )),
             );
             let size = Vector3::from_fn(|c, _| fitted.size()[perm[c]]);
             let corners: Vec<Point3<f64>> = (0..CORNER_COUNT)

@@ -472,8 +472,7 @@ impl<'a> KnownSizeSearch<'a> {
                 }
             }
         }
-        hypotheses.sort_by(|a, b| a.0.total_cmp(&b.0));
-        hypotheses
+        adaptive::sort_by_cost(hypotheses)
     }
 
     /// Poses farther apart than the failure criterion, MSSD > 0.1 × diameter.

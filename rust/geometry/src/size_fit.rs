@@ -658,8 +658,7 @@ impl<'a> SizeSearch<'a> {
                 }
             }
         }
-        hypotheses.sort_by(|a, b| a.0.total_cmp(&b.0));
-        hypotheses
+        adaptive::sort_by_cost(hypotheses)
     }
 
     fn refined_candidates(&self) -> Vec<Refined> {
