@@ -17,7 +17,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-render-quality bench-search bench-scale-out lint fuzz test-faults clean
+.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-backends bench-render-quality bench-search bench-scale-out lint fuzz test-faults clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -61,10 +61,33 @@ scenes: setup ## Generate a dataset: Drake scenes then Blender renders, shard by
 
 MODEL ?= models/keypoint-slim
 SEGMENTER ?= models/segmenter-slim
-train: setup ## Train the shipped networks: render the `train` recipe, train the keypoint network and the segmenter (all resumable), copy them to models/
+# The training backend (docs/learning.md, "Backends"): flex (default, the `make setup` build), tch
+# (libtorch 2.9 on the CPU, assembled from PyPI wheels by scripts/setup_libtorch_cpu.sh, ≈ 900 MB
+# download, ≈ 490 MB on disk), wgpu (any Vulkan/Metal GPU), cuda (NVIDIA). Each but flex is a
+# second build of the CLI, in target/BACKEND, made only here: `make test` never needs it.
+BACKEND ?= flex
+LIBTORCH_DIR := $(CURDIR)/build/libtorch-cpu
+ifeq ($(BACKEND),flex)
+TRAIN_BOXPOSE := $(BOXPOSE)
+else
+TRAIN_BOXPOSE := target/$(BACKEND)/release/boxpose
+endif
+
+target/tch/release/boxpose: $(MUJOCO_LINK_DIR)/.stamp FORCE
+	scripts/setup_libtorch_cpu.sh $(LIBTORCH_DIR)
+	LIBTORCH=$(LIBTORCH_DIR) RUSTFLAGS="-C link-arg=-Wl,-rpath,$(LIBTORCH_DIR)/lib" CARGO_TARGET_DIR=target/tch \
+	  cargo build --release -p boxpose-cli --features boxpose-learn/tch
+
+target/wgpu/release/boxpose target/cuda/release/boxpose: $(MUJOCO_LINK_DIR)/.stamp FORCE
+	CARGO_TARGET_DIR=target/$(BACKEND) cargo build --release -p boxpose-cli --features boxpose-learn/$(BACKEND)
+
+.PHONY: FORCE
+FORCE:
+
+train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks (BACKEND=flex|tch|wgpu|cuda): render the `train` recipe, train the keypoint network and the segmenter (all resumable), copy them to models/
 	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
-	$(BOXPOSE) train --config configs/keypoint-slim.toml --out runs/keypoint-slim
-	$(BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --out runs/segmenter-slim
+	$(TRAIN_BOXPOSE) train --config configs/keypoint-slim.toml --out runs/keypoint-slim --backend $(BACKEND)
+	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --out runs/segmenter-slim --backend $(BACKEND)
 	$(call publish_model,runs/keypoint-slim,$(MODEL))
 	$(call publish_model,runs/segmenter-slim,$(SEGMENTER))
 
@@ -106,7 +129,7 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
 
-bench: bench-geometry bench-settle bench-render bench-render-quality bench-learn bench-search bench-scale-out ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
+bench: bench-geometry bench-settle bench-render bench-render-quality bench-learn bench-backends bench-search bench-scale-out ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
 
 bench-geometry: setup ## Geometry core (criterion), then fast exact search vs a batched NumPy brute force on the same inputs
 	cargo bench -p boxpose-geometry --bench geometry
@@ -134,6 +157,13 @@ $(TORCH_VENV)/.stamp:
 	$(PYTHON_BOOTSTRAP) -m venv $(TORCH_VENV)
 	$(TORCH_VENV)/bin/pip install --quiet torch==2.9.0 "numpy<2"
 	touch $@
+
+bench-backends: setup ## Keypoint network training speed on every backend built here (flex; tch, wgpu, cuda once `make train BACKEND=…` built them), one run
+	cargo bench --no-run --quiet --workspace --bench keypoint_step
+	if [ -x target/tch/release/boxpose ]; then \
+	  LIBTORCH=$(LIBTORCH_DIR) RUSTFLAGS="-C link-arg=-Wl,-rpath,$(LIBTORCH_DIR)/lib" CARGO_TARGET_DIR=target/tch \
+	    cargo bench --no-run --quiet -p boxpose-learn --features tch --bench keypoint_step; fi
+	scripts/bench_backends.sh
 
 bench-learn: setup $(TORCH_VENV)/.stamp ## Keypoint network training step and per-crop inference: burn next to PyTorch, same architecture
 	$(TORCH_VENV)/bin/python scripts/bench_learn.py

@@ -40,7 +40,10 @@ impl BackendKind {
             BackendKind::Wgpu => Ok(burn::tensor::Device::wgpu(Default::default())),
             #[cfg(feature = "cuda")]
             BackendKind::Cuda => Ok(burn::tensor::Device::cuda(0usize)),
+            // burn 0.22 deprecates burn-tch in favour of its CubeCL CPU backend, which needs
+            // LLVM 23 (not installable here); libtorch is still the fastest CPU backend.
             #[cfg(feature = "tch")]
+            #[allow(deprecated)]
             BackendKind::Tch => Ok(burn::tensor::Device::libtorch()),
             #[allow(unreachable_patterns)]
             other => missing(other.name()),
