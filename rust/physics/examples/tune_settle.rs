@@ -9,8 +9,8 @@ use std::collections::BTreeMap;
 
 use boxpose_data::{Dataset, Object};
 use boxpose_physics::{
-    Cone, Integrator, MujocoOptions, RecipePhysics, SceneDescription, SettleOutcome, Settler,
-    down_face,
+    CREEP_CURE, Cone, CreepCure, Integrator, MujocoOptions, RecipePhysics, SceneDescription,
+    SettleOutcome, Settler, down_face,
 };
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -26,6 +26,33 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let d = MujocoOptions::default();
     let variants: Vec<(&str, MujocoOptions)> = vec![
         ("default", d),
+        (
+            "no creep cure",
+            MujocoOptions {
+                creep_cure: None,
+                ..d
+            },
+        ),
+        (
+            "cure after 0.5 s",
+            MujocoOptions {
+                creep_cure: Some(CreepCure {
+                    after_s: 0.5,
+                    ..CREEP_CURE
+                }),
+                ..d
+            },
+        ),
+        (
+            "cure after 1.5 s",
+            MujocoOptions {
+                creep_cure: Some(CreepCure {
+                    after_s: 1.5,
+                    ..CREEP_CURE
+                }),
+                ..d
+            },
+        ),
         (
             "solref 0.01",
             MujocoOptions {
@@ -78,6 +105,30 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             },
         ),
         (
+            "Euler imp 100",
+            MujocoOptions {
+                integrator: Integrator::Euler,
+                impratio: 100.0,
+                ..d
+            },
+        ),
+        (
+            "Euler noslip 10",
+            MujocoOptions {
+                integrator: Integrator::Euler,
+                noslip_iterations: 10,
+                ..d
+            },
+        ),
+        (
+            "imp 100 noslip 10",
+            MujocoOptions {
+                impratio: 100.0,
+                noslip_iterations: 10,
+                ..d
+            },
+        ),
+        (
             "pyramidal",
             MujocoOptions {
                 cone: Cone::Pyramidal,
@@ -121,6 +172,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for (v, (name, _)) in variants.iter().enumerate() {
         let mut by_n: BTreeMap<usize, Vec<(f64, f64)>> = BTreeMap::new();
         let (mut stable, mut faces, mut boxes, mut sim) = (0, 0, 0, 0.0);
+        // of the piles Drake certified, those MuJoCo certifies too
+        let (mut certified, mut both) = (0, 0);
         for (k, (_, objs)) in settlers[v].iter().enumerate() {
             let out = outcomes[v][k].as_ref().unwrap();
             let c = &out.certificate;
@@ -128,6 +181,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 .or_default()
                 .push((best[v][k], best[v][k] / c.steps as f64));
             stable += usize::from(out.stable);
+            certified += usize::from(scenes[k].stable);
+            both += usize::from(scenes[k].stable && out.stable);
             sim += c.settle_time_s;
             for (o, p) in objs.iter().zip(&out.poses) {
                 faces +=
@@ -147,7 +202,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             })
             .collect();
         println!(
-            "{name:<14} {}  stable {stable}/{}  same face as stored {faces}/{boxes}  mean sim {:.2} s",
+            "{name:<14} {}  stable {stable}/{} (Drake-certified {both}/{certified})  same face as stored {faces}/{boxes}  mean sim {:.2} s",
             times.join(", "),
             scenes.len(),
             sim / scenes.len() as f64

@@ -18,8 +18,8 @@ mod settle;
 pub use boxpose_data::Pose;
 pub use error::{PhysicsError, Result};
 pub use mjcf::{
-    CONTACT_SOLIMP, CONTACT_SOLREF, Cone, IMPRATIO, Integrator, MujocoOptions,
-    RESETTLE_SLEEP_TOLERANCE, Solver, to_mjcf, to_mjcf_with,
+    CONTACT_SOLIMP, CONTACT_SOLREF, CREEP_CURE, Cone, CreepCure, IMPRATIO, Integrator,
+    MujocoOptions, RESETTLE_SLEEP_TOLERANCE, Solver, to_mjcf, to_mjcf_with,
 };
 pub use scene::{
     BIN_WALL_THICKNESS_M, BoxBody, GRAVITY_MPS2, PALLET_HEIGHT_M, QUATERNION_NORM_TOLERANCE,

@@ -83,6 +83,7 @@ pub struct Settler {
     data: MjData<Box<MjModel>>,
     scene: SceneDescription,
     params: SettleParams,
+    options: MujocoOptions,
     mjcf: String,
     box_geoms: Vec<usize>,
     support_geoms: Vec<usize>,
@@ -187,6 +188,7 @@ impl Settler {
             data,
             scene: scene.clone(),
             params: *params,
+            options: *options,
             mjcf,
             box_geoms,
             support_geoms,
@@ -219,8 +221,15 @@ impl Settler {
         let start = Instant::now();
         let initial = check_poses(initial, self.scene.boxes.len())?;
         let params = self.params;
+        let options = self.options;
         let data = &mut self.data;
         data.reset();
+        // a previous settle may have switched on the creep cure
+        data.model_opt_mut().impratio = options.impratio;
+        data.model_opt_mut().noslip_iterations = options.noslip_iterations as i32;
+        let mut cure_at_step = options
+            .creep_cure
+            .map(|cure| (cure.after_s / params.time_step_s).round() as usize);
         {
             let qpos = data.qpos_mut();
             for (i, p) in initial.iter().enumerate() {
@@ -238,6 +247,13 @@ impl Settler {
         let mut steps = 0usize;
         let mut settled = false;
         while steps < max_steps {
+            if cure_at_step == Some(steps)
+                && let Some(cure) = options.creep_cure
+            {
+                data.model_opt_mut().impratio = cure.impratio;
+                data.model_opt_mut().noslip_iterations = cure.noslip_iterations as i32;
+                cure_at_step = None;
+            }
             data.step();
             steps += 1;
             check_warnings(data)?;

@@ -5,8 +5,9 @@ mod common;
 use std::f64::consts::PI;
 
 use boxpose_physics::{
-    BoxBody, Face, PhysicsError, Pose, RecipePhysics, Rejection, SceneDescription, SettleParams,
-    Settler, Support, SupportKind, down_face, resettle, settle,
+    BoxBody, CREEP_CURE, CreepCure, Face, MujocoOptions, PhysicsError, Pose, RecipePhysics,
+    Rejection, SceneDescription, SettleParams, Settler, Support, SupportKind, down_face, resettle,
+    settle,
 };
 use common::*;
 
@@ -367,6 +368,88 @@ fn reuse_gives_identical_results() {
             (b.max_linear_speed_mps, b.max_angular_speed_radps)
         );
     }
+}
+
+/// The creep cure ([`CREEP_CURE`]) switches the friction settings at its time and no earlier: a
+/// box at rest before then settles exactly as without the cure; switched on from the start it is
+/// exactly the stiffer settings compiled in; and a settler whose last settle switched it on
+/// starts the next one with its own settings again.
+#[test]
+fn the_creep_cure_switches_at_its_time_and_is_undone_on_reuse() {
+    let settle_with = |scene: &SceneDescription, options: MujocoOptions| {
+        Settler::with_options(scene, &params(), &options)
+            .unwrap()
+            .settle()
+            .unwrap()
+    };
+    let no_cure = MujocoOptions {
+        creep_cure: None,
+        ..MujocoOptions::default()
+    };
+
+    let quick = floor_scene(vec![dropped_box(
+        SIZE,
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 0.0],
+        0.005,
+        0.6,
+    )]);
+    let cured = settle_with(&quick, MujocoOptions::default());
+    assert!(
+        cured.certificate.settle_time_s < CREEP_CURE.after_s,
+        "{:?}",
+        cured.certificate
+    );
+    let plain = settle_with(&quick, no_cure);
+    assert_eq!(
+        (cured.poses, cured.certificate.steps),
+        (plain.poses, plain.certificate.steps)
+    );
+
+    let mut rng = Rng(5);
+    let pile = floor_scene(
+        (0..4)
+            .map(|i| {
+                let mut b =
+                    dropped_box(SIZE, rng.quat(), [rng.uniform(-0.05, 0.05), 0.0], 0.0, 0.6);
+                b.initial.translation[2] = 0.15 + 0.25 * i as f64;
+                b
+            })
+            .collect(),
+    );
+    let from_start = settle_with(
+        &pile,
+        MujocoOptions {
+            creep_cure: Some(CreepCure {
+                after_s: 0.0,
+                ..CREEP_CURE
+            }),
+            ..MujocoOptions::default()
+        },
+    );
+    let compiled_in = settle_with(
+        &pile,
+        MujocoOptions {
+            impratio: CREEP_CURE.impratio,
+            noslip_iterations: CREEP_CURE.noslip_iterations,
+            ..no_cure
+        },
+    );
+    assert_eq!(from_start.poses, compiled_in.poses);
+    assert_eq!(from_start.certificate.steps, compiled_in.certificate.steps);
+
+    let mut settler = Settler::new(&pile, &params()).unwrap();
+    let first = settler.settle().unwrap();
+    assert!(
+        first.certificate.settle_time_s > CREEP_CURE.after_s,
+        "{:?}",
+        first.certificate
+    );
+    let again = settler.settle().unwrap();
+    assert_eq!(
+        (first.poses, first.certificate.steps),
+        (again.poses, again.certificate.steps)
+    );
 }
 
 #[test]
