@@ -7,7 +7,7 @@ use std::path::Path;
 use boxpose_data::Frame;
 use boxpose_geometry::heatmap::{self, NmsParams, Peak, VoxelGrid};
 use boxpose_geometry::size_fit::{self, SizedBoxFit};
-use boxpose_geometry::{GeometryError, depth};
+use boxpose_geometry::{GeometryError, pipeline};
 use burn::prelude::*;
 use nalgebra::Point3;
 
@@ -133,31 +133,23 @@ pub fn decode(
     Ok((peaks, points))
 }
 
-/// A size fit whose inliers lie in one plane fits its mirror image through that plane as well:
-/// the frame's depth image decides where it can ([`depth::resolve_mirror`]).
+/// Mirror ties of the size fit settled with the frame's depth image, as every fit does in
+/// evaluation ([`pipeline::Fitted::resolve_mirror`]).
 fn settle_mirror_tie(
     mut fit: size_fit::RobustSizedFit,
     points: &[Point3<f64>],
     frame: &Frame,
 ) -> size_fit::RobustSizedFit {
-    if !fit.confidence.mirror_ambiguous {
-        return fit;
-    }
-    let plane: Vec<Point3<f64>> = points
-        .iter()
-        .zip(&fit.inliers)
-        .filter(|(_, inlier)| **inlier)
-        .map(|(p, _)| *p)
-        .collect();
-    let resolution = depth::resolve_mirror(
-        &fit.model,
-        &fit.pose,
-        &plane,
-        &data::depth_view(frame),
-        depth::depth_tolerance(fit.confidence.noise_scale_m),
-    );
-    fit.pose = resolution.pose;
-    fit.confidence.mirror_ambiguous = resolution.still_ambiguous;
+    let mut fitted = pipeline::Fitted {
+        model: fit.model,
+        pose: fit.pose,
+        fits_size: true,
+        own_confidence: Some(fit.confidence),
+        inliers: Some(fit.inliers.clone()),
+    };
+    fitted.resolve_mirror(points, &data::depth_view(frame));
+    fit.pose = fitted.pose;
+    fit.confidence = fitted.own_confidence.unwrap_or(fit.confidence);
     fit
 }
 

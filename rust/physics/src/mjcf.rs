@@ -116,7 +116,8 @@ pub struct CreepCure {
 /// The default cure: after 0.75 s of simulated time (a 5-box drop is usually at rest by then),
 /// impratio 100 and 10 noslip iterations. Used from the start these certify every Drake-certified
 /// pile of the benchmark set at 1.6–2× the cost per step; switched on at 0.75 s they still do, at
-/// 10–25 % more time on 20-box piles; at 1 s one pile of 17 is missed (docs/benchmarks.md).
+/// 12–32 % more time per settle on an idle machine; at 1 s one pile of 17 is missed
+/// (docs/benchmarks.md).
 pub const CREEP_CURE: CreepCure = CreepCure {
     after_s: 0.75,
     impratio: 100.0,
