@@ -285,19 +285,25 @@ pub(crate) fn smallest(nearest: &[(usize, f64)], m: usize) -> Vec<usize> {
     order
 }
 
+/// The points' centroid and scatter matrix Σ (p − c)(p − c)ᵀ: the eigenvector of its smallest
+/// eigenvalue is the normal of their best plane.
+pub(crate) fn scatter(points: &[Point3<f64>]) -> (Vector3<f64>, Matrix3<f64>) {
+    let n = points.len().max(1) as f64;
+    let centroid = points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
+    let scatter = points
+        .iter()
+        .map(|p| (p.coords - centroid) * (p.coords - centroid).transpose())
+        .sum();
+    (centroid, scatter)
+}
+
 /// Whether the points lie in one plane within `tolerance` (RMS distance from their best plane).
 pub(crate) fn coplanar(points: &[Point3<f64>], tolerance: f64) -> bool {
     if points.len() < 4 {
         return true;
     }
-    let n = points.len() as f64;
-    let centroid = points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
-    let scatter: Matrix3<f64> = points
-        .iter()
-        .map(|p| (p.coords - centroid) * (p.coords - centroid).transpose())
-        .sum();
-    let smallest = scatter.symmetric_eigenvalues().min().max(0.0);
-    (smallest / n).sqrt() <= tolerance
+    let smallest = scatter(points).1.symmetric_eigenvalues().min().max(0.0);
+    (smallest / points.len() as f64).sqrt() <= tolerance
 }
 
 /// A refined hypothesis with its cost and what the confidence needs.

@@ -11,7 +11,7 @@
 
 use nalgebra::{Isometry3, Matrix3, Point3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use crate::BoxModel;
+use crate::{BoxModel, adaptive};
 
 /// A depth image and the pinhole camera that took it (OpenCV axes: x right, y down, z forward,
 /// the frame of the fitted poses).
@@ -145,12 +145,7 @@ pub fn check_against_depth(
 /// The box at `pose` reflected through the best plane of `plane_points`, as a proper pose of the
 /// same box (the reflection of a box is the same box, turned).
 pub fn mirrored_pose(pose: &Isometry3<f64>, plane_points: &[Point3<f64>]) -> Isometry3<f64> {
-    let n = plane_points.len().max(1) as f64;
-    let centroid = plane_points.iter().map(|p| p.coords).sum::<Vector3<f64>>() / n;
-    let scatter: Matrix3<f64> = plane_points
-        .iter()
-        .map(|p| (p.coords - centroid) * (p.coords - centroid).transpose())
-        .sum();
+    let (centroid, scatter) = adaptive::scatter(plane_points);
     let eigen = scatter.symmetric_eigen();
     let normal = eigen
         .eigenvectors

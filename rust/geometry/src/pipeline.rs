@@ -77,11 +77,43 @@ pub struct Fitted {
     pub pose: Isometry3<f64>,
     pub fits_size: bool,
     pub own_confidence: Option<FitConfidence>,
-    /// Per point, whether the fit counted it as an inlier (the noise-adaptive fits only).
-    pub inliers: Option<Vec<bool>>,
+    /// Per point, the corner it is an inlier of, as the fit matched it; None for an outlier (the
+    /// noise-adaptive fits only).
+    pub inlier_corners: Option<Vec<Option<usize>>>,
+}
+
+/// Per point, its corner if it is an inlier.
+fn inlier_corners(inliers: &[bool], nearest_corners: &[usize]) -> Vec<Option<usize>> {
+    inliers
+        .iter()
+        .zip(nearest_corners)
+        .map(|(&inlier, &corner)| inlier.then_some(corner))
+        .collect()
 }
 
 impl Fitted {
+    /// The noise-adaptive fit of a box of known size.
+    pub fn from_adaptive(model: &BoxModel, fit: &robust::AdaptiveFit) -> Self {
+        Self {
+            model: *model,
+            pose: fit.pose,
+            fits_size: false,
+            own_confidence: Some(fit.confidence),
+            inlier_corners: Some(inlier_corners(&fit.inliers, &fit.nearest_corners)),
+        }
+    }
+
+    /// The noise-adaptive pose-and-size fit.
+    pub fn from_robust_size(fit: &size_fit::RobustSizedFit) -> Self {
+        Self {
+            model: fit.model,
+            pose: fit.pose,
+            fits_size: true,
+            own_confidence: Some(fit.confidence),
+            inlier_corners: Some(inlier_corners(&fit.inliers, &fit.nearest_corners)),
+        }
+    }
+
     /// Settles a mirror tie with the depth image. Four inlier peaks on one face of the box fit the
     /// box and its mirror image through that face alike, so the peaks cannot choose, and a fifth
     /// peak near a corner of the mirror box (a depth flip of the detector) makes the wrong one
@@ -91,21 +123,20 @@ impl Fitted {
     /// pose that agrees with `view`; the fit stays `mirror_ambiguous` only if the depth image
     /// cannot tell either.
     pub fn resolve_mirror(&mut self, points: &[Point3<f64>], view: &DepthView) {
-        let (Some(confidence), Some(inliers)) = (self.own_confidence, &self.inliers) else {
+        let (Some(confidence), Some(corners)) = (self.own_confidence, &self.inlier_corners) else {
             return;
         };
-        let inlier_points: Vec<Point3<f64>> = points
+        let inliers: Vec<(Point3<f64>, usize)> = points
             .iter()
-            .zip(inliers)
-            .filter(|(_, inlier)| **inlier)
-            .map(|(p, _)| *p)
+            .zip(corners)
+            .filter_map(|(p, corner)| corner.map(|c| (*p, c)))
             .collect();
         let mut planes = Vec::new();
         if confidence.mirror_ambiguous {
-            planes.push(inlier_points.clone());
+            planes.push(inliers.iter().map(|(p, _)| *p).collect());
         }
-        if inlier_points.len() <= MIRROR_FACE_MAX_INLIERS {
-            planes.extend(self.faces_with_four_inliers(&inlier_points));
+        if inliers.len() <= MIRROR_FACE_MAX_INLIERS {
+            planes.extend(faces_with_four_inliers(&inliers));
         }
         let tolerance = depth::depth_tolerance(confidence.noise_scale_m);
         let mut still_ambiguous = confidence.mirror_ambiguous;
@@ -124,30 +155,6 @@ impl Fitted {
         if let Some(own) = &mut self.own_confidence {
             own.mirror_ambiguous = still_ambiguous;
         }
-    }
-
-    /// The inlier peaks on each face of the fitted box whose 4 corners each have one (nearest).
-    fn faces_with_four_inliers(&self, inlier_points: &[Point3<f64>]) -> Vec<Vec<Point3<f64>>> {
-        let corners: Vec<Point3<f64>> =
-            self.model.corners().iter().map(|c| self.pose * c).collect();
-        let mut at_corner: [Option<Point3<f64>>; CORNER_COUNT] = [None; CORNER_COUNT];
-        for p in inlier_points {
-            let nearest = (0..CORNER_COUNT)
-                .min_by(|&a, &b| (corners[a] - p).norm().total_cmp(&(corners[b] - p).norm()))
-                .expect("a box has corners");
-            at_corner[nearest] = Some(*p);
-        }
-        let mut faces = Vec::new();
-        for axis in 0..3 {
-            for sign in [-1.0, 1.0] {
-                let face: Option<Vec<Point3<f64>>> = (0..CORNER_COUNT)
-                    .filter(|&c| corner_signs(c)[axis] == sign)
-                    .map(|c| at_corner[c])
-                    .collect();
-                faces.extend(face);
-            }
-        }
-        faces
     }
 
     /// The fit's own confidence, or else the noise-adaptive assessment of its box on `points`
@@ -174,6 +181,25 @@ impl Fitted {
     }
 }
 
+/// The inlier peaks of each face of the box whose 4 corners each have one, from (peak, corner).
+fn faces_with_four_inliers(inliers: &[(Point3<f64>, usize)]) -> Vec<Vec<Point3<f64>>> {
+    let mut at_corner: [Option<Point3<f64>>; CORNER_COUNT] = [None; CORNER_COUNT];
+    for &(p, corner) in inliers {
+        at_corner[corner] = Some(p);
+    }
+    let mut faces = Vec::new();
+    for axis in 0..3 {
+        for sign in [-1.0, 1.0] {
+            let face: Option<Vec<Point3<f64>>> = (0..CORNER_COUNT)
+                .filter(|&c| corner_signs(c)[axis] == sign)
+                .map(|c| at_corner[c])
+                .collect();
+            faces.extend(face);
+        }
+    }
+    faces
+}
+
 /// Runs one fit on `points` (with NMS `scores`, best first; only the paper's searches use them).
 pub fn fit_method(
     method: Method,
@@ -186,7 +212,7 @@ pub fn fit_method(
         pose,
         fits_size: false,
         own_confidence,
-        inliers: None,
+        inlier_corners: None,
     };
     Ok(match method {
         Method::PaperExact => known(
@@ -197,27 +223,18 @@ pub fn fit_method(
             fast_exact_search(model, points, scores, PAPER_M)?.pose,
             None,
         ),
-        Method::Robust => {
-            let fit = robust::adaptive_fit(model, points, &robust::AdaptiveParams::default())?;
-            Fitted {
-                inliers: Some(fit.inliers),
-                ..known(fit.pose, Some(fit.confidence))
-            }
-        }
+        Method::Robust => Fitted::from_adaptive(
+            model,
+            &robust::adaptive_fit(model, points, &robust::AdaptiveParams::default())?,
+        ),
         Method::RobustFixedThreshold => known(
             robust::robust_fit(model, points, &robust::RobustParams::for_box(model))?.pose,
             None,
         ),
-        Method::SizeAndPose => {
-            let fit = size_fit::robust_size_fit(points, &size_fit::RobustSizeParams::default())?;
-            Fitted {
-                model: fit.model,
-                pose: fit.pose,
-                fits_size: true,
-                own_confidence: Some(fit.confidence),
-                inliers: Some(fit.inliers),
-            }
-        }
+        Method::SizeAndPose => Fitted::from_robust_size(&size_fit::robust_size_fit(
+            points,
+            &size_fit::RobustSizeParams::default(),
+        )?),
         Method::SizeAndPoseLeastSquares => {
             let fit = size_fit::fit_pose_and_size(points, &size_fit::SizeFitParams::default())?;
             Fitted {
@@ -225,7 +242,7 @@ pub fn fit_method(
                 pose: fit.pose,
                 fits_size: true,
                 own_confidence: None,
-                inliers: None,
+                inlier_corners: None,
             }
         }
     })

@@ -140,13 +140,7 @@ fn settle_mirror_tie(
     points: &[Point3<f64>],
     frame: &Frame,
 ) -> size_fit::RobustSizedFit {
-    let mut fitted = pipeline::Fitted {
-        model: fit.model,
-        pose: fit.pose,
-        fits_size: true,
-        own_confidence: Some(fit.confidence),
-        inliers: Some(fit.inliers.clone()),
-    };
+    let mut fitted = pipeline::Fitted::from_robust_size(&fit);
     fitted.resolve_mirror(points, &data::depth_view(frame));
     fit.pose = fitted.pose;
     fit.confidence = fitted.own_confidence.unwrap_or(fit.confidence);

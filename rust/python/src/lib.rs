@@ -403,13 +403,7 @@ fn robust_fit<'py>(
                 .detach(|| robust::adaptive_fit(&model, &pts, &robust::AdaptiveParams::default()))
                 .map_err(value_error)?;
             if let Some((width, height, intrinsics, depth_m)) = &depth_image {
-                let mut fitted = pipeline::Fitted {
-                    model,
-                    pose: fit.pose,
-                    fits_size: false,
-                    own_confidence: Some(fit.confidence),
-                    inliers: Some(fit.inliers.clone()),
-                };
+                let mut fitted = pipeline::Fitted::from_adaptive(&model, &fit);
                 let view = DepthView {
                     width: *width,
                     height: *height,
