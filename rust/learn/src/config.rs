@@ -132,6 +132,12 @@ pub struct AugmentConfig {
     pub depth_noise_m: f64,
     /// Fraction of depth pixels set to "no measurement" (0), as a real sensor drops them.
     pub depth_dropout: f64,
+    /// In-plane rotation: the camera turns about its optical axis by an angle drawn uniformly in
+    /// ± this many degrees, the image and the corner targets together (an exact new view, not an
+    /// approximation: a turn about the optical axis changes neither depth nor visibility). 0, the
+    /// default, draws nothing and leaves the crops as they were.
+    #[serde(default)]
+    pub rotation_deg: f64,
 }
 
 impl AugmentConfig {
@@ -142,6 +148,7 @@ impl AugmentConfig {
             ("color", self.color),
             ("depth_noise_m", self.depth_noise_m),
             ("depth_dropout", self.depth_dropout),
+            ("rotation_deg", self.rotation_deg),
         ];
         if let Some((name, value)) = fields.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
             return Err(LearnError::Config(format!(
@@ -152,6 +159,12 @@ impl AugmentConfig {
             return Err(LearnError::Config(format!(
                 "[augment] scale {} and color {} must be below 1, depth_dropout {} at most 1",
                 self.scale, self.color, self.depth_dropout
+            )));
+        }
+        if self.rotation_deg > 180.0 {
+            return Err(LearnError::Config(format!(
+                "[augment] rotation_deg = {} must be at most 180 (± a half turn covers every angle)",
+                self.rotation_deg
             )));
         }
         // The loader draws the noise in f32: beyond f32's range it is infinite and the normal
@@ -295,6 +308,7 @@ mod tests {
             color: 0.2,
             depth_noise_m: 0.002,
             depth_dropout: 0.02,
+            rotation_deg: 180.0,
         };
         fine.validate().unwrap();
         for bad in [
@@ -312,6 +326,14 @@ mod tests {
             },
             AugmentConfig {
                 depth_noise_m: 1e40,
+                ..fine.clone()
+            },
+            AugmentConfig {
+                rotation_deg: 181.0,
+                ..fine.clone()
+            },
+            AugmentConfig {
+                rotation_deg: f64::INFINITY,
                 ..fine.clone()
             },
         ] {

@@ -39,7 +39,11 @@ impl CropWindow {
     /// The square around a bounding box `(x_min, y_min, x_max, y_max)` (max exclusive), its side
     /// the box's longer side times `margin`.
     pub fn around(bbox: [i32; 4], margin: f64) -> Self {
-        let [x_min, y_min, x_max, y_max] = bbox.map(f64::from);
+        Self::around_extent(bbox.map(f64::from), margin)
+    }
+
+    /// [`Self::around`] for an extent in continuous pixel coordinates (pixel i spans [i, i + 1]).
+    fn around_extent([x_min, y_min, x_max, y_max]: [f64; 4], margin: f64) -> Self {
         let side = (x_max - x_min).max(y_max - y_min).max(1.0) * margin;
         let (cx, cy) = ((x_min + x_max) / 2.0, (y_min + y_max) / 2.0);
         Self {
@@ -63,6 +67,52 @@ impl CropWindow {
             y0: cy - side / 2.0,
             side,
         }
+    }
+}
+
+/// The camera turned about its optical axis by an angle: camera points turn about the z axis, and
+/// image positions about the principal point (through normalized coordinates, so that fx ≠ fy
+/// stays exact). Depth along the axis, and so every pixel's depth and visibility, is unchanged:
+/// the turned crop and its turned corners are a true view of the same box.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct InPlaneTurn {
+    cos: f64,
+    sin: f64,
+    intrinsics: [f64; 4],
+}
+
+impl InPlaneTurn {
+    pub(crate) fn new(intrinsics: &Intrinsics, angle_rad: f64) -> Self {
+        Self {
+            cos: angle_rad.cos(),
+            sin: angle_rad.sin(),
+            intrinsics: [intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy],
+        }
+    }
+
+    /// A point in the turned camera's frame.
+    pub(crate) fn point(&self, [x, y, z]: [f64; 3]) -> [f64; 3] {
+        [self.cos * x - self.sin * y, self.sin * x + self.cos * y, z]
+    }
+
+    /// Where a position of the original image (pixel-index coordinates: pixel centres at
+    /// integers, as the intrinsics have them) is in the turned one.
+    fn turned_position(&self, uv: [f64; 2]) -> [f64; 2] {
+        self.turn_pixel(uv, self.sin)
+    }
+
+    /// Where a position of the turned image comes from in the original one.
+    fn original_position(&self, uv: [f64; 2]) -> [f64; 2] {
+        self.turn_pixel(uv, -self.sin)
+    }
+
+    fn turn_pixel(&self, [u, v]: [f64; 2], sin: f64) -> [f64; 2] {
+        let [fx, fy, cx, cy] = self.intrinsics;
+        let (x, y) = ((u - cx) / fx, (v - cy) / fy);
+        [
+            cx + fx * (self.cos * x - sin * y),
+            cy + fy * (sin * x + self.cos * y),
+        ]
     }
 }
 
@@ -158,6 +208,7 @@ pub(crate) fn crop_input(
         [step, step],
         [size, size],
         z_ref,
+        None,
         augment,
     )
 }
@@ -193,12 +244,14 @@ pub fn depth_view(frame: &Frame) -> DepthView<'_> {
 /// pixel `origin` and advances `step` image pixels per input pixel: RGB resampled bilinearly,
 /// depth by nearest neighbour (interpolating across a box's edge would invent surfaces), both
 /// with the half-pixel-centre convention of [`CropTransform`]. Outside the image: grey, no depth.
+/// With a `turn`, the region is one of the turned camera's image, read from the frame through it.
 pub(crate) fn resample_input(
     frame: &Frame,
     origin: [f64; 2],
     step: [f64; 2],
     [width, height]: [usize; 2],
     z_ref: f64,
+    turn: Option<&InPlaneTurn>,
     augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
 ) -> Vec<f32> {
     let plane = width * height;
@@ -212,10 +265,13 @@ pub(crate) fn resample_input(
         }
     };
     for row in 0..height {
-        let y = origin[1] + (row as f64 + 0.5) * step[1] - 0.5;
-        let (y_floor, fy) = (y.floor(), (y - y.floor()) as f32);
+        let v = origin[1] + (row as f64 + 0.5) * step[1];
         for col in 0..width {
-            let x = origin[0] + (col as f64 + 0.5) * step[0] - 0.5;
+            let u = origin[0] + (col as f64 + 0.5) * step[0];
+            // Pixel-index (OpenCV) coordinates, the intrinsics' and so the turn's.
+            let [x, y] = [u - 0.5, v - 0.5];
+            let [x, y] = turn.map_or([x, y], |turn| turn.original_position([x, y]));
+            let (y_floor, fy) = (y.floor(), (y - y.floor()) as f32);
             let (x_floor, fx) = (x.floor(), (x - x.floor()) as f32);
             let (xi, yi) = (x_floor as isize, y_floor as isize);
             for c in 0..3 {
@@ -296,7 +352,8 @@ pub struct Sample {
 }
 
 /// The crop of a ground-truth instance: its visible bbox (jittered when augmenting) and the
-/// median depth of its own mask.
+/// median depth of its own mask. With `rotation_deg` augmentation, a view of the camera turned
+/// about its optical axis ([`turned_instance_sample`]).
 pub(crate) fn instance_sample(
     config: &NetworkConfig,
     frame: &Frame,
@@ -312,6 +369,13 @@ pub(crate) fn instance_sample(
     let mut window = CropWindow::around(bbox, config.crop_margin);
     let label = instance.mask_label();
     match augment {
+        Some((augment, rng)) if augment.rotation_deg > 0.0 => {
+            let angle = rng
+                .random_range(-augment.rotation_deg..=augment.rotation_deg)
+                .to_radians();
+            let turn = InPlaneTurn::new(&frame.intrinsics, angle);
+            turned_instance_sample(config, frame, instance, bbox, &turn, (augment, rng))
+        }
         Some((augment, rng)) => {
             window = window.jittered(augment, rng);
             let z_ref = gt_reference_depth(frame, &window, label)?;
@@ -336,6 +400,97 @@ pub(crate) fn instance_sample(
             )
         }
     }
+}
+
+/// The training sample of an instance seen by the camera turned by `turn`: the window around the
+/// turned mask's extent (jittered), the median depth of the mask pixels that land in it, the
+/// image read through the turn and the target at the turned corners.
+fn turned_instance_sample(
+    config: &NetworkConfig,
+    frame: &Frame,
+    instance: &Instance,
+    [x_min, y_min, x_max, y_max]: [i32; 4],
+    turn: &InPlaneTurn,
+    (augment, rng): (&AugmentConfig, &mut ChaCha8Rng),
+) -> Result<Sample, LearnError> {
+    let label = instance.mask_label();
+    // The box's own pixels (their centres in the turned image, pixel-index coordinates) with
+    // their depths.
+    let mut own = Vec::new();
+    for y in y_min.max(0) as usize..(y_max.max(0) as usize).min(frame.height) {
+        for x in x_min.max(0) as usize..(x_max.max(0) as usize).min(frame.width) {
+            let i = y * frame.width + x;
+            if frame.instance_mask[i] == label {
+                own.push((turn.turned_position([x as f64, y as f64]), frame.depth[i]));
+            }
+        }
+    }
+    let extent = own.iter().fold(
+        [f64::MAX, f64::MAX, f64::MIN, f64::MIN],
+        |[x0, y0, x1, y1], &([u, v], _)| [x0.min(u), y0.min(v), x1.max(u), y1.max(v)],
+    );
+    if own.is_empty() {
+        return Err(LearnError::Data(format!(
+            "scene {} frame {} object {}: its visible bbox holds none of its mask pixels",
+            instance.scene_id, instance.frame_id, instance.object_id
+        )));
+    }
+    // The window's coordinates are continuous (pixel i spans [i, i + 1]): a pixel centred at
+    // index x covers [x, x + 1].
+    let [x0, y0, x1, y1] = extent;
+    let window = CropWindow::around_extent([x0, y0, x1 + 1.0, y1 + 1.0], config.crop_margin)
+        .jittered(augment, rng);
+    let inside = |[x, y]: [f64; 2]| {
+        let [u, v] = [x + 0.5, y + 0.5];
+        u >= window.x0
+            && v >= window.y0
+            && u < window.x0 + window.side
+            && v < window.y0 + window.side
+    };
+    let mut depths: Vec<f32> = own
+        .iter()
+        .filter(|&&(uv, z)| z > 0.0 && inside(uv))
+        .map(|&(_, z)| z)
+        .collect();
+    if depths.is_empty() {
+        depths = own.iter().map(|&(_, z)| z).filter(|&z| z > 0.0).collect();
+    }
+    if depths.is_empty() {
+        return Err(LearnError::Data(format!(
+            "scene {} frame {}: crop has no depth",
+            frame.scene_id, frame.frame_id
+        )));
+    }
+    let middle = depths.len() / 2;
+    let z_ref = *depths.select_nth_unstable_by(middle, f32::total_cmp).1 as f64;
+    let size = config.input_size;
+    let step = window.side / size as f64;
+    let input = resample_input(
+        frame,
+        [window.x0, window.y0],
+        [step, step],
+        [size, size],
+        z_ref,
+        Some(turn),
+        Some((augment, rng)),
+    );
+    let grid = voxel_grid(config, &frame.intrinsics, &window, z_ref);
+    let target = target_heatmap(
+        config,
+        &grid,
+        &instance.corners_camera.map(|c| turn.point(c)),
+    )
+    .map_err(|e| {
+        LearnError::Data(format!(
+            "scene {} frame {}: a box's target heatmap: {e}",
+            frame.scene_id, frame.frame_id
+        ))
+    })?;
+    Ok(Sample {
+        input,
+        target,
+        grid,
+    })
 }
 
 /// The sample of a box with true corners `corners_camera` in any crop (a predicted one, say).
@@ -506,4 +661,181 @@ fn decoded_bytes(frame: &Frame) -> usize {
         + frame.depth.len() * 4
         + frame.instance_mask.len() * 2
         + frame.sensor_depth.as_ref().map_or(0, |d| d.len() * 4)
+}
+
+#[cfg(test)]
+mod tests {
+    use boxpose_data::{Pose, Visibility};
+    use rand::SeedableRng;
+
+    use super::*;
+    use crate::config::Backbone;
+
+    /// Where a crop's pixels satisfy `keep`, their centroid (crop pixels, centres at +0.5).
+    fn centroid(plane: &[f32], side: usize, keep: impl Fn(f32) -> bool) -> [f64; 2] {
+        let (mut sum, mut n) = ([0.0, 0.0], 0.0);
+        for (i, &value) in plane.iter().enumerate() {
+            if keep(value) {
+                sum[0] += (i % side) as f64 + 0.5;
+                sum[1] += (i / side) as f64 + 0.5;
+                n += 1.0;
+            }
+        }
+        assert!(n > 0.0, "no crop pixel is selected");
+        [sum[0] / n, sum[1] / n]
+    }
+
+    /// A 96×80 frame, fx ≠ fy: one light grey box (mask label 1, depth 1 m) over a darker
+    /// background at 1.5 m, a white 3×3 spot on it around pixel (52, 30), and every target corner
+    /// at the spot.
+    fn spot_frame() -> (Frame, [f64; 2]) {
+        let (width, height) = (96usize, 80usize);
+        let intrinsics = Intrinsics {
+            fx: 80.0,
+            fy: 100.0,
+            cx: 48.0,
+            cy: 40.0,
+        };
+        let (mut rgb, mut depth, mut mask) = (
+            vec![100u8; width * height * 3],
+            vec![1.5f32; width * height],
+            vec![0u16; width * height],
+        );
+        for y in 25..50 {
+            for x in 30..60 {
+                depth[y * width + x] = 1.0;
+                mask[y * width + x] = 1;
+                rgb[(y * width + x) * 3..][..3].fill(160);
+            }
+        }
+        for y in 29..32 {
+            for x in 51..54 {
+                rgb[(y * width + x) * 3..][..3].fill(255);
+            }
+        }
+        let spot = [52.0, 30.0]; // pixel-index coordinates
+        let corner = [
+            (spot[0] - intrinsics.cx) / intrinsics.fx,
+            (spot[1] - intrinsics.cy) / intrinsics.fy,
+            1.0,
+        ];
+        let instance = Instance {
+            scene_id: 0,
+            frame_id: 0,
+            object_id: 0,
+            size: [0.1; 3],
+            camera_box: Pose {
+                quat_wxyz: [1.0, 0.0, 0.0, 0.0],
+                translation: [0.0, 0.0, 1.0],
+            },
+            corners_camera: [corner; 8],
+            corners_px: [spot; 8],
+            visibility: [Visibility::Visible; 8],
+            label_keypoints_camera: None,
+            label_keypoints_px: None,
+            visible_bbox: Some([30, 25, 60, 50]),
+            visible_pixels: 30 * 25,
+            visible_fraction: 1.0,
+        };
+        let frame = Frame {
+            scene_id: 0,
+            frame_id: 0,
+            width,
+            height,
+            intrinsics,
+            world_camera: Pose {
+                quat_wxyz: [1.0, 0.0, 0.0, 0.0],
+                translation: [0.0; 3],
+            },
+            samples: 1,
+            denoise: false,
+            render_seed: 0,
+            blender_version: String::new(),
+            rgb,
+            depth,
+            instance_mask: mask,
+            sensor_depth: None,
+            instances: vec![instance],
+        };
+        (frame, spot)
+    }
+
+    #[test]
+    fn a_turned_crop_and_its_target_show_the_same_corner_where_the_turn_puts_it() {
+        let config = NetworkConfig {
+            backbone: Backbone::Tiny,
+            input_size: 64,
+            depth_bins: 8,
+            depth_range_m: [-0.12, 0.24],
+            sigma_voxels: 1.0,
+            crop_margin: 1.25,
+        };
+        let augment = AugmentConfig {
+            shift: 0.0,
+            scale: 0.0,
+            color: 0.0,
+            depth_noise_m: 0.0,
+            depth_dropout: 0.0,
+            rotation_deg: 180.0,
+        };
+        let (frame, spot) = spot_frame();
+        let instance = &frame.instances[0];
+        let plane = 64 * 64;
+        let [fx, fy] = [frame.intrinsics.fx, frame.intrinsics.fy];
+        // The spot seen from the box's centre, in normalized camera coordinates.
+        let original = [(spot[0] - 44.5) / fx, (spot[1] - 37.0) / fy];
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        for angle_deg in [0.0f64, 30.0, 90.0, -135.0, 180.0] {
+            let turn = InPlaneTurn::new(&frame.intrinsics, angle_deg.to_radians());
+            let sample = turned_instance_sample(
+                &config,
+                &frame,
+                instance,
+                instance.visible_bbox.unwrap(),
+                &turn,
+                (&augment, &mut rng),
+            )
+            .unwrap();
+            // Normalized white (255) is 2; grey 100 is below 0.
+            let white = centroid(&sample.input[..plane], 64, |r| r > 1.5);
+            // The box (grey 160, normalized 0.51; the background −0.43, outside the image 0).
+            let boxed = centroid(&sample.input[..plane], 64, |r| r > 0.25);
+            // Where the turn puts the spot, in crop pixels.
+            let step = sample.grid.crop.sx / 4.0;
+            let turned = turn.turned_position(spot);
+            let expected = [
+                (turned[0] + 0.5 - sample.grid.crop.x0) / step,
+                (turned[1] + 0.5 - sample.grid.crop.y0) / step,
+            ];
+            // The target's centre: its mean over the 16² heatmap (4 crop pixels per cell), every
+            // depth bin summed.
+            let (mut sum, mut mass) = ([0.0, 0.0], 0.0);
+            for (i, &t) in sample.target.iter().enumerate() {
+                let cell = i % (16 * 16);
+                sum[0] += t as f64 * ((cell % 16) as f64 + 0.5) * 4.0;
+                sum[1] += t as f64 * ((cell / 16) as f64 + 0.5) * 4.0;
+                mass += t as f64;
+            }
+            let target = [sum[0] / mass, sum[1] / mass];
+            for (what, at, tolerance) in [("white spot", white, 1.0), ("target", target, 0.5)] {
+                let gap = ((at[0] - expected[0]).powi(2) + (at[1] - expected[1]).powi(2)).sqrt();
+                assert!(
+                    gap < tolerance,
+                    "{angle_deg}°: the {what} is at {at:?} in the crop, the turn puts the spot \
+                     at {expected:?} (crop pixels)"
+                );
+            }
+            // And the spot has turned about the box by the angle (normalized coordinates).
+            let seen = [
+                (white[0] - boxed[0]) * step / fx,
+                (white[1] - boxed[1]) * step / fy,
+            ];
+            let turned_by = (seen[1].atan2(seen[0]) - original[1].atan2(original[0])).to_degrees();
+            let error = (turned_by - angle_deg + 540.0).rem_euclid(360.0) - 180.0;
+            assert!(
+                error.abs() < 2.0,
+                "{angle_deg}°: the spot turned by {turned_by:.1}° about the box's centre"
+            );
+        }
+    }
 }

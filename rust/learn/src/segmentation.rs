@@ -107,6 +107,13 @@ impl SegmenterTrainConfig {
     pub fn validate(&self) -> Result<(), LearnError> {
         self.segmenter.validate()?;
         self.augment.validate()?;
+        if self.augment.rotation_deg != 0.0 {
+            return Err(LearnError::Config(format!(
+                "[augment] rotation_deg = {}: the segmenter's whole-frame input does not rotate \
+                 (only the keypoint network's crops do); remove it or set 0",
+                self.augment.rotation_deg
+            )));
+        }
         self.optimizer.validate()?;
         self.data.validate()
     }
@@ -147,6 +154,7 @@ pub(crate) fn frame_input(
         input_step(config, frame),
         [config.input_width, config.input_height],
         z_ref,
+        None,
         augment,
     )
 }
