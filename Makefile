@@ -39,8 +39,10 @@ $(MUJOCO_LINK_DIR)/.stamp: $(VENV)/.stamp
 	touch $@
 
 rust: $(MUJOCO_LINK_DIR)/.stamp ## Build the Rust workspace (release) and install the `boxpose` Python distribution into .venv
-	# --all-targets: the same feature unification as `cargo test`, so the tests reuse this build.
-	cargo build --release --workspace --all-targets
+	# Libraries and binaries only: the tests, benchmarks and their dev-dependencies (criterion,
+	# proptest) build with `make test`. rust/workspace-hack gives both builds the same features, so
+	# `cargo test` adds to this build instead of recompiling it (tests/test_build_features.py).
+	cargo build --release --workspace
 	# The `boxpose` distribution (pyproject.toml): the compiled module into python/boxpose/ and
 	# every package of python/ importable from this tree. maturin builds into its own target dir:
 	# it sets PYO3_BUILD_EXTENSION_MODULE, which would otherwise invalidate the workspace's pyo3
