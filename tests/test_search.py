@@ -625,3 +625,88 @@ def test_fine_tuning_from_another_network_is_one_clear_error(failing_run, boxpos
         check=False,
     )
     assert r.returncode == 1 and "fine-tuning needs the same network settings" in r.stderr
+
+
+def _small_target(space: str, xy: str) -> str:
+    """The test space with a small target over `xy` (a TOML range for both x and y)."""
+    return (
+        space.replace(
+            "size_m = { x = [0.10, 0.20], y = [0.08, 0.16], z = [0.06, 0.12] }",
+            "size_m = { x = [0.06, 0.08], y = [0.06, 0.08], z = [0.05, 0.06] }",
+        )
+        .replace("x_m = [-0.05, 0.05]", f"x_m = {xy}")
+        .replace("y_m = [-0.05, 0.05]", f"y_m = {xy}")
+    )
+
+
+def test_a_pile_space_drops_the_target_onto_a_stored_pile_and_leaves_what_it_misses(
+    spaces, boxpose_bin, tmp_path
+):
+    # the pile: a clutter sample (its target in the middle, one neighbour in a far corner),
+    # kept whole because every scored sample fails at MSSD > 1e-9·d
+    source = tmp_path / "source.toml"
+    source.write_text(
+        _small_target(spaces["clutter"].read_text(), "[-0.02, 0.02]")
+        .replace("count = [1, 2]", "count = [1, 1]")
+        .replace("x_m = [-0.2, 0.2]", "x_m = [-0.3, -0.25]")
+        .replace("y_m = [-0.2, 0.2]", "y_m = [-0.3, -0.25]")
+    )
+    pile_run = tmp_path / "pile-source"
+    search(boxpose_bin, source, "--out", pile_run, "--samples", 2, "--batch-size", 2,
+           "--threads", 1, "--fail-when", "mssd:1e-9")  # fmt: skip
+    piles = pile_run / "counterexamples"
+    scenes = pd.read_parquet(piles / "scenes")
+    pile_id = int(scenes[scenes.stable].scene_id.iloc[0])
+    stored = pd.read_parquet(piles / "objects")
+    stored = stored[stored.scene_id == pile_id].sort_values("object_id")
+
+    # the new target falls into the opposite corner, well clear of the pile's old target
+    space = tmp_path / "pile.toml"
+    space.write_text(
+        _small_target(SPACE, "[0.28, 0.3]").format(recipe=spaces["clutter"].parent / "bin.toml")
+        + f'\n[pile]\ndataset = "{piles}"\nscene_id = {pile_id}\n'
+    )
+    out = tmp_path / "onto-pile"
+    search(boxpose_bin, space, "--out", out, "--samples", 3, "--batch-size", 3, "--threads", 1,
+           "--fail-when", "mssd:1e-9")  # fmt: skip
+    record = json.loads((out / "run.json").read_text())
+    assert [b["size_m"] for b in record["pile"]] == [list(s) for s in stored["size_m"]]
+    assert record["strata"] == [0]
+    samples = pd.read_parquet(out / "samples.parquet")
+    assert samples.valid.any(), samples[["valid", "invalid_reason"]]
+    objects = pd.read_parquet(out / "counterexamples" / "objects")
+    new_scenes = pd.read_parquet(out / "counterexamples" / "scenes")
+    assert set(new_scenes.solver_status) == {"dropped onto a settled pile"}
+    assert set(new_scenes.scene_id) == set(samples[samples.valid].sample_id)
+    for scene_id, rows in objects.groupby("scene_id"):
+        rows = rows.sort_values("object_id")
+        assert len(rows) == 1 + len(stored)
+        target, pile = rows.iloc[0], rows.iloc[1:]
+        # the target fell (it starts above the pile) and rests on the bin's floor
+        assert target.world_box_translation_m[2] < target.initial_world_box_translation_m[2]
+        # the pile's boxes start where the pile left them; those the drop does not reach (its
+        # old target, in the opposite corner) are still there to the bit
+        for column in ("initial_world_box_translation_m", "initial_world_box_quat_wxyz"):
+            assert [list(v) for v in pile[column]] == [
+                list(v) for v in stored[column.replace("initial_", "")]
+            ]
+        old_target = pile.iloc[0]
+        assert list(old_target.world_box_translation_m) == list(
+            stored.iloc[0].world_box_translation_m
+        ), scene_id
+        assert list(old_target.world_box_quat_wxyz) == list(stored.iloc[0].world_box_quat_wxyz)
+
+
+def test_a_pile_space_refuses_a_missing_pile_and_neighbours_beside_it(
+    spaces, boxpose_bin, tmp_path
+):
+    base = SPACE.format(recipe=spaces["clutter"].parent / "bin.toml")
+    for text, words in [
+        (base + f'\n[pile]\ndataset = "{tmp_path}/none"\nscene_id = 0\n', "none"),
+        (base + NEIGHBOURS + f'\n[pile]\ndataset = "{tmp_path}"\nscene_id = 0\n', "not both"),
+    ]:
+        space = tmp_path / "bad-pile.toml"
+        space.write_text(text)
+        r = search(boxpose_bin, space, "--out", tmp_path / "run", check=False)
+        assert r.returncode != 0 and words in r.stderr, r.stderr
+        assert not (tmp_path / "run").exists()

@@ -372,7 +372,11 @@ fn system_of(
     threads: usize,
     backend: BackendKind,
 ) -> anyhow::Result<(SearchSpace, SystemUnderTest)> {
-    let space = SearchSpace::from_texts(&run.record.space_toml, &run.record.recipe_toml)?;
+    let space = SearchSpace::from_texts(
+        &run.record.space_toml,
+        &run.record.recipe_toml,
+        run.record.pile.clone(),
+    )?;
     let settings = &run.record.settings;
     let device = backend.device()?;
     let model_dir = model.map_or_else(|| PathBuf::from(&settings.model), Path::to_path_buf);

@@ -101,6 +101,9 @@ pub struct RunRecord {
     pub dimensions: Vec<String>,
     /// The strata (neighbour counts), each of nominal probability 1 / len.
     pub strata: Vec<u32>,
+    /// A `[pile]` space's boxes, as read from its dataset when the run started.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pile: Option<Vec<crate::space::PileBox>>,
 }
 
 impl RunRecord {
@@ -132,6 +135,7 @@ impl RunRecord {
             recipe_toml: space.recipe_toml.clone(),
             dimensions: space.dimensions.iter().map(|d| d.name.clone()).collect(),
             strata: space.strata(),
+            pile: space.pile.clone(),
         })
     }
 }
@@ -251,6 +255,8 @@ impl Run {
                     "the search space"
                 } else if run.record.recipe_toml != record.recipe_toml {
                     "the base recipe"
+                } else if run.record.pile != record.pile {
+                    "the pile's boxes (its dataset changed since the run started)"
                 } else {
                     "the sampler settings (sampler, samples, batch size, seed, crops, fit, failure predicate, CE settings or models)"
                 };

@@ -25,6 +25,9 @@ pub struct SampledScene {
     pub scene: Scene,
     /// In object_id order; the target first. `world_box` holds the settled pose once settled.
     pub objects: Vec<Object>,
+    /// The boxes after the target are a settled pile (`[pile]`): they start at rest, asleep,
+    /// and only the target is dropped.
+    pub onto_pile: bool,
 }
 
 /// The nuisance draws of one scene (box masses, frictions, appearance), seeded by the scene seed.
@@ -175,11 +178,20 @@ pub fn build(
     let quat = parameters.target_quat_wxyz;
     let radius = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt() / 2.0;
     let lift = half_height(size, quat);
-    let centre = [
+    let mut centre = [
         inside(p("target.x_m"), hx, radius),
         inside(p("target.y_m"), hy, radius),
         top + p("target.drop_height_m") + lift,
     ];
+    if let Some(pile) = &space.pile {
+        // the drop height is counted from the pile's highest point: the target starts clear of
+        // every box, as a re-settle needs (a box touched at the start cannot sleep)
+        let pile_top = pile
+            .iter()
+            .map(|b| b.translation_m[2] + half_height(b.size_m, b.quat_wxyz))
+            .fold(top, f64::max);
+        centre[2] = pile_top + p("target.drop_height_m") + lift;
+    }
     let mut objects = vec![nuisance.object(
         scene_id,
         TARGET_OBJECT_ID,
@@ -189,6 +201,9 @@ pub fn build(
             translation: centre,
         },
     )];
+    for (i, pile_box) in space.pile.iter().flatten().enumerate() {
+        objects.push(pile_box.object(scene_id, TARGET_OBJECT_ID + 1 + i as i32));
+    }
     let mut floor = centre[2] + lift + STACK_GAP_M;
     for i in 0..parameters.neighbours {
         let size = [
@@ -219,7 +234,11 @@ pub fn build(
         support: support.kind.name().into(),
         num_objects: objects.len() as i32,
         solver: "none".into(),
-        solver_status: "dropped from sampled poses".into(),
+        solver_status: if space.pile.is_some() {
+            "dropped onto a settled pile".into()
+        } else {
+            "dropped from sampled poses".into()
+        },
         solve_attempts: 0,
         settle_time_s: f64::NAN,
         max_linear_speed_mps: f64::NAN,
@@ -227,7 +246,11 @@ pub fn build(
         min_signed_distance_m: f64::NAN,
         stable: false,
     };
-    Ok(SampledScene { scene, objects })
+    Ok(SampledScene {
+        scene,
+        objects,
+        onto_pile: space.pile.is_some(),
+    })
 }
 
 /// The base recipe with this sample's camera and lighting as degenerate ranges, one frame, and
@@ -273,12 +296,24 @@ fn pinned_recipe(
         .map_err(|e| SearchError::Sample(format!("cannot write the scene's recipe: {e}")))
 }
 
-/// Drops and settles the scene with MuJoCo; the objects' `world_box` become the settled poses
-/// and the scene row gets the certificate.
+/// Drops and settles the scene with MuJoCo (onto a pile: re-settles it, the pile asleep until
+/// touched); the objects' `world_box` become the settled poses and the scene row gets the
+/// certificate.
 pub fn settle(sampled: &mut SampledScene, physics: &RecipePhysics) -> Result<SettleOutcome> {
     let description = SceneDescription::from_objects(physics.support, &sampled.objects);
     description.validate()?;
-    let outcome = Settler::new(&description, &physics.settle)?.settle()?;
+    let outcome = if sampled.onto_pile {
+        let target = TARGET_OBJECT_ID as usize;
+        boxpose_physics::resettle(
+            &description,
+            &description.initial_poses(),
+            target,
+            description.boxes[target].initial,
+            &physics.settle,
+        )?
+    } else {
+        Settler::new(&description, &physics.settle)?.settle()?
+    };
     for (object, pose) in sampled.objects.iter_mut().zip(&outcome.poses) {
         object.world_box = *pose;
     }

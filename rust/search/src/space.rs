@@ -13,7 +13,8 @@
 use std::collections::BTreeMap;
 use std::path::Path;
 
-use serde::Deserialize;
+use boxpose_data::{Object, Pose};
+use serde::{Deserialize, Serialize};
 use statrs::function::erf::{erfc, erfc_inv};
 
 use crate::error::{Result, SearchError};
@@ -153,6 +154,111 @@ pub struct NeighbourSpec {
     pub y_m: Distribution,
 }
 
+/// `[pile]`: the target is dropped onto a settled pile stored in a dataset (one scene's boxes at
+/// their settled poses) instead of with neighbours. The pile's boxes start asleep and only what
+/// the drop touches moves (`boxpose_physics::resettle`): a sample costs the drop, not the pile.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PileSpec {
+    /// Dataset folder holding the pile's `scenes` and `objects` rows.
+    pub dataset: String,
+    pub scene_id: i64,
+}
+
+/// One box of a stored pile at its settled pose: its `objects` row without the ids. A run keeps
+/// them in `run.json`, so that resuming or replaying it never reads the dataset again, and a
+/// dataset that changed under a run cannot change what the run searched.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PileBox {
+    pub size_m: [f64; 3],
+    pub quat_wxyz: [f64; 4],
+    pub translation_m: [f64; 3],
+    pub mass_kg: f64,
+    pub friction: f64,
+    pub base_color_rgb: [f32; 3],
+    pub roughness: f32,
+    pub texture_seed: i64,
+    pub has_tape: bool,
+    pub has_label: bool,
+}
+
+impl PileBox {
+    fn from_object(object: &Object) -> Self {
+        Self {
+            size_m: object.size,
+            quat_wxyz: object.world_box.quat_wxyz,
+            translation_m: object.world_box.translation,
+            mass_kg: object.mass_kg,
+            friction: object.friction,
+            base_color_rgb: object.base_color_rgb,
+            roughness: object.roughness,
+            texture_seed: object.texture_seed,
+            has_tape: object.has_tape,
+            has_label: object.has_label,
+        }
+    }
+
+    /// The box as an `objects` row of another scene, at rest where the pile left it.
+    pub fn object(&self, scene_id: i64, object_id: i32) -> Object {
+        let pose = Pose {
+            quat_wxyz: self.quat_wxyz,
+            translation: self.translation_m,
+        };
+        Object {
+            scene_id,
+            object_id,
+            size: self.size_m,
+            world_box: pose,
+            initial_world_box: pose,
+            mass_kg: self.mass_kg,
+            friction: self.friction,
+            base_color_rgb: self.base_color_rgb,
+            roughness: self.roughness,
+            texture_seed: self.texture_seed,
+            has_tape: self.has_tape,
+            has_label: self.has_label,
+        }
+    }
+}
+
+/// Reads the pile of `spec` from its dataset: a scene certified settled, on the same support as
+/// the space's recipe (`recipe_toml`).
+pub fn load_pile(spec: &PileSpec, recipe_toml: &str) -> Result<Vec<PileBox>> {
+    let bad = |problem: String| SearchError::Space {
+        key: "pile".into(),
+        problem: format!("{} scene {}: {problem}", spec.dataset, spec.scene_id),
+    };
+    let dataset = boxpose_data::Dataset::open(&spec.dataset)?;
+    let scene = dataset
+        .scenes()?
+        .into_iter()
+        .find(|s| s.scene_id == spec.scene_id)
+        .ok_or_else(|| bad("no such scene in the dataset".into()))?;
+    if !scene.stable {
+        return Err(bad(
+            "not certified settled (stable = false); choose a settled pile".into(),
+        ));
+    }
+    let support = |toml: &str| boxpose_physics::RecipePhysics::from_toml(toml).map(|p| p.support);
+    let (own, wanted) = (support(&scene.recipe_toml)?, support(recipe_toml)?);
+    if own != wanted {
+        return Err(bad(format!(
+            "it was settled on another support ({own:?}) than the space's recipe has ({wanted:?})"
+        )));
+    }
+    let mut objects: Vec<Object> = dataset
+        .objects()?
+        .into_iter()
+        .filter(|o| o.scene_id == spec.scene_id)
+        .collect();
+    objects.sort_by_key(|o| o.object_id);
+    if objects.is_empty() {
+        return Err(bad("the scene has no objects rows".into()));
+    }
+    Ok(objects.iter().map(PileBox::from_object).collect())
+}
+
 /// `[camera]`: the view, relative to the target box (the camera looks at its settled centre).
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -185,6 +291,7 @@ pub struct SpaceFile {
     pub recipe: String,
     pub target: TargetSpec,
     pub neighbours: Option<NeighbourSpec>,
+    pub pile: Option<PileSpec>,
     pub camera: CameraSpec,
     pub lighting: LightingSpec,
 }
@@ -206,6 +313,8 @@ pub struct SearchSpace {
     /// The base recipe's TOML text.
     pub recipe_toml: String,
     pub dimensions: Vec<Dimension>,
+    /// With `[pile]`: its boxes, read from the dataset when the space was loaded.
+    pub pile: Option<Vec<PileBox>>,
 }
 
 /// Sampled scene inputs: every parameter's value, by name, and the stratum.
@@ -259,7 +368,12 @@ impl SearchSpace {
                 key: "recipe".into(),
                 problem: format!("{}: {e}", recipe_path.display()),
             })?;
-        Self::from_parts(file, text.to_string(), recipe_toml).map_err(|e| match e {
+        // with [neighbours] beside it, from_parts refuses the space before any dataset is read
+        let pile = match (&file.pile, &file.neighbours) {
+            (Some(spec), None) => Some(load_pile(spec, &recipe_toml)?),
+            _ => None,
+        };
+        Self::from_parts(file, text.to_string(), recipe_toml, pile).map_err(|e| match e {
             SearchError::Space { key, problem } => SearchError::Space {
                 key: format!("{source}: {key}"),
                 problem,
@@ -268,17 +382,52 @@ impl SearchSpace {
         })
     }
 
-    /// The space a run searched, from the texts its `run.json` stores (no file is read).
-    pub fn from_texts(space_toml: &str, recipe_toml: &str) -> Result<Self> {
+    /// The space a run searched, from what its `run.json` stores (no file is read).
+    pub fn from_texts(
+        space_toml: &str,
+        recipe_toml: &str,
+        pile: Option<Vec<PileBox>>,
+    ) -> Result<Self> {
         let file: SpaceFile = toml::from_str(space_toml).map_err(|e| SearchError::Space {
             key: "run.json space_toml".into(),
             problem: e.to_string(),
         })?;
-        Self::from_parts(file, space_toml.to_string(), recipe_toml.to_string())
+        Self::from_parts(file, space_toml.to_string(), recipe_toml.to_string(), pile)
     }
 
-    /// Validates a parsed file against its base recipe and lays out z.
-    pub fn from_parts(file: SpaceFile, text: String, recipe_toml: String) -> Result<Self> {
+    /// Validates a parsed file against its base recipe (and its pile's boxes, for a `[pile]`)
+    /// and lays out z.
+    pub fn from_parts(
+        file: SpaceFile,
+        text: String,
+        recipe_toml: String,
+        pile: Option<Vec<PileBox>>,
+    ) -> Result<Self> {
+        match (&file.pile, &pile, &file.neighbours) {
+            (Some(_), _, Some(_)) => {
+                return Err(SearchError::Space {
+                    key: "pile".into(),
+                    problem:
+                        "a space drops the target with [neighbours] or onto a [pile], not both"
+                            .into(),
+                });
+            }
+            (Some(_), None, _) | (None, Some(_), _) => {
+                return Err(SearchError::Space {
+                    key: "pile".into(),
+                    problem: "the pile's boxes must come with the [pile] section (a run.json \
+                              written without them cannot replay a pile space)"
+                        .into(),
+                });
+            }
+            (Some(_), Some(boxes), _) if boxes.is_empty() => {
+                return Err(SearchError::Space {
+                    key: "pile".into(),
+                    problem: "the pile has no boxes".into(),
+                });
+            }
+            _ => {}
+        }
         boxpose_physics::RecipePhysics::from_toml(&recipe_toml).map_err(|e| {
             SearchError::Space {
                 key: "recipe".into(),
@@ -435,6 +584,7 @@ impl SearchSpace {
             text,
             recipe_toml,
             dimensions,
+            pile,
         })
     }
 
@@ -520,7 +670,7 @@ mod tests {
             key: "<test>".into(),
             problem: e.to_string(),
         })?;
-        SearchSpace::from_parts(file, text.into(), RECIPE.into())
+        SearchSpace::from_parts(file, text.into(), RECIPE.into(), None)
     }
 
     fn error_of(text: &str) -> String {
