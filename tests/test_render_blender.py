@@ -471,6 +471,17 @@ def test_crop_render_matches_the_full_render(session, clutter):
         assert a["corners_camera_m"] == b["corners_camera_m"]
 
 
+def test_a_crop_whose_edges_float32_cannot_hold_renders_its_exact_size(session):
+    # Blender keeps the border in float32 and truncates border × size: at 480 rows the edge at
+    # 250 (and 63, 125–127, 252, 254) used to come back a pixel short, the render a row too tall
+    text = recipe_text("clutter", 640, 480, frames=1, samples=1, denoise=False)
+    scene, objects = synthetic_scene(0, text, 2, seed=4)
+    session.load(scene, objects)
+    for x0, y0, x1, y1 in [(200, 220, 212, 230), (320, 226, 336, 254), (0, 354, 8, 417)]:
+        frame, _ = session.render(0, crop=(x0, y0, x1, y1))
+        assert (frame["width"], frame["height"]) == (x1 - x0, y1 - y0)
+
+
 def test_changed_pose_moves_only_that_box(session, clutter):
     scene, objects, renders = clutter
     session.load(scene, objects)

@@ -336,9 +336,15 @@ class BlenderScene:
                 raise BlenderError(f"crop {crop} is not a non-empty region of the {w}×{h} image")
             r.use_border = True
             r.use_crop_to_border = True
-            # Blender's border is normalized with y up; it rounds border × size to whole pixels.
-            r.border_min_x, r.border_max_x = x0 / w, x1 / w
-            r.border_min_y, r.border_max_y = (h - y1) / h, (h - y0) / h
+
+            # Blender's border is normalized with y up, stored in float32, and border × size is
+            # truncated to whole pixels: 250 / 480 comes back as 249.99998 → 249, a row too many.
+            # A thousandth of a pixel inwards lands every edge on its pixel, truncated or rounded.
+            def edge(pixels: int, size: int) -> float:
+                return min((pixels + 1e-3) / size, 1.0)
+
+            r.border_min_x, r.border_max_x = edge(x0, w), edge(x1, w)
+            r.border_min_y, r.border_max_y = edge(h - y1, h), edge(h - y0, h)
         start = time.perf_counter()
         bpy.ops.render.render(write_still=False)
         result = bpy.data.images["Render Result"]
