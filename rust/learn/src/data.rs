@@ -199,6 +199,7 @@ pub(crate) fn crop_input(
     window: &CropWindow,
     z_ref: f64,
     size: usize,
+    turn: Option<&InPlaneTurn>,
     augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
 ) -> Vec<f32> {
     let step = window.side / size as f64;
@@ -208,7 +209,7 @@ pub(crate) fn crop_input(
         [step, step],
         [size, size],
         z_ref,
-        None,
+        turn,
         augment,
     )
 }
@@ -385,6 +386,7 @@ pub(crate) fn instance_sample(
                 &window,
                 z_ref,
                 &instance.corners_camera,
+                None,
                 Some((augment, rng)),
             )
         }
@@ -396,6 +398,7 @@ pub(crate) fn instance_sample(
                 &window,
                 z_ref,
                 &instance.corners_camera,
+                None,
                 None,
             )
         }
@@ -425,16 +428,16 @@ fn turned_instance_sample(
             }
         }
     }
-    let extent = own.iter().fold(
-        [f64::MAX, f64::MAX, f64::MIN, f64::MIN],
-        |[x0, y0, x1, y1], &([u, v], _)| [x0.min(u), y0.min(v), x1.max(u), y1.max(v)],
-    );
     if own.is_empty() {
         return Err(LearnError::Data(format!(
             "scene {} frame {} object {}: its visible bbox holds none of its mask pixels",
             instance.scene_id, instance.frame_id, instance.object_id
         )));
     }
+    let extent = own.iter().fold(
+        [f64::MAX, f64::MAX, f64::MIN, f64::MIN],
+        |[x0, y0, x1, y1], &([u, v], _)| [x0.min(u), y0.min(v), x1.max(u), y1.max(v)],
+    );
     // The window's coordinates are continuous (pixel i spans [i, i + 1]): a pixel centred at
     // index x covers [x, x + 1].
     let [x0, y0, x1, y1] = extent;
@@ -463,48 +466,34 @@ fn turned_instance_sample(
     }
     let middle = depths.len() / 2;
     let z_ref = *depths.select_nth_unstable_by(middle, f32::total_cmp).1 as f64;
-    let size = config.input_size;
-    let step = window.side / size as f64;
-    let input = resample_input(
+    sample_at(
+        config,
         frame,
-        [window.x0, window.y0],
-        [step, step],
-        [size, size],
+        &window,
         z_ref,
+        &instance.corners_camera,
         Some(turn),
         Some((augment, rng)),
-    );
-    let grid = voxel_grid(config, &frame.intrinsics, &window, z_ref);
-    let target = target_heatmap(
-        config,
-        &grid,
-        &instance.corners_camera.map(|c| turn.point(c)),
     )
-    .map_err(|e| {
-        LearnError::Data(format!(
-            "scene {} frame {}: a box's target heatmap: {e}",
-            frame.scene_id, frame.frame_id
-        ))
-    })?;
-    Ok(Sample {
-        input,
-        target,
-        grid,
-    })
 }
 
-/// The sample of a box with true corners `corners_camera` in any crop (a predicted one, say).
+/// The sample of a box with true corners `corners_camera` in any crop (a predicted one, say),
+/// of the image the camera sees turned by `turn` when there is one.
 pub(crate) fn sample_at(
     config: &NetworkConfig,
     frame: &Frame,
     window: &CropWindow,
     z_ref: f64,
     corners_camera: &[[f64; 3]; 8],
+    turn: Option<&InPlaneTurn>,
     augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
 ) -> Result<Sample, LearnError> {
-    let input = crop_input(frame, window, z_ref, config.input_size, augment);
+    let input = crop_input(frame, window, z_ref, config.input_size, turn, augment);
     let grid = voxel_grid(config, &frame.intrinsics, window, z_ref);
-    let target = target_heatmap(config, &grid, corners_camera).map_err(|e| {
+    let corners = turn.map_or(*corners_camera, |turn| {
+        corners_camera.map(|c| turn.point(c))
+    });
+    let target = target_heatmap(config, &grid, &corners).map_err(|e| {
         LearnError::Data(format!(
             "scene {} frame {}: a box's target heatmap: {e}",
             frame.scene_id, frame.frame_id

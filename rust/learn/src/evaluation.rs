@@ -255,6 +255,7 @@ pub fn instance_samples(
                 crop.z_ref,
                 &instance.corners_camera,
                 None,
+                None,
             )
             .map(Some)
         })

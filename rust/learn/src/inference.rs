@@ -156,7 +156,16 @@ pub fn predict(
 ) -> Result<Vec<BoxPrediction>, LearnError> {
     let inputs: Vec<Vec<f32>> = crops
         .iter()
-        .map(|c| data::crop_input(frame, &c.window, c.z_ref, model.config.input_size, None))
+        .map(|c| {
+            data::crop_input(
+                frame,
+                &c.window,
+                c.z_ref,
+                model.config.input_size,
+                None,
+                None,
+            )
+        })
         .collect();
     let heatmaps = model.heatmaps(&inputs, batch_size)?;
     crops
