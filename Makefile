@@ -17,7 +17,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-learn bench-backends bench-render-quality bench-search bench-scale-out lint fuzz test-faults clean
+.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-scenes bench-learn bench-backends bench-render-quality bench-search bench-scale-out lint fuzz test-faults clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -131,7 +131,7 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
 
-bench: bench-geometry bench-settle bench-render bench-render-quality bench-learn bench-backends bench-search bench-scale-out ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
+bench: bench-geometry bench-settle bench-render bench-scenes bench-render-quality bench-learn bench-backends bench-search bench-scale-out ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
 
 bench-geometry: setup ## Geometry core (criterion), then fast exact search vs a batched NumPy brute force on the same inputs
 	cargo bench -p boxpose-geometry --bench geometry
@@ -142,6 +142,9 @@ bench-settle: setup ## Drake vs MuJoCo settle time on the same 5- and 20-box dro
 
 bench-render: setup ## Cycles seconds per 640×480 frame by samples and denoising; 128×128 crop re-render from Rust, scene reused vs rebuilt
 	$(PY) scripts/bench_render.py
+
+bench-scenes: setup ## make scenes images/s per recipe (Drake, Blender, ground truth, Parquet) with --jobs 1 and 2, one run
+	$(PY) scripts/bench_scenes.py
 
 bench-render-quality: setup ## PSNR/SSIM against a 1024-sample reference and CPU-seconds per image over samples × denoiser × bounces, Kubric's defaults as a row
 	$(PY) scripts/bench_render_quality.py --recipes single_box --scenes 3

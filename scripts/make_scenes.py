@@ -13,12 +13,17 @@ For each shard i of N:
      long), into `DIR/.partial/shard-i-of-N/`; once every chunk is there the shard's
      `instances` and `frames` files are written (each atomically, frames last) and the chunks
      deleted.
-Interrupted runs resume: complete shards and complete chunks are skipped. A failure (bpy missing,
-scene/object rows that do not fit, a crashed or failing render) stops with one error message and
-leaves no partial shard in the dataset's tables. A worker that reports no progress for
---worker-timeout seconds, or a scene stage that runs past --scene-stage-timeout, is stopped as
-hung. Ctrl-C, SIGTERM and SIGHUP stop the stage processes (each runs in its own process group)
-before the driver exits, so none is left running.
+--jobs workers render at once (chunks of one shard or of the next ones), each with its share of
+the cores; the scene stage of the next shard runs beside the renders, so that Drake's one core
+and Blender's single-threaded phases overlap.
+Interrupted runs resume: complete shards and complete chunks are skipped (whatever --jobs or
+--scenes-per-worker made them). A failure (bpy missing, scene/object rows that do not fit, a
+crashed or failing render) stops with one error message and leaves no partial shard in the
+dataset's tables; the workers already running finish their chunks first, so that the resume
+keeps them. A worker that reports no progress for --worker-timeout seconds, or a scene stage
+that runs past --scene-stage-timeout, is stopped as hung. Ctrl-C, SIGTERM and SIGHUP stop the
+stage processes (each runs in its own process group) before the driver exits, so none is left
+running.
 """
 
 from __future__ import annotations
@@ -30,6 +35,7 @@ import hashlib
 import json
 import os
 import queue
+import re
 import shutil
 import signal
 import subprocess
@@ -37,6 +43,7 @@ import sys
 import threading
 import time
 from collections import deque
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
 from pathlib import Path
 
 import pyarrow as pa
@@ -99,6 +106,27 @@ def stop_group(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
+# Stage processes start from several threads: once a stop has begun none may start (a thread
+# between its check and its Popen would otherwise leave a process running after the stop).
+SPAWN = threading.Lock()
+STOPPING = threading.Event()
+
+
+def spawn(cmd: list[str], **kwargs) -> subprocess.Popen:
+    """Starts a stage process in its own process group, so that a stop reaches its children."""
+    with SPAWN:
+        if STOPPING.is_set():
+            raise DriverError("stopped before this stage started")
+        return subprocess.Popen(cmd, cwd=REPO, start_new_session=True, **kwargs)
+
+
+def stop_all() -> None:
+    """Stops every stage process, running or about to start."""
+    with SPAWN:
+        STOPPING.set()
+    stop_children()
+
+
 def stop_children() -> None:
     """Stops every stage process this driver started, with its process group: the fallback for a
     signal that lands between starting a stage and guarding it (found: a worker left stopped)."""
@@ -155,9 +183,7 @@ def run_scene_stage(args, shard: int, log: Path) -> None:
     log.parent.mkdir(parents=True, exist_ok=True)
     with open(log, "ab") as out:
         # Its own process group, so that an interrupted driver can stop it and its children.
-        proc = subprocess.Popen(
-            cmd, stdout=out, stderr=subprocess.STDOUT, cwd=REPO, start_new_session=True
-        )
+        proc = spawn(cmd, stdout=out, stderr=subprocess.STDOUT)
         try:
             returncode = proc.wait(timeout=args.scene_stage_timeout)
         except subprocess.TimeoutExpired:
@@ -183,18 +209,27 @@ def run_scene_stage(args, shard: int, log: Path) -> None:
             )
 
 
-def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: tqdm) -> None:
+def cycles_threads(args) -> int:
+    """Cycles threads of each worker: --threads, or else the cores shared out among the jobs (0,
+    Cycles' own choice of every core, for one job)."""
+    if args.threads > 0 or args.jobs == 1:
+        return args.threads
+    return max(1, len(os.sched_getaffinity(0)) // args.jobs)
+
+
+def run_worker(args, shard: int, chunk: tuple[int, int], chunk_dir: Path, on_frame) -> None:
+    """Renders the scenes at positions `chunk` of the shard into `chunk_dir` through one Blender
+    worker process; `on_frame()` is called for each frame it finishes."""
+    start, stop = chunk
     log = chunk_dir / "worker.log"
     cmd = [
         args.python, "-m", "blender_scripts.worker", "--dataset", str(args.dataset),
         "--shard", str(shard), "--num-shards", str(args.num_shards), "--scenes", f"{start}:{stop}",
-        "--out", str(chunk_dir), "--threads", str(args.threads),
+        "--out", str(chunk_dir), "--threads", str(cycles_threads(args)),
     ]  # fmt: skip
     current_scene = None
     with open(log, "ab") as err:
-        proc = subprocess.Popen(
-            cmd, stdout=subprocess.PIPE, stderr=err, cwd=REPO, text=True, start_new_session=True
-        )
+        proc = spawn(cmd, stdout=subprocess.PIPE, stderr=err, text=True)
         # A thread reads the worker's lines so that the watchdog can wait on them with a timeout.
         lines: queue.Queue[str | None] = queue.Queue()
 
@@ -228,7 +263,7 @@ def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: t
                 if event["event"] == "scene":
                     current_scene = event["scene_id"]
                 elif event["event"] == "frame":
-                    pbar.update(1)
+                    on_frame()
             proc.wait()
         except BaseException:
             stop_group(proc)
@@ -254,35 +289,51 @@ def run_worker(args, shard: int, start: int, stop: int, chunk_dir: Path, pbar: t
     raise DriverError(f"rendering {where} failed: {message}\n  log: {log}")
 
 
-def render_shard(args, shard: int, pbar: tqdm) -> int:
-    """Renders shard `shard` through chunked worker processes, then writes its two tables."""
-    scenes_path = boxpose_io.shard_path(args.dataset, "scenes", shard, args.num_shards)
-    num_scenes = pq.ParquetFile(scenes_path).metadata.num_rows
-    chunk_dir = args.dataset / PARTIAL / f"shard-{shard:05d}-of-{args.num_shards:05d}"
-    chunk_dir.mkdir(parents=True, exist_ok=True)
-    per = max(args.scenes_per_worker, 1)
-    chunks = [(a, min(a + per, num_scenes)) for a in range(0, num_scenes, per)]
-    names = {
-        c: {t: chunk_dir / f"{t}-{c[0]:06d}-{c[1]:06d}.parquet" for t in ("frames", "instances")}
-        for c in chunks
-    }
-    for chunk in chunks:
-        if all(p.is_file() for p in names[chunk].values()):
-            pbar.update(pq.ParquetFile(names[chunk]["frames"]).metadata.num_rows)
+CHUNK_NAME = re.compile(r"frames-(\d{6})-(\d{6})\.parquet")
+
+
+def plan_chunks(chunk_dir: Path, num_scenes: int, per: int) -> tuple[list, list]:
+    """(chunks already rendered, chunks to render) of a shard of `num_scenes` scenes, each chunk
+    a (start, stop) range of scene positions. A resume keeps every chunk an earlier run finished,
+    whatever its --jobs or --scenes-per-worker, and splits only the scenes they leave into runs
+    of at most `per`."""
+    per = max(per, 1)
+    done = []
+    for path in sorted(chunk_dir.glob("frames-*.parquet")):
+        match = CHUNK_NAME.fullmatch(path.name)
+        if match and (chunk_dir / f"instances-{match[1]}-{match[2]}.parquet").is_file():
+            done.append((int(match[1]), int(match[2])))
+    covered = {position for start, stop in done for position in range(start, stop)}
+    todo = []
+    position = 0
+    while position < num_scenes:
+        if position in covered:
+            position += 1
             continue
-        pbar.set_postfix_str(
-            f"shard {shard + 1}/{args.num_shards}, scenes {chunk[0]}–{chunk[1] - 1} of {num_scenes}"
-        )
-        run_worker(args, shard, chunk[0], chunk[1], chunk_dir, pbar)
+        stop = position
+        while stop < num_scenes and stop not in covered and stop - position < per:
+            stop += 1
+        todo.append((position, stop))
+        position = stop
+    return done, todo
+
+
+def chunk_path(chunk_dir: Path, table: str, chunk: tuple[int, int]) -> Path:
+    return chunk_dir / f"{table}-{chunk[0]:06d}-{chunk[1]:06d}.parquet"
+
+
+def finish_shard(args, shard: int, chunk_dir: Path, chunks: list) -> int:
+    """Merges a shard's rendered chunks into its `instances` and `frames` files (each written
+    atomically, frames last: its presence marks a complete shard) and deletes the chunks."""
     tables = {}
     for table in ("instances", "frames"):
-        parts = [pq.read_table(names[c][table]) for c in chunks]
+        parts = [pq.read_table(chunk_path(chunk_dir, table, c)) for c in sorted(chunks)]
         schema = boxpose_io.arrow_schema(table)
         merged = (
             pa.concat_tables([p.cast(schema) for p in parts]) if parts else schema.empty_table()
         )
         tables[table] = merged.replace_schema_metadata(schema.metadata)
-    for table in ("instances", "frames"):  # frames last: its presence marks a complete shard
+    for table in ("instances", "frames"):
         boxpose_io.write_shard(
             boxpose_io.shard_path(args.dataset, table, shard, args.num_shards), tables[table]
         )
@@ -295,6 +346,159 @@ def shard_complete(args, shard: int) -> bool:
         boxpose_io.shard_path(args.dataset, t, shard, args.num_shards).is_file()
         for t in ("frames", "instances")
     )
+
+
+class Generation:
+    """Runs the stages of a driver's shards: up to `args.jobs` Blender workers at a time, and
+    Drake's scene stage (one process, one core) in a lane of its own that works ahead of the
+    renders by at most `args.jobs` shards, so that rendering one shard and settling the next
+    overlap. A shard's tables are written as soon as its last chunk is rendered.
+
+    On a failure nothing new starts, the workers already running finish their chunks (kept for
+    the resume) and the first error is raised; an interrupt stops every stage at once."""
+
+    def __init__(self, args, frames_per_scene: int, pbar: tqdm):
+        self.args = args
+        self.frames_per_scene = frames_per_scene
+        self.pbar = pbar
+        self.pbar_lock = threading.Lock()  # workers' threads report frames
+        self.estimate = pbar.total / max(len(args.shard_list), 1)  # frames per shard until known
+        self.running: dict[
+            Future, tuple
+        ] = {}  # future → ("scenes", shard) or ("chunk", shard, chunk)
+        self.chunks_left: dict[int, int] = {}  # shard being rendered → chunks not yet rendered
+        self.rendered = 0
+        self.failure: Exception | None = None
+
+    def shard_file(self, table: str, shard: int) -> Path:
+        return boxpose_io.shard_path(self.args.dataset, table, shard, self.args.num_shards)
+
+    def chunk_dir(self, shard: int) -> Path:
+        return self.args.dataset / PARTIAL / f"shard-{shard:05d}-of-{self.args.num_shards:05d}"
+
+    def frame_done(self, frames: int = 1) -> None:
+        with self.pbar_lock:
+            self.pbar.update(frames)
+
+    def known(self, table: str, shard: int, per_row: int) -> int:
+        """Rows of a shard's table × `per_row`: the frames it holds or will hold, which replace
+        the shard's estimate in the progress bar's total."""
+        rows = pq.ParquetFile(self.shard_file(table, shard)).metadata.num_rows * per_row
+        with self.pbar_lock:
+            self.pbar.total = max(round(self.pbar.total - self.estimate + rows), self.pbar.n)
+            self.pbar.refresh()
+        return rows
+
+    def run(self) -> int:
+        args = self.args
+        waiting = deque()
+        for shard in args.shard_list:
+            if shard_complete(args, shard):
+                self.frame_done(self.known("frames", shard, 1))
+            else:
+                waiting.append(shard)
+        scene_lane_busy = False
+        with ThreadPoolExecutor(1) as scene_lane, ThreadPoolExecutor(args.jobs) as render_pool:
+            try:
+                while True:
+                    while (
+                        self.failure is None
+                        and not scene_lane_busy
+                        and waiting
+                        and len(self.chunks_left) <= args.jobs
+                    ):
+                        shard = waiting.popleft()
+                        if all(self.shard_file(t, shard).is_file() for t in ("scenes", "objects")):
+                            self.open_shard(shard, render_pool)
+                            continue
+                        log = (
+                            args.dataset
+                            / PARTIAL
+                            / f"drake-{shard:05d}-of-{args.num_shards:05d}.log"
+                        )
+                        future = scene_lane.submit(run_scene_stage, args, shard, log)
+                        self.running[future] = ("scenes", shard)
+                        scene_lane_busy = True
+                    self.show_running()
+                    if not self.running:
+                        break
+                    done, _ = wait(self.running, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        kind, shard, *chunk = self.running.pop(future)
+                        scene_lane_busy = scene_lane_busy and kind != "scenes"
+                        try:
+                            future.result()
+                        except Exception as e:  # kept, and raised once the running stages drain
+                            self.fail(e)
+                            continue
+                        if kind == "scenes":
+                            self.open_shard(shard, render_pool)
+                        else:
+                            self.chunk_done(shard)
+            except BaseException:
+                for future in self.running:
+                    future.cancel()
+                stop_all()
+                raise
+        if self.failure is not None:
+            raise self.failure
+        return self.rendered
+
+    def open_shard(self, shard: int, render_pool: ThreadPoolExecutor) -> None:
+        """Queues the chunks of a shard whose scenes exist (chunks rendered earlier are kept)."""
+        self.known("scenes", shard, self.frames_per_scene)
+        scenes = pq.ParquetFile(self.shard_file("scenes", shard)).metadata.num_rows
+        chunk_dir = self.chunk_dir(shard)
+        chunk_dir.mkdir(parents=True, exist_ok=True)
+        done, todo = plan_chunks(chunk_dir, scenes, max(self.args.scenes_per_worker, 1))
+        for chunk in done:
+            self.frame_done(
+                pq.ParquetFile(chunk_path(chunk_dir, "frames", chunk)).metadata.num_rows
+            )
+        self.chunks_left[shard] = len(todo)
+        if not todo:
+            self.finish(shard)
+        for chunk in todo:
+            future = render_pool.submit(
+                run_worker, self.args, shard, chunk, chunk_dir, self.frame_done
+            )
+            self.running[future] = ("chunk", shard, chunk)
+
+    def chunk_done(self, shard: int) -> None:
+        self.chunks_left[shard] -= 1
+        if self.chunks_left[shard] == 0:
+            self.finish(shard)
+
+    def finish(self, shard: int) -> None:
+        chunk_dir = self.chunk_dir(shard)
+        scenes = pq.ParquetFile(self.shard_file("scenes", shard)).metadata.num_rows
+        chunks, missing = plan_chunks(chunk_dir, scenes, scenes)
+        if missing:
+            raise DriverError(
+                f"{chunk_dir}: the rendered chunks do not cover scene positions {missing}; "
+                "run the same command again to render them"
+            )
+        self.rendered += finish_shard(self.args, shard, chunk_dir, chunks)
+        del self.chunks_left[shard]
+
+    def fail(self, error: Exception) -> None:
+        """Keeps the first error; nothing queued starts any more."""
+        if self.failure is None:
+            self.failure = error
+        for future in list(self.running):
+            if future.cancel():
+                del self.running[future]
+
+    def show_running(self) -> None:
+        n = self.args.num_shards
+        parts = []
+        for kind, shard, *_ in self.running.values():
+            what = "scenes (Drake)" if kind == "scenes" else "render"
+            part = f"shard {shard + 1}/{n}: {what}"
+            if part not in parts:
+                parts.append(part)
+        with self.pbar_lock:
+            self.pbar.set_postfix_str(", ".join(parts[: self.args.jobs + 1]))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -330,7 +534,17 @@ def main(argv: list[str] | None = None) -> int:
         help="scenes a Blender worker process renders before it is replaced (default 25)",
     )
     ap.add_argument(
-        "--threads", type=int, default=0, help="Cycles threads per worker (default 0 = all cores)"
+        "--jobs",
+        type=int,
+        default=1,
+        help="Blender workers rendering at once, on chunks of one or several shards "
+        "(default 1); Drake's scene stage of the next shard runs beside them either way",
+    )
+    ap.add_argument(
+        "--threads",
+        type=int,
+        default=0,
+        help="Cycles threads per worker (default 0 = the cores shared out among the --jobs)",
     )
     ap.add_argument(
         "--python",
@@ -374,6 +588,8 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("worker_timeout", "scene_stage_timeout"):
         if not getattr(args, name) > 0:
             ap.error(f"--{name.replace('_', '-')} must be positive")
+    if args.jobs < 1:
+        ap.error("--jobs must be at least 1")
     if not args.lock_wait >= 0:
         ap.error("--lock-wait must not be negative")
     # SIGTERM (a scheduler, `kill`) and SIGHUP (a closed terminal) stop the workers too.
@@ -512,8 +728,11 @@ def run(args) -> int:
     if args.num_shards < 1:
         raise DriverError("--num-shards must be >= 1")
     shards = (
-        range(args.num_shards) if args.shards is None else [int(s) for s in args.shards.split(",")]
+        list(range(args.num_shards))
+        if args.shards is None
+        else [int(s) for s in args.shards.split(",")]
     )
+    args.shard_list = shards
     if any(not 0 <= s < args.num_shards for s in shards):
         raise DriverError(f"--shards {args.shards}: indices must lie in 0..{args.num_shards - 1}")
     if args.regenerate and args.shards is not None:
@@ -537,37 +756,8 @@ def run(args) -> int:
           f"{recipe.render.samples} samples{' + denoise' if recipe.render.denoise else ''}; "
           f"{args.num_shards} shard(s) → {args.dataset}")  # fmt: skip
     start = time.perf_counter()
-    rendered = 0
-    estimate = num_scenes * frames_per_scene / args.num_shards  # per shard, until it is known
     with tqdm(total=total, unit="img", desc=recipe.name, dynamic_ncols=True, smoothing=0.1) as pbar:
-
-        def known(table: str, shard: int, per_row: int) -> int:
-            rows = (
-                pq.ParquetFile(
-                    boxpose_io.shard_path(args.dataset, table, shard, args.num_shards)
-                ).metadata.num_rows
-                * per_row
-            )
-            pbar.total = max(round(pbar.total - estimate + rows), pbar.n)
-            pbar.refresh()
-            return rows
-
-        for shard in shards:
-            if shard_complete(args, shard):
-                pbar.update(known("frames", shard, 1))
-                continue
-            if not all(
-                boxpose_io.shard_path(args.dataset, t, shard, args.num_shards).is_file()
-                for t in ("scenes", "objects")
-            ):
-                pbar.set_postfix_str(f"shard {shard + 1}/{args.num_shards}: scenes (Drake)")
-                run_scene_stage(
-                    args,
-                    shard,
-                    args.dataset / PARTIAL / f"drake-{shard:05d}-of-{args.num_shards:05d}.log",
-                )
-            known("scenes", shard, frames_per_scene)
-            rendered += render_shard(args, shard, pbar)
+        rendered = Generation(args, frames_per_scene, pbar).run()
     partial = args.dataset / PARTIAL
     # only a driver of every shard: drivers of other shards may be writing chunks in there
     if (

@@ -1,6 +1,7 @@
 """The render stage as a dataset producer: the `make scenes` driver and its Blender workers.
 Inputs are synthetic `scenes` / `objects` shards (no Drake needed); renders are 64², 1 sample."""
 
+import importlib.util
 import io
 import json
 import os
@@ -13,6 +14,7 @@ from pathlib import Path
 import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
 import numpy as np
 import pandas as pd
+import pytest
 from PIL import Image
 
 import boxpose_io
@@ -20,6 +22,10 @@ from blender_scripts.synthetic import synthetic_scene
 
 REPO = Path(__file__).resolve().parent.parent
 DRIVER = [sys.executable, str(REPO / "scripts" / "make_scenes.py")]
+
+spec = importlib.util.spec_from_file_location("make_scenes", REPO / "scripts" / "make_scenes.py")
+make_scenes = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(make_scenes)
 
 
 def write_inputs(
@@ -99,10 +105,13 @@ def test_driver_renders_resumes_and_pandas_reads_it(tmp_path, boxpose_bin):
     assert r.returncode == 0, r.stderr
 
 
-def test_render_crash_leaves_no_shard_and_resume_finishes(tmp_path):
+@pytest.mark.parametrize("jobs", ["1", "2"])
+def test_render_crash_leaves_no_shard_and_resume_finishes(tmp_path, jobs):
+    """With two jobs, scene 0's worker runs while scene 1's crashes: it finishes its chunk first."""
     dataset = tmp_path / "tiny"
     write_inputs(dataset, tiny_scenes(2))
-    r = run_driver(dataset, "--scenes-per-worker", "1", env={"BOXPOSE_TEST_CRASH_SCENE": "1"})
+    crash = {"BOXPOSE_TEST_CRASH_SCENE": "1"}
+    r = run_driver(dataset, "--scenes-per-worker", "1", "--jobs", jobs, env=crash)
     assert r.returncode == 1
     assert "Blender worker crashed (SIGABRT) while rendering shard 0 of 1, scene 1" in r.stderr
     assert no_render_outputs(dataset)
@@ -114,6 +123,45 @@ def test_render_crash_leaves_no_shard_and_resume_finishes(tmp_path):
     r = run_driver(dataset, "--scenes-per-worker", "1")
     assert r.returncode == 0, r.stderr
     assert sorted(pd.read_parquet(dataset / "frames").scene_id) == [0, 1]
+
+
+def test_parallel_jobs_write_the_dataset_one_job_writes(tmp_path):
+    """Two workers at once over two shards (chunks of one scene) write the tables, row for row
+    and pixel for pixel, that one worker writes."""
+    tables = {}
+    for jobs in ("1", "2"):
+        dataset = tmp_path / f"jobs-{jobs}"
+        write_inputs(dataset, tiny_scenes(3)[:2], shard=0, num_shards=2)
+        write_inputs(dataset, tiny_scenes(1, first_id=2), shard=1, num_shards=2)
+        r = run_driver(
+            dataset, "--num-shards", "2", "--num-scenes", "3", "--jobs", jobs,
+            "--scenes-per-worker", "1",
+        )  # fmt: skip
+        assert r.returncode == 0, r.stderr
+        assert not (dataset / ".partial").exists()
+        tables[jobs] = {
+            t: pd.read_parquet(dataset / t).drop(columns="render_time_s", errors="ignore")
+            for t in ("frames", "instances")
+        }
+    for table in ("frames", "instances"):
+        assert len(tables["2"][table]) > 0
+        pd.testing.assert_frame_equal(tables["1"][table], tables["2"][table])
+
+
+def test_a_resume_keeps_the_chunks_of_other_settings(tmp_path):
+    """Chunks rendered under another --scenes-per-worker or --jobs are kept; only the scene
+    positions they leave are split into new chunks."""
+    chunk_dir = tmp_path / "shard"
+    chunk_dir.mkdir()
+    for start, stop in [(0, 2), (5, 6)]:
+        for table in ("frames", "instances"):
+            (chunk_dir / f"{table}-{start:06d}-{stop:06d}.parquet").touch()
+    (chunk_dir / "frames-000003-000004.parquet").touch()  # its instances file never came
+    done, todo = make_scenes.plan_chunks(chunk_dir, 10, 2)
+    assert done == [(0, 2), (5, 6)]
+    assert todo == [(2, 4), (4, 5), (6, 8), (8, 10)]
+    assert make_scenes.plan_chunks(chunk_dir, 0, 5) == (done, [])
+    assert make_scenes.plan_chunks(tmp_path / "empty", 3, 0) == ([], [(0, 1), (1, 2), (2, 3)])
 
 
 def test_missing_object_is_one_clear_error(tmp_path):

@@ -1,0 +1,91 @@
+#!/usr/bin/env python
+"""`make scenes` throughput: images per second of the whole driver (Drake scenes, Blender
+renders, ground truth, Parquet) per recipe, for each setting of --jobs, in one run.
+
+    python scripts/bench_scenes.py [--recipes clutter,train_large,single_box] [--scenes 8]
+                                   [--shards 4] [--jobs 1,2] [--reference-driver PATH]
+
+Each recipe's first --scenes scenes (its own seed, so every setting renders the same scenes) in
+--shards shards, into a fresh folder per setting. --reference-driver runs another version of
+the driver (e.g. `git show REV:scripts/make_scenes.py > /tmp/make_scenes_rev.py`) first, with
+its own defaults, as the row the others are compared with; otherwise the first --jobs setting
+is the reference. Wall time is what a user waits for; CPU seconds (every process the driver
+started) are printed beside it, since other jobs on the machine inflate wall times.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+
+REPO = Path(__file__).resolve().parent.parent
+DRIVER = REPO / "scripts" / "make_scenes.py"
+
+
+def children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def generate(driver: Path, recipe: str, dataset: Path, args, extra: list[str]) -> dict:
+    recipe_path = REPO / "datasets" / "recipes" / f"{recipe}.toml"
+    cmd = [
+        sys.executable, str(driver), "--recipe", str(recipe_path), "--dataset", str(dataset),
+        "--num-scenes", str(args.scenes), "--num-shards", str(args.shards), "--no-inspect", *extra,
+    ]  # fmt: skip
+    wall, cpu = time.perf_counter(), children_cpu_s()
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    wall, cpu = time.perf_counter() - wall, children_cpu_s() - cpu
+    if r.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
+    frames = pq.read_table(dataset / "frames", columns=["scene_id"]).num_rows
+    return {"frames": frames, "wall_s": wall, "cpu_s": cpu}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("\n\n", 2)[2],
+    )
+    ap.add_argument("--recipes", default="clutter,train_large,single_box")
+    ap.add_argument("--scenes", type=int, default=8, help="scenes per recipe (default 8)")
+    ap.add_argument("--shards", type=int, default=4, help="shards per dataset (default 4)")
+    ap.add_argument("--jobs", default="1,2", help="--jobs settings to compare (default 1,2)")
+    ap.add_argument("--reference-driver", type=Path, help="another make_scenes.py, run first")
+    args = ap.parse_args()
+
+    settings = [(f"--jobs {j}", DRIVER, ["--jobs", j]) for j in args.jobs.split(",")]
+    if args.reference_driver:
+        settings.insert(0, (f"{args.reference_driver.name}", args.reference_driver, []))
+    print(
+        f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())} "
+        f"on {os.cpu_count()} cores; {args.scenes} scenes in {args.shards} shards per recipe"
+    )
+    print("| recipe | driver | frames | wall s | CPU s | images/s | vs reference |")
+    print("| --- | --- | ---: | ---: | ---: | ---: | ---: |")
+    with tempfile.TemporaryDirectory(prefix="bench-scenes-") as tmp:
+        for recipe in args.recipes.split(","):
+            reference = None
+            for n, (name, driver, extra) in enumerate(settings):
+                result = generate(driver, recipe, Path(tmp) / f"{recipe}-{n}", args, extra)
+                rate = result["frames"] / result["wall_s"]
+                reference = reference or rate
+                print(
+                    f"| {recipe} | {name} | {result['frames']} | {result['wall_s']:.0f} | "
+                    f"{result['cpu_s']:.0f} | {rate:.3f} | {rate / reference:.2f}× |",
+                    flush=True,
+                )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
