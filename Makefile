@@ -17,7 +17,7 @@ export MUJOCO_DYNAMIC_LINK_DIR := $(MUJOCO_LINK_DIR)
 export LD_LIBRARY_PATH := $(MUJOCO_LINK_DIR):$(LD_LIBRARY_PATH)
 export PATH := $(CURDIR)/$(VENV)/bin:$(PATH)
 
-.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-scenes bench-learn bench-backends bench-render-quality bench-search bench-scale-out lint fuzz test-faults clean
+.PHONY: help setup rust schema scenes train search demo test bench bench-geometry bench-settle bench-render bench-scenes bench-learn bench-backends bench-render-quality bench-render-accuracy bench-search bench-scale-out lint fuzz test-faults clean
 
 help: ## List the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F':.*## ' '{printf "  make %-15s %s\n", $$1, $$2}'
@@ -131,7 +131,7 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	@echo; echo "dataset: $(DEMO_DATASET)  (docs/dataset.md shows how to open it with pandas or DuckDB)"
 	@echo "results: $(DEMO_RESULTS)"
 
-bench: bench-geometry bench-settle bench-render bench-scenes bench-render-quality bench-learn bench-backends bench-search bench-scale-out ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
+bench: bench-geometry bench-settle bench-render bench-scenes bench-render-quality bench-render-accuracy bench-learn bench-backends bench-search bench-scale-out ## Every benchmark; each prints ratios against a reference measured in the same run (docs/benchmarks.md)
 
 bench-geometry: setup ## Geometry core (criterion), then fast exact search vs a batched NumPy brute force on the same inputs
 	cargo bench -p boxpose-geometry --bench geometry
@@ -149,6 +149,9 @@ bench-scenes: setup ## make scenes images/s per recipe (Drake, Blender, ground t
 bench-render-quality: setup ## PSNR/SSIM against a 1024-sample reference and CPU-seconds per image over samples × denoiser × bounces, Kubric's defaults as a row
 	$(PY) scripts/bench_render_quality.py --recipes single_box --scenes 3
 	$(PY) scripts/bench_render_quality.py --recipes clutter --scenes 1 --samples 1,4,16,64
+
+bench-render-accuracy: setup ## The shipped networks' accuracy on the same fresh scenes rendered at 1–64 samples, paired box by box against the 64-sample renders
+	$(PY) scripts/bench_render_accuracy.py
 
 bench-search: setup ## Search: CPU-seconds per sample by stage (ground-truth and segmenter crops), Monte Carlo vs cross-entropy samples for 20% relative error on a real event
 	$(PY) scripts/bench_search.py
