@@ -363,9 +363,8 @@ class Generation:
         self.pbar = pbar
         self.pbar_lock = threading.Lock()  # workers' threads report frames
         self.estimate = pbar.total / max(len(args.shard_list), 1)  # frames per shard until known
-        self.running: dict[
-            Future, tuple
-        ] = {}  # future → ("scenes", shard) or ("chunk", shard, chunk)
+        # future → ("scenes", shard) or ("chunk", shard, chunk)
+        self.running: dict[Future, tuple] = {}
         self.chunks_left: dict[int, int] = {}  # shard being rendered → chunks not yet rendered
         self.rendered = 0
         self.failure: Exception | None = None
@@ -424,7 +423,7 @@ class Generation:
                         break
                     done, _ = wait(self.running, return_when=FIRST_COMPLETED)
                     for future in done:
-                        kind, shard, *chunk = self.running.pop(future)
+                        kind, shard, *_ = self.running.pop(future)
                         scene_lane_busy = scene_lane_busy and kind != "scenes"
                         try:
                             future.result()
