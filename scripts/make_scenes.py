@@ -357,17 +357,32 @@ class Generation:
     On a failure nothing new starts, the workers already running finish their chunks (kept for
     the resume) and the first error is raised; an interrupt stops every stage at once."""
 
-    def __init__(self, args, frames_per_scene: int, pbar: tqdm):
+    def __init__(self, args, frames_per_scene: int, total: int):
         self.args = args
         self.frames_per_scene = frames_per_scene
-        self.pbar = pbar
+        self.estimate = total / max(len(args.shard_list), 1)  # frames per shard until known
+        # Complete shards are counted before the progress bar starts, so that its rate and ETA
+        # are those of this run's renders.
+        self.total, self.initial = total, 0
+        self.waiting = deque()
+        for shard in args.shard_list:
+            if shard_complete(args, shard):
+                frames = self.rows("frames", shard)
+                self.total += frames - self.estimate
+                self.initial += frames
+            else:
+                self.waiting.append(shard)
+        self.total = round(self.total)
+        self.pbar: tqdm | None = None
         self.pbar_lock = threading.Lock()  # workers' threads report frames
-        self.estimate = pbar.total / max(len(args.shard_list), 1)  # frames per shard until known
         # future → ("scenes", shard) or ("chunk", shard, chunk)
         self.running: dict[Future, tuple] = {}
         self.chunks_left: dict[int, int] = {}  # shard being rendered → chunks not yet rendered
         self.rendered = 0
         self.failure: Exception | None = None
+
+    def rows(self, table: str, shard: int) -> int:
+        return pq.ParquetFile(self.shard_file(table, shard)).metadata.num_rows
 
     def shard_file(self, table: str, shard: int) -> Path:
         return boxpose_io.shard_path(self.args.dataset, table, shard, self.args.num_shards)
@@ -379,23 +394,17 @@ class Generation:
         with self.pbar_lock:
             self.pbar.update(frames)
 
-    def known(self, table: str, shard: int, per_row: int) -> int:
-        """Rows of a shard's table × `per_row`: the frames it holds or will hold, which replace
-        the shard's estimate in the progress bar's total."""
-        rows = pq.ParquetFile(self.shard_file(table, shard)).metadata.num_rows * per_row
+    def scenes_known(self, shard: int) -> None:
+        """A shard's scenes are written: the frames it will hold replace its estimate in the
+        progress bar's total."""
+        frames = self.rows("scenes", shard) * self.frames_per_scene
         with self.pbar_lock:
-            self.pbar.total = max(round(self.pbar.total - self.estimate + rows), self.pbar.n)
+            self.pbar.total = max(round(self.pbar.total - self.estimate + frames), self.pbar.n)
             self.pbar.refresh()
-        return rows
 
-    def run(self) -> int:
-        args = self.args
-        waiting = deque()
-        for shard in args.shard_list:
-            if shard_complete(args, shard):
-                self.frame_done(self.known("frames", shard, 1))
-            else:
-                waiting.append(shard)
+    def run(self, pbar: tqdm) -> int:
+        """Generates the shards not yet complete; returns the number of frames rendered."""
+        args, waiting, self.pbar = self.args, self.waiting, pbar
         scene_lane_busy = False
         with ThreadPoolExecutor(1) as scene_lane, ThreadPoolExecutor(args.jobs) as render_pool:
             try:
@@ -445,8 +454,8 @@ class Generation:
 
     def open_shard(self, shard: int, render_pool: ThreadPoolExecutor) -> None:
         """Queues the chunks of a shard whose scenes exist (chunks rendered earlier are kept)."""
-        self.known("scenes", shard, self.frames_per_scene)
-        scenes = pq.ParquetFile(self.shard_file("scenes", shard)).metadata.num_rows
+        self.scenes_known(shard)
+        scenes = self.rows("scenes", shard)
         chunk_dir = self.chunk_dir(shard)
         chunk_dir.mkdir(parents=True, exist_ok=True)
         done, todo = plan_chunks(chunk_dir, scenes, max(self.args.scenes_per_worker, 1))
@@ -470,7 +479,7 @@ class Generation:
 
     def finish(self, shard: int) -> None:
         chunk_dir = self.chunk_dir(shard)
-        scenes = pq.ParquetFile(self.shard_file("scenes", shard)).metadata.num_rows
+        scenes = self.rows("scenes", shard)
         chunks, missing = plan_chunks(chunk_dir, scenes, scenes)
         if missing:
             raise DriverError(
@@ -755,8 +764,16 @@ def run(args) -> int:
           f"{recipe.render.samples} samples{' + denoise' if recipe.render.denoise else ''}; "
           f"{args.num_shards} shard(s) → {args.dataset}")  # fmt: skip
     start = time.perf_counter()
-    with tqdm(total=total, unit="img", desc=recipe.name, dynamic_ncols=True, smoothing=0.1) as pbar:
-        rendered = Generation(args, frames_per_scene, pbar).run()
+    generation = Generation(args, frames_per_scene, total)
+    with tqdm(
+        total=generation.total,
+        initial=generation.initial,
+        unit="img",
+        desc=recipe.name,
+        dynamic_ncols=True,
+        smoothing=0.1,
+    ) as pbar:
+        rendered = generation.run(pbar)
     partial = args.dataset / PARTIAL
     # only a driver of every shard: drivers of other shards may be writing chunks in there
     if (
