@@ -86,12 +86,25 @@ target/wgpu/release/boxpose target/cuda/release/boxpose: $(MUJOCO_LINK_DIR)/.sta
 .PHONY: FORCE
 FORCE:
 
-train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks (BACKEND=flex|tch|wgpu|cuda): render the `train` recipe, train the keypoint network and the segmenter (all resumable), copy them to models/
+# Stage 2 of the shipped models read the first 6 of train_large's 50 shards (their cards); a
+# folder holding more of its shards trains on those too.
+TRAIN_LARGE_SHARDS ?= 0,1,2,3,4,5
+train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (BACKEND=flex|tch|wgpu|cuda): render `train` and 6 shards of `train_large`, stage 1 from random weights on `train`, stage 2 from stage 1 on both (all resumable), copy to models/
 	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
+	$(PY) scripts/make_scenes.py --recipe train_large --dataset datasets/generated/train_large \
+	  --num-shards 50 --shards $(TRAIN_LARGE_SHARDS) --no-inspect
 	$(TRAIN_BOXPOSE) train --config configs/keypoint-slim.toml --out runs/keypoint-slim --backend $(BACKEND)
 	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --out runs/segmenter-slim --backend $(BACKEND)
-	$(call publish_model,runs/keypoint-slim,$(MODEL))
-	$(call publish_model,runs/segmenter-slim,$(SEGMENTER))
+	$(TRAIN_BOXPOSE) train --config configs/keypoint-slim.toml --init runs/keypoint-slim/model \
+	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
+	  --steps 12000 --learning-rate 5e-4 --validate-every 1000 --max-val-instances 300 \
+	  --out runs/keypoint-slim-large --backend $(BACKEND)
+	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --init runs/segmenter-slim/model \
+	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
+	  --steps 4000 --learning-rate 5e-4 --validate-every 500 \
+	  --out runs/segmenter-slim-large --backend $(BACKEND)
+	$(call publish_model,runs/keypoint-slim-large,$(MODEL))
+	$(call publish_model,runs/segmenter-slim-large,$(SEGMENTER))
 
 # Copies a trained run's model, history and config into a model folder as a whole: assembled
 # beside it (keeping its card.md and plots), then swapped in by two renames, so that a killed copy
