@@ -167,7 +167,10 @@ def test_a_killed_run_resumes_to_identical_samples(mc_run, spaces, boxpose_bin, 
         and time.time() < deadline
         and process.poll() is None
     ):
-        time.sleep(0.2)
+        time.sleep(0.02)
+    # Frozen after its first batch, so that an idle machine cannot finish the run before the
+    # kill (found: CI's idle run did); a stopped process still holds its lock.
+    os.killpg(process.pid, signal.SIGSTOP)
     # a second process on the same shard of the run is refused while the first one samples
     second = search(boxpose_bin, *args[2:], check=False)
     assert second.returncode == 1
