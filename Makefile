@@ -86,10 +86,11 @@ target/wgpu/release/boxpose target/cuda/release/boxpose: $(MUJOCO_LINK_DIR)/.sta
 .PHONY: FORCE
 FORCE:
 
-# Stage 2 of the shipped models read the first 6 of train_large's 50 shards (their cards); a
-# folder holding more of its shards trains on those too.
+# Stage 2 of the shipped models read the first 6 of train_large's 50 shards, stage 3 the first 10
+# (their cards); a folder holding more of its shards trains on those too.
 TRAIN_LARGE_SHARDS ?= 0,1,2,3,4,5
-train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (BACKEND=flex|tch|wgpu|cuda): render `train` and 6 shards of `train_large`, stage 1 from random weights on `train`, stage 2 from stage 1 on both (all resumable), copy to models/
+TRAIN_LARGE_STAGE3_SHARDS ?= 6,7,8,9
+train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (BACKEND=flex|tch|wgpu|cuda): render `train` and 6 shards of `train_large`, stage 1 from random weights on `train`, stage 2 from stage 1 on both, render 4 more shards, stage 3 from stage 2 (all resumable), copy to models/
 	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
 	$(PY) scripts/make_scenes.py --recipe train_large --dataset datasets/generated/train_large \
 	  --num-shards 50 --shards $(TRAIN_LARGE_SHARDS) --no-inspect
@@ -103,8 +104,18 @@ train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (
 	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
 	  --steps 4000 --learning-rate 5e-4 --validate-every 500 \
 	  --out runs/segmenter-slim-large --backend $(BACKEND)
-	$(call publish_model,runs/keypoint-slim-large,$(MODEL))
-	$(call publish_model,runs/segmenter-slim-large,$(SEGMENTER))
+	$(PY) scripts/make_scenes.py --recipe train_large --dataset datasets/generated/train_large \
+	  --num-shards 50 --shards $(TRAIN_LARGE_STAGE3_SHARDS) --no-inspect
+	$(TRAIN_BOXPOSE) train --config configs/keypoint-slim.toml --init runs/keypoint-slim-large/model \
+	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
+	  --steps 8000 --learning-rate 3e-4 --validate-every 1000 --max-val-instances 300 \
+	  --out runs/keypoint-slim-stage3 --backend $(BACKEND)
+	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --init runs/segmenter-slim-large/model \
+	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
+	  --steps 2000 --learning-rate 3e-4 --validate-every 500 \
+	  --out runs/segmenter-slim-stage3 --backend $(BACKEND)
+	$(call publish_model,runs/keypoint-slim-stage3,$(MODEL))
+	$(call publish_model,runs/segmenter-slim-stage3,$(SEGMENTER))
 
 # Copies a trained run's model, history and config into a model folder as a whole: assembled
 # beside it (keeping its card.md and plots), then swapped in by two renames, so that a killed copy
