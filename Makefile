@@ -90,6 +90,8 @@ FORCE:
 # (their cards); a folder holding more of its shards trains on those too.
 TRAIN_LARGE_SHARDS ?= 0,1,2,3,4,5
 TRAIN_LARGE_STAGE3_SHARDS ?= 6,7,8,9
+# Stages 2 and 3 read both sets (held-out scenes of each are never trained on).
+TRAIN_SETS := --dataset datasets/generated/train --dataset datasets/generated/train_large
 train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (BACKEND=flex|tch|wgpu|cuda): render `train` and 6 shards of `train_large`, stage 1 from random weights on `train`, stage 2 from stage 1 on both, render 4 more shards, stage 3 from stage 2 (all resumable), copy to models/
 	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
 	$(PY) scripts/make_scenes.py --recipe train_large --dataset datasets/generated/train_large \
@@ -97,21 +99,21 @@ train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (
 	$(TRAIN_BOXPOSE) train --config configs/keypoint-slim.toml --out runs/keypoint-slim --backend $(BACKEND)
 	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --out runs/segmenter-slim --backend $(BACKEND)
 	$(TRAIN_BOXPOSE) train --config configs/keypoint-slim.toml --init runs/keypoint-slim/model \
-	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
+	  $(TRAIN_SETS) \
 	  --steps 12000 --learning-rate 5e-4 --validate-every 1000 --max-val-instances 300 \
 	  --out runs/keypoint-slim-large --backend $(BACKEND)
 	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --init runs/segmenter-slim/model \
-	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
+	  $(TRAIN_SETS) \
 	  --steps 4000 --learning-rate 5e-4 --validate-every 500 \
 	  --out runs/segmenter-slim-large --backend $(BACKEND)
 	$(PY) scripts/make_scenes.py --recipe train_large --dataset datasets/generated/train_large \
 	  --num-shards 50 --shards $(TRAIN_LARGE_STAGE3_SHARDS) --no-inspect
 	$(TRAIN_BOXPOSE) train --config configs/keypoint-slim.toml --init runs/keypoint-slim-large/model \
-	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
+	  $(TRAIN_SETS) \
 	  --steps 8000 --learning-rate 3e-4 --validate-every 1000 --max-val-instances 300 \
 	  --out runs/keypoint-slim-stage3 --backend $(BACKEND)
 	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-slim.toml --init runs/segmenter-slim-large/model \
-	  --dataset datasets/generated/train --dataset datasets/generated/train_large \
+	  $(TRAIN_SETS) \
 	  --steps 2000 --learning-rate 3e-4 --validate-every 500 \
 	  --out runs/segmenter-slim-stage3 --backend $(BACKEND)
 	$(call publish_model,runs/keypoint-slim-stage3,$(MODEL))
