@@ -44,6 +44,10 @@ pub struct Args {
     /// Only the scenes a training run held out: scene_id % N == 0 (its config's val_modulus).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(2..))]
     held_out: Option<u32>,
+    /// Half-width in voxels of the window averaged around each heatmap peak for its sub-voxel
+    /// position (0: the voxel centre), instead of the model's `peak_refine_radius`.
+    #[arg(long, value_name = "VOXELS")]
+    peak_refine_radius: Option<usize>,
     /// Crops per forward pass.
     #[arg(long, default_value_t = 16)]
     batch_size: usize,
@@ -52,7 +56,10 @@ pub struct Args {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    let model = KeypointModel::load(&args.model, args.backend.device()?)?;
+    let mut model = KeypointModel::load(&args.model, args.backend.device()?)?;
+    if let Some(radius) = args.peak_refine_radius {
+        model.config.peak_refine_radius = radius;
+    }
     let segmenter = match args.crops {
         Crops::Predicted => Some(SegmenterModel::load(
             &args.segmenter,

@@ -83,6 +83,15 @@ pub struct NetworkConfig {
     pub sigma_voxels: f64,
     /// The square crop's side is the box's visible bounding box's longer side times this.
     pub crop_margin: f64,
+    /// Half-width, in voxels, of the window of the heatmap averaged around each NMS peak for its
+    /// sub-voxel position (0: the voxel centre). Inference only; `boxpose eval
+    /// --peak-refine-radius` overrides it (the ablation in docs/learning.md chose the default).
+    #[serde(default = "default_peak_refine_radius")]
+    pub peak_refine_radius: usize,
+}
+
+fn default_peak_refine_radius() -> usize {
+    1
 }
 
 impl NetworkConfig {

@@ -758,6 +758,7 @@ mod tests {
             depth_range_m: [-0.12, 0.24],
             sigma_voxels: 1.0,
             crop_margin: 1.25,
+            peak_refine_radius: 1,
         };
         let augment = AugmentConfig {
             shift: 0.0,

@@ -119,7 +119,7 @@ pub fn decode(
     let params = NmsParams {
         count: PEAK_COUNT,
         sigma: config.sigma_voxels,
-        refine_radius: 1,
+        refine_radius: config.peak_refine_radius,
     };
     let peaks = match heatmap::non_maximum_suppression(heatmap, data::heatmap_dims(config), &params)
     {

@@ -20,6 +20,7 @@ fn tiny_config() -> NetworkConfig {
         depth_range_m: [-0.12, 0.24],
         sigma_voxels: 1.0,
         crop_margin: 1.25,
+        peak_refine_radius: 1,
     }
 }
 
@@ -55,13 +56,15 @@ fn a_training_step_runs_forward_and_backward_and_lowers_the_loss() {
     );
 }
 
-#[test]
-fn the_target_heatmap_through_nms_and_back_projection_recovers_the_corners_within_half_a_voxel() {
-    let config = NetworkConfig {
-        input_size: 128,
-        depth_bins: 48,
-        ..tiny_config()
-    };
+/// A box's 8 corners (camera frame), a crop's voxel grid around them and their target heatmap,
+/// at the shipped network's heatmap shape.
+fn target_of_a_box(
+    config: &NetworkConfig,
+) -> (
+    [[f64; 3]; 8],
+    boxpose_geometry::heatmap::VoxelGrid,
+    Vec<f32>,
+) {
     let k = Intrinsics {
         fx: 600.0,
         fy: 600.0,
@@ -90,35 +93,94 @@ fn the_target_heatmap_through_nms_and_back_projection_recovers_the_corners_withi
         ],
         1.3,
     );
-    let grid = data::voxel_grid(&config, &k, &window, 1.15);
-    let target = data::target_heatmap(&config, &grid, &corners).unwrap();
-    let (peaks, points) = inference::decode(&config, &target, &grid).unwrap();
+    let grid = data::voxel_grid(config, &k, &window, 1.15);
+    let target = data::target_heatmap(config, &grid, &corners).unwrap();
+    (corners, grid, target)
+}
+
+/// Each true corner's offset (u, v, z-bin), in voxels, from the nearest decoded peak.
+fn peak_offsets(config: &NetworkConfig) -> Vec<[f64; 3]> {
+    let (corners, grid, target) = target_of_a_box(config);
+    let (peaks, points) = inference::decode(config, &target, &grid).unwrap();
     assert_eq!(peaks.len(), 8);
-    for corner in &corners {
-        let truth = grid.project(&Point3::from(*corner)).unwrap();
-        let nearest = points
-            .iter()
-            .map(|p| grid.project(p).unwrap())
-            .min_by(|a, b| {
-                let d = |c: &boxpose_geometry::heatmap::VoxelCoord| {
-                    (c.u - truth.u).powi(2)
-                        + (c.v - truth.v).powi(2)
-                        + (c.z_bin - truth.z_bin).powi(2)
-                };
-                d(a).total_cmp(&d(b))
-            })
-            .unwrap();
-        for (axis, error) in [
-            ("u", nearest.u - truth.u),
-            ("v", nearest.v - truth.v),
-            ("z", nearest.z_bin - truth.z_bin),
-        ] {
+    corners
+        .iter()
+        .map(|corner| {
+            let truth = grid.project(&Point3::from(*corner)).unwrap();
+            let offset = |c: &boxpose_geometry::heatmap::VoxelCoord| {
+                [c.u - truth.u, c.v - truth.v, c.z_bin - truth.z_bin]
+            };
+            points
+                .iter()
+                .map(|p| offset(&grid.project(p).unwrap()))
+                .min_by(|a, b| {
+                    let squared = |o: &[f64; 3]| o.iter().map(|x| x * x).sum::<f64>();
+                    squared(a).total_cmp(&squared(b))
+                })
+                .unwrap()
+        })
+        .collect()
+}
+
+fn shipped_shape() -> NetworkConfig {
+    NetworkConfig {
+        input_size: 128,
+        depth_bins: 48,
+        ..tiny_config()
+    }
+}
+
+#[test]
+fn the_target_heatmap_through_nms_and_back_projection_recovers_the_corners_within_half_a_voxel() {
+    for (corner, offset) in peak_offsets(&shipped_shape()).iter().enumerate() {
+        for (axis, error) in ["u", "v", "z"].iter().zip(offset) {
             assert!(
                 error.abs() < 0.5,
-                "corner {corner:?}: {axis} off by {error:.3} voxels"
+                "corner {corner}: {axis} off by {error:.3} voxels"
             );
         }
     }
+}
+
+#[test]
+fn the_peak_refine_radius_moves_peaks_off_the_voxel_centres_and_closer_to_the_corners() {
+    let mean_distance = |offsets: &[[f64; 3]]| {
+        offsets
+            .iter()
+            .map(|o| o.iter().map(|x| x * x).sum::<f64>().sqrt())
+            .sum::<f64>()
+            / offsets.len() as f64
+    };
+    let at_centres = peak_offsets(&NetworkConfig {
+        peak_refine_radius: 0,
+        ..shipped_shape()
+    });
+    let refined = peak_offsets(&shipped_shape());
+    let (unrefined_error, refined_error) = (mean_distance(&at_centres), mean_distance(&refined));
+    assert!(
+        refined_error < 0.7 * unrefined_error,
+        "radius 1: {refined_error:.3} voxels from the corners, radius 0: {unrefined_error:.3}"
+    );
+    // Radius 0 keeps voxel centres: the truth's fractional part is the whole offset.
+    let (corners, grid, _) = target_of_a_box(&shipped_shape());
+    for (corner, offset) in corners.iter().zip(&at_centres) {
+        let truth = grid.project(&Point3::from(*corner)).unwrap();
+        for (t, o) in [truth.u, truth.v, truth.z_bin].iter().zip(offset) {
+            assert!(
+                ((t + o) - (t + o).round()).abs() < 1e-9,
+                "radius 0 put a peak off a voxel centre"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_network_toml_written_before_peak_refine_radius_existed_reads_as_radius_1() {
+    // The shipped keypoint-slim's network.toml as written on 2026-12-02.
+    let text = "backbone = \"slim\"\ninput_size = 128\ndepth_bins = 48\n\
+                depth_range_m = [-0.12, 0.24]\nsigma_voxels = 1.5\ncrop_margin = 1.25\n";
+    let config: NetworkConfig = toml::from_str(text).unwrap();
+    assert_eq!(config.peak_refine_radius, 1);
 }
 
 #[test]
