@@ -5,6 +5,7 @@ files are tested."""
 
 import io
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -72,6 +73,21 @@ def test_an_interrupted_run_resumes_from_its_checkpoint(trained):
     assert history.corner_recall.between(0, 1).all()
     assert (run / "model" / "network.toml").is_file() and (run / "model" / "model.bpk").is_file()
     assert not list(run.glob("*.tmp")) and not list(run.glob("*.old"))
+
+
+def test_training_says_how_each_dataset_divides(trained, segmenter, tiny_dataset):
+    """The headline's totals, then a line per dataset with its share: here the one dataset holds
+    all of them (tiny's scene 0 is held out, scenes 1–3 are trained on)."""
+    for result, unit in ((trained[1], "instances"), (segmenter[1], "frames")):
+        totals = re.search(rf"on (\d+) training / (\d+) held-out {unit}", result.stdout)
+        share = re.search(
+            rf"^  {re.escape(str(tiny_dataset))}: (\d+) training / (\d+) held-out {unit}$",
+            result.stdout,
+            re.MULTILINE,
+        )
+        assert totals and share, result.stdout
+        assert share.groups() == totals.groups()
+        assert all(int(n) > 0 for n in share.groups()), share.group(0)
 
 
 def test_the_same_seed_trains_the_same_network_with_or_without_an_interruption(

@@ -7,6 +7,7 @@ use std::sync::Arc;
 use anyhow::Context;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::config::{Backbone, DataConfig, OptimizerConfig, TrainConfig};
+use boxpose_learn::data::DatasetSplit;
 use boxpose_learn::keypoint::KeypointTask;
 use boxpose_learn::segmentation::{SegmenterTask, SegmenterTrainConfig};
 use boxpose_learn::training::{
@@ -220,8 +221,41 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         config.optimizer.batch_size,
         args.run.backend.name(),
     );
+    print_splits(
+        &task.set.splits,
+        "instances",
+        config.data.val_modulus,
+        |s| (s.train_instances, s.held_out_instances),
+    );
     args.run
         .train(task, &config.optimizer, &config, config.data.loader_threads)
+}
+
+/// A line per dataset: its share of training and held-out `unit`s, and what it means for the
+/// run when one side is empty (a sharded recipe's folder may hold only held-out scenes, or none).
+fn print_splits(
+    splits: &[DatasetSplit],
+    unit: &str,
+    val_modulus: i64,
+    counts: impl Fn(&DatasetSplit) -> (usize, usize),
+) {
+    for split in splits {
+        let (train, held_out) = counts(split);
+        let remark = match (train, held_out) {
+            (0, 0) => " — nothing usable in it".to_string(),
+            (0, _) => format!(
+                " — every scene of it is held out (scene_id % {val_modulus} == 0): it adds nothing to training"
+            ),
+            (_, 0) => format!(
+                " — none of its scenes is held out (scene_id % {val_modulus} == 0): held-out scores do not cover it"
+            ),
+            _ => String::new(),
+        };
+        println!(
+            "  {}: {train} training / {held_out} held-out {unit}{remark}",
+            split.path.display()
+        );
+    }
 }
 
 #[derive(clap::Args)]
@@ -249,6 +283,9 @@ pub fn run_segmenter(args: &SegmenterArgs) -> anyhow::Result<()> {
         config.optimizer.batch_size,
         args.run.backend.name()
     );
+    print_splits(&task.set.splits, "frames", config.data.val_modulus, |s| {
+        (s.train_frames, s.held_out_frames)
+    });
     args.run
         .train(task, &config.optimizer, &config, config.data.loader_threads)
 }

@@ -528,6 +528,19 @@ pub struct InstanceSet {
     /// Frame indices of the training and held-out scenes.
     pub train_frames: Vec<usize>,
     pub val_frames: Vec<usize>,
+    /// How each `[data]` dataset divides, in the config's order.
+    pub splits: Vec<DatasetSplit>,
+}
+
+/// How one dataset of a training divides between training and held-out scenes (instances
+/// counted as training uses them: visible enough, with a bounding box).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct DatasetSplit {
+    pub path: std::path::PathBuf,
+    pub train_frames: usize,
+    pub held_out_frames: usize,
+    pub train_instances: usize,
+    pub held_out_instances: usize,
 }
 
 /// Whether a scene is held out from training: every `val_modulus`-th scene id, all its views.
@@ -540,8 +553,12 @@ impl InstanceSet {
     pub fn load(data: &DataConfig) -> Result<Self, LearnError> {
         let (val_modulus, min_visible_fraction) = (data.val_modulus, data.min_visible_fraction);
         let mut frames = Vec::new();
+        // The first frame index of each dataset, and one past its last.
+        let mut bounds = Vec::with_capacity(data.datasets.len());
         for path in &data.datasets {
+            let start = frames.len();
             frames.extend(Dataset::open(path)?.frame_index()?);
+            bounds.push((start, frames.len()));
         }
         let (mut train, mut val) = (Vec::new(), Vec::new());
         let (mut train_frames, mut val_frames) = (Vec::new(), Vec::new());
@@ -565,6 +582,23 @@ impl InstanceSet {
                 }
             }
         }
+        let within = |(start, end): (usize, usize), items: &[usize]| {
+            items.iter().filter(|&&f| (start..end).contains(&f)).count()
+        };
+        let firsts = |pairs: &[(usize, usize)]| pairs.iter().map(|p| p.0).collect::<Vec<_>>();
+        let (train_of_instances, val_of_instances) = (firsts(&train), firsts(&val));
+        let splits = data
+            .datasets
+            .iter()
+            .zip(bounds)
+            .map(|(path, range)| DatasetSplit {
+                path: path.clone(),
+                train_frames: within(range, &train_frames),
+                held_out_frames: within(range, &val_frames),
+                train_instances: within(range, &train_of_instances),
+                held_out_instances: within(range, &val_of_instances),
+            })
+            .collect();
         Ok(Self {
             frames,
             cache: FrameCache::new(data.frame_cache_mib.saturating_mul(1 << 20)),
@@ -572,6 +606,7 @@ impl InstanceSet {
             val,
             train_frames,
             val_frames,
+            splits,
         })
     }
 
