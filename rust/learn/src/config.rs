@@ -85,13 +85,14 @@ pub struct NetworkConfig {
     pub crop_margin: f64,
     /// Half-width, in voxels, of the window of the heatmap averaged around each NMS peak for its
     /// sub-voxel position (0: the voxel centre). Inference only; `boxpose eval
-    /// --peak-refine-radius` overrides it (the ablation in docs/learning.md chose the default).
+    /// --peak-refine-radius` overrides it. A file without it reads as 2, the held-out ablation's
+    /// choice (docs/learning.md), which models trained before the field existed decode with too.
     #[serde(default = "default_peak_refine_radius")]
     pub peak_refine_radius: usize,
 }
 
 fn default_peak_refine_radius() -> usize {
-    1
+    2
 }
 
 impl NetworkConfig {

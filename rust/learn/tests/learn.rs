@@ -175,12 +175,12 @@ fn the_peak_refine_radius_moves_peaks_off_the_voxel_centres_and_closer_to_the_co
 }
 
 #[test]
-fn a_network_toml_written_before_peak_refine_radius_existed_reads_as_radius_1() {
-    // The shipped keypoint-slim's network.toml as written on 2026-12-02.
+fn a_network_toml_written_before_peak_refine_radius_existed_decodes_with_the_ablations_choice() {
+    // The shipped keypoint-slim's network.toml as written on 2026-12-02, before the field.
     let text = "backbone = \"slim\"\ninput_size = 128\ndepth_bins = 48\n\
                 depth_range_m = [-0.12, 0.24]\nsigma_voxels = 1.5\ncrop_margin = 1.25\n";
     let config: NetworkConfig = toml::from_str(text).unwrap();
-    assert_eq!(config.peak_refine_radius, 1);
+    assert_eq!(config.peak_refine_radius, 2);
 }
 
 #[test]
