@@ -534,7 +534,7 @@ pub struct InstanceSet {
 
 /// How one dataset of a training divides between training and held-out scenes (instances
 /// counted as training uses them: visible enough, with a bounding box).
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct DatasetSplit {
     pub path: std::path::PathBuf,
     pub train_frames: usize,
@@ -553,21 +553,28 @@ impl InstanceSet {
     pub fn load(data: &DataConfig) -> Result<Self, LearnError> {
         let (val_modulus, min_visible_fraction) = (data.val_modulus, data.min_visible_fraction);
         let mut frames = Vec::new();
-        // The first frame index of each dataset, and one past its last.
-        let mut bounds = Vec::with_capacity(data.datasets.len());
-        for path in &data.datasets {
-            let start = frames.len();
-            frames.extend(Dataset::open(path)?.frame_index()?);
-            bounds.push((start, frames.len()));
+        let mut dataset_of_frame = Vec::new();
+        let mut splits = Vec::with_capacity(data.datasets.len());
+        for (d, path) in data.datasets.iter().enumerate() {
+            let index = Dataset::open(path)?.frame_index()?;
+            dataset_of_frame.extend(std::iter::repeat_n(d, index.len()));
+            frames.extend(index);
+            splits.push(DatasetSplit {
+                path: path.clone(),
+                ..DatasetSplit::default()
+            });
         }
         let (mut train, mut val) = (Vec::new(), Vec::new());
         let (mut train_frames, mut val_frames) = (Vec::new(), Vec::new());
         for (f, frame) in frames.iter().enumerate() {
             let held_out = is_held_out(frame.scene_id, val_modulus);
+            let split = &mut splits[dataset_of_frame[f]];
             if held_out {
-                val_frames.push(f)
+                val_frames.push(f);
+                split.held_out_frames += 1;
             } else {
-                train_frames.push(f)
+                train_frames.push(f);
+                split.train_frames += 1;
             }
             for (i, instance) in frame.instances.iter().enumerate() {
                 if instance.visible_fraction < min_visible_fraction
@@ -576,29 +583,14 @@ impl InstanceSet {
                     continue;
                 }
                 if held_out {
-                    val.push((f, i))
+                    val.push((f, i));
+                    split.held_out_instances += 1;
                 } else {
-                    train.push((f, i))
+                    train.push((f, i));
+                    split.train_instances += 1;
                 }
             }
         }
-        let within = |(start, end): (usize, usize), items: &[usize]| {
-            items.iter().filter(|&&f| (start..end).contains(&f)).count()
-        };
-        let firsts = |pairs: &[(usize, usize)]| pairs.iter().map(|p| p.0).collect::<Vec<_>>();
-        let (train_of_instances, val_of_instances) = (firsts(&train), firsts(&val));
-        let splits = data
-            .datasets
-            .iter()
-            .zip(bounds)
-            .map(|(path, range)| DatasetSplit {
-                path: path.clone(),
-                train_frames: within(range, &train_frames),
-                held_out_frames: within(range, &val_frames),
-                train_instances: within(range, &train_of_instances),
-                held_out_instances: within(range, &val_of_instances),
-            })
-            .collect();
         Ok(Self {
             frames,
             cache: FrameCache::new(data.frame_cache_mib.saturating_mul(1 << 20)),
