@@ -11,6 +11,7 @@ import os
 import signal
 import subprocess
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -628,6 +629,23 @@ def test_fine_tuning_from_another_network_is_one_clear_error(failing_run, boxpos
         check=False,
     )
     assert r.returncode == 1 and "fine-tuning needs the same network settings" in r.stderr
+
+
+def test_fine_tuning_may_retarget_sigma_and_the_peak_window(failing_run, boxpose_bin, tmp_path):
+    """The target width and the decoding window do not shape the weights, so a fine-tuning run
+    may change them; the tuned model's network.toml records the run's choice."""
+    config = (REPO / "configs" / "keypoint-slim.toml").read_text()
+    config = config.replace("sigma_voxels = 1.5", "sigma_voxels = 1.0\npeak_refine_radius = 1")
+    assert "peak_refine_radius = 1" in config
+    (tmp_path / "retargeted.toml").write_text(config)
+    run_boxpose(
+        boxpose_bin, "train", "--config", tmp_path / "retargeted.toml",
+        "--dataset", failing_run / "counterexamples", "--steps", 1, "--batch-size", 2,
+        "--validate-every", 1, "--init", REPO / "models" / "keypoint-slim",
+        "--out", tmp_path / "run",
+    )  # fmt: skip
+    network = tomllib.loads((tmp_path / "run" / "model" / "network.toml").read_text())
+    assert (network["sigma_voxels"], network["peak_refine_radius"]) == (1.0, 1)
 
 
 def _small_target(space: str, xy: str) -> str:

@@ -96,6 +96,20 @@ fn default_peak_refine_radius() -> usize {
 }
 
 impl NetworkConfig {
+    /// Whether weights trained with `trained` can start a run that trains `self`: everything
+    /// that shapes the weights or gives the heatmap's voxels their place (backbone, input size,
+    /// depth bins and range, crop margin) must agree. The target Gaussians' width
+    /// (`sigma_voxels`, a loss setting) and the decoding window (`peak_refine_radius`) may
+    /// differ: the weights fit any of them, and the run's own network.toml records its choice.
+    pub fn can_fine_tune_from(&self, trained: &NetworkConfig) -> bool {
+        let trained = NetworkConfig {
+            sigma_voxels: self.sigma_voxels,
+            peak_refine_radius: self.peak_refine_radius,
+            ..trained.clone()
+        };
+        *self == trained
+    }
+
     pub fn heatmap_size(&self) -> usize {
         self.input_size / 4
     }

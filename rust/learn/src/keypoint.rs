@@ -8,7 +8,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
 use crate::LearnError;
-use crate::config::TrainConfig;
+use crate::config::{NetworkConfig, TrainConfig};
 use crate::data::{self, InstanceSet};
 use crate::evaluation::{self, InstanceEval};
 use crate::inference::{KeypointModel, NETWORK_FILE};
@@ -131,6 +131,11 @@ impl Task for KeypointTask {
     }
 
     fn check_same_network(&self, dir: &Path) -> Result<(), LearnError> {
-        model_dir::check_same_network(dir, NETWORK_FILE, &self.config.network)
+        model_dir::check_same_network(
+            dir,
+            NETWORK_FILE,
+            &self.config.network,
+            NetworkConfig::can_fine_tune_from,
+        )
     }
 }

@@ -50,15 +50,16 @@ pub(crate) fn read_model_config<C: DeserializeOwned>(
     toml::from_str(&text).map_err(|e| LearnError::Checkpoint(config_path, e.to_string()))
 }
 
-/// Checks that the model folder `dir` holds `expected`'s network (its `config_file`), so that its
-/// weights fit a run that trains that network: what fine-tuning starts from.
-pub(crate) fn check_same_network<C: DeserializeOwned + PartialEq + std::fmt::Debug>(
+/// Checks that the model folder `dir` holds a network whose weights can start a run that trains
+/// `expected` (`fits(expected, found)`, the config type's rule): what fine-tuning starts from.
+pub(crate) fn check_same_network<C: DeserializeOwned + std::fmt::Debug>(
     dir: &Path,
     config_file: &str,
     expected: &C,
+    fits: impl FnOnce(&C, &C) -> bool,
 ) -> Result<(), LearnError> {
     let found: C = read_model_config(dir, config_file)?;
-    if &found != expected {
+    if !fits(expected, &found) {
         return Err(LearnError::Config(format!(
             "{}: its network ({found:?}) is not the one this run trains ({expected:?}); \
              fine-tuning needs the same network settings",

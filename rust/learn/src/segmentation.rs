@@ -54,6 +54,15 @@ pub struct SegmenterConfig {
 }
 
 impl SegmenterConfig {
+    /// Whether weights trained with `trained` can start a run that trains `self`: the backbone
+    /// and the input size must agree; the loss settings (centre σ, loss weights) and the
+    /// decoding thresholds may differ, because the weights fit any of them.
+    pub fn can_fine_tune_from(&self, trained: &SegmenterConfig) -> bool {
+        self.backbone == trained.backbone
+            && self.input_width == trained.input_width
+            && self.input_height == trained.input_height
+    }
+
     pub fn output_size(&self) -> [usize; 2] {
         [self.input_width / 4, self.input_height / 4]
     }
@@ -547,7 +556,12 @@ impl Task for SegmenterTask {
     }
 
     fn check_same_network(&self, dir: &Path) -> Result<(), LearnError> {
-        check_same_network(dir, SEGMENTER_FILE, &self.config.segmenter)
+        check_same_network(
+            dir,
+            SEGMENTER_FILE,
+            &self.config.segmenter,
+            SegmenterConfig::can_fine_tune_from,
+        )
     }
 }
 

@@ -184,6 +184,43 @@ fn a_network_toml_written_before_peak_refine_radius_existed_decodes_with_the_abl
 }
 
 #[test]
+fn fine_tuning_may_change_the_target_width_and_the_decoding_window_but_nothing_that_shapes_the_weights()
+ {
+    let trained = shipped_shape();
+    let retargeted = NetworkConfig {
+        sigma_voxels: 2.0,
+        peak_refine_radius: 3,
+        ..shipped_shape()
+    };
+    assert!(retargeted.can_fine_tune_from(&trained));
+    let reshaped = [
+        NetworkConfig {
+            backbone: Backbone::Slim,
+            ..shipped_shape()
+        },
+        NetworkConfig {
+            input_size: 256,
+            ..shipped_shape()
+        },
+        NetworkConfig {
+            depth_bins: 32,
+            ..shipped_shape()
+        },
+        NetworkConfig {
+            depth_range_m: [-0.1, 0.2],
+            ..shipped_shape()
+        },
+        NetworkConfig {
+            crop_margin: 1.5,
+            ..shipped_shape()
+        },
+    ];
+    for other in reshaped {
+        assert!(!other.can_fine_tune_from(&trained), "{other:?}");
+    }
+}
+
+#[test]
 fn a_saved_model_loads_with_identical_outputs() {
     let config = tiny_config();
     let device = Device::flex();
