@@ -379,3 +379,45 @@ fn the_segmenter_targets_decode_back_into_the_true_instances() {
         "{scores:?}"
     );
 }
+
+#[test]
+fn a_segmenter_may_be_fine_tuned_with_other_loss_settings_and_thresholds_but_not_another_input() {
+    use boxpose_learn::segmentation::SegmenterConfig;
+    let trained = SegmenterConfig {
+        backbone: Backbone::Tiny,
+        input_width: 64,
+        input_height: 64,
+        centre_sigma: 1.5,
+        centre_weight: 1.0,
+        offset_weight: 1.0,
+        foreground_threshold: 0.5,
+        centre_threshold: 0.5,
+        min_pixels: 2,
+    };
+    let retuned = SegmenterConfig {
+        centre_sigma: 2.0,
+        centre_weight: 100.0,
+        offset_weight: 0.05,
+        foreground_threshold: 0.4,
+        centre_threshold: 0.2,
+        min_pixels: 4,
+        ..trained.clone()
+    };
+    assert!(retuned.can_fine_tune_from(&trained));
+    for other in [
+        SegmenterConfig {
+            backbone: Backbone::Slim,
+            ..trained.clone()
+        },
+        SegmenterConfig {
+            input_width: 96,
+            ..trained.clone()
+        },
+        SegmenterConfig {
+            input_height: 32,
+            ..trained.clone()
+        },
+    ] {
+        assert!(!other.can_fine_tune_from(&trained), "{other:?}");
+    }
+}
