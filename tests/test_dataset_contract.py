@@ -676,7 +676,7 @@ def test_hugging_face_datasets_loads_every_table(dataset, tmp_path, monkeypatch)
 @pytest.mark.parametrize(
     "damage, message",
     [
-        ("foreign name", "not a shard name"),
+        ("copied under a foreign name", "appears more than once"),
         ("two shard counts", "shards of 2 shard counts"),
         ("copied over another", "appears more than once"),
         ("missing", "shards [1] of 2 are missing"),
@@ -687,7 +687,7 @@ def test_hugging_face_datasets_loads_every_table(dataset, tmp_path, monkeypatch)
 def test_read_dataset_refuses_a_damaged_dataset_naming_the_file(dataset, damage, message):
     root, _ = dataset
     first, second = (boxpose_io.shard_path(root, "objects", i, NUM_SHARDS) for i in (0, 1))
-    if damage == "foreign name":
+    if damage == "copied under a foreign name":
         shutil.copy(first, first.with_name("copy.parquet"))
     elif damage == "two shard counts":
         shutil.copy(first, first.with_name("part-00000-of-00001.parquet"))
@@ -704,3 +704,36 @@ def test_read_dataset_refuses_a_damaged_dataset_naming_the_file(dataset, damage,
     with pytest.raises(boxpose_io.DatasetError, match=re.escape(message)) as error:
         boxpose_io.read_dataset(root)
     assert "objects" in str(error.value)
+
+
+def test_read_dataset_reads_the_files_of_other_writers_as_inspect_does(dataset, boxpose_bin):
+    """The search writes its counterexamples dataset one file per batch
+    (`iter-KKKK-batch-BBBBB.parquet`): both readers take every `*.parquet` file of a table folder
+    as a shard (`Dataset::shards`, rust/data/src/reader.rs); the Python reader refused these as
+    "not a shard name"."""
+    root, tables = dataset
+    for name in boxpose_io.TABLES:
+        for i in range(NUM_SHARDS):
+            shard = boxpose_io.shard_path(root, name, i, NUM_SHARDS)
+            shard.rename(shard.with_name(f"iter-0000-batch-{i + 4:05d}.parquet"))
+    read = boxpose_io.read_dataset(root)
+    assert {name: t.num_rows for name, t in read.items()} == {
+        name: len(rows) for name, rows in tables.items()
+    }
+    assert "all shards valid" in run_boxpose(boxpose_bin, "inspect", root).stdout
+
+
+@pytest.mark.parametrize("damage", ["truncated", "zero bytes"])
+def test_read_dataset_names_a_truncated_or_empty_shard(dataset, damage):
+    """pyarrow's own errors ("Parquet magic bytes not found in footer", "Parquet file size is 0
+    bytes") name no file: the reader's error names it and says what to do, as the Rust reader's
+    does."""
+    root, _ = dataset
+    shard = boxpose_io.shard_path(root, "instances", 0, NUM_SHARDS)
+    data = shard.read_bytes()
+    shard.write_bytes(data[: len(data) // 2] if damage == "truncated" else b"")
+    with pytest.raises(boxpose_io.DatasetError) as error:
+        boxpose_io.read_dataset(root)
+    message = str(error.value)
+    assert str(shard) in message, message
+    assert "probably truncated or corrupt" in message and "delete it and regenerate" in message

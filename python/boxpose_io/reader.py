@@ -5,7 +5,14 @@ The Rust reader (`boxpose inspect`) checks more (value ranges, joins between tab
 this reader checks what a training job needs to trust the tables it reads: that every shard is a
 boxpose shard of this schema version and of this table, with the contract's columns and types,
 that the shards of a table come from one run (one shard count, none missing) and that no key
-appears twice."""
+appears twice.
+
+Which files are shards is one rule for both readers (`Dataset::shards` in rust/data/src/reader.rs):
+every `*.parquet` file of a table folder (writers publish them whole; `*.tmp` leftovers are not
+shards). Files named `part-IIIII-of-NNNNN.parquet` are the generators' N shards of one run, so
+shards of two shard counts are refused, and so is a missing index. Other writers name their
+files otherwise (the search's counterexamples: `iter-KKKK-batch-BBBBB.parquet`, one per batch);
+a copy under any name is caught by the key check."""
 
 import re
 from pathlib import Path
@@ -29,6 +36,18 @@ def _same_type(found: pa.DataType, expected: pa.DataType) -> bool:
     return found == expected
 
 
+def _parquet(path: Path, read):
+    """`read(path)`, with pyarrow's error on a file that is not whole Parquet (a zero-byte or
+    truncated shard, whose message names no file) turned into one that names it."""
+    try:
+        return read(path)
+    except (pa.ArrowInvalid, OSError) as e:
+        raise DatasetError(
+            f"{path}: not a readable Parquet file, probably truncated or corrupt ({e}); "
+            "delete it and regenerate the shard"
+        ) from e
+
+
 def read_table(root: str | Path, table: str) -> pa.Table:
     """The rows of `table` over every shard of the dataset folder `root`, in the contract's
     schema."""
@@ -41,9 +60,8 @@ def read_table(root: str | Path, table: str) -> pa.Table:
     positions = {}
     for path in shards:
         match = _SHARD_NAME.fullmatch(path.name)
-        if match is None:
-            raise DatasetError(f"{path}: not a shard name (part-IIIII-of-NNNNN.parquet)")
-        positions[path] = (int(match[1]), int(match[2]))
+        if match is not None:
+            positions[path] = (int(match[1]), int(match[2]))
     counts = {count for _, count in positions.values()}
     if len(counts) > 1:
         raise DatasetError(
@@ -60,7 +78,7 @@ def read_table(root: str | Path, table: str) -> pa.Table:
     expected = arrow_schema(table)
     parts = []
     for path in shards:
-        metadata = pq.read_schema(path).metadata or {}
+        metadata = _parquet(path, pq.read_schema).metadata or {}
         version = metadata.get(VERSION_KEY.encode())
         if version != str(SCHEMA_VERSION).encode():
             raise DatasetError(
@@ -70,7 +88,7 @@ def read_table(root: str | Path, table: str) -> pa.Table:
         found = metadata.get(TABLE_KEY.encode(), b"").decode()
         if found != table:
             raise DatasetError(f"{path}: a shard of table `{found}` among `{table}` shards")
-        data = pq.read_table(path)
+        data = _parquet(path, pq.read_table)
         for field in expected:
             if field.name not in data.column_names:
                 raise DatasetError(f"{path}: missing column `{field.name}` of table `{table}`")
