@@ -1,7 +1,10 @@
 """The `boxpose` extension module (rust/python, built by maturin into .venv) on numpy arrays."""
 
+import re
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -321,3 +324,193 @@ def test_robust_fit_settles_a_mirror_tie_with_the_depth_image():
 
     with pytest.raises(ValueError, match="pass both or neither"):
         boxpose.robust_fit(size, points, depth=depth)
+
+
+# --- user trial 2026-12-03: caps, cameras, corner counts and array conversion ------------------
+
+
+def run_script(script: str, timeout: float) -> subprocess.CompletedProcess:
+    """`script` in a fresh interpreter: a regression to an unbounded call fails by its timeout
+    instead of hanging the suite."""
+    return subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=timeout
+    )
+
+
+def test_fits_refuse_more_points_than_their_documented_cap_at_once():
+    """robust_fit took 157 s on 400 spread points and fit_pose_and_size ran past a Ctrl-C on 200;
+    above their caps (the stub's docstrings) both methods of each raise ValueError at once."""
+    script = (
+        "import numpy as np, boxpose\n"
+        "p = np.random.default_rng(0).normal(scale=0.2, size=(400, 3)) + [0, 0, 1]\n"
+        "size = (0.2, 0.15, 0.1)\n"
+        "for call in [\n"
+        "    lambda: boxpose.robust_fit(size, p),\n"
+        "    lambda: boxpose.robust_fit(size, p, method='fixed_threshold'),\n"
+        "    lambda: boxpose.fit_pose_and_size(p[:200]),\n"
+        "    lambda: boxpose.fit_pose_and_size(p[:200], method='least_squares'),\n"
+        "]:\n"
+        "    try:\n"
+        "        call()\n"
+        "    except ValueError as e:\n"
+        "        print(e)\n"
+    )
+    result = run_script(script, timeout=30)
+    assert result.returncode == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert len(lines) == 4, result.stdout
+    assert all("robust_fit takes at most 60 points" in line for line in lines[:2]), lines
+    assert all("fit_pose_and_size takes at most 40 points" in line for line in lines[2:]), lines
+    assert all("got 400" in line for line in lines[:2]) and all(
+        "got 200" in line for line in lines[2:]
+    )
+
+
+def test_ctrl_c_interrupts_a_loop_of_fits_at_their_caps():
+    """A fit at its cap is short, even on peaks crowded at the corners (most point triples match
+    a corner triple: the slowest case), so a Ctrl-C (raised by Python when the call returns)
+    stops a notebook's loop of them within seconds instead of after minutes."""
+    script = (
+        "import numpy as np, boxpose\n"
+        "rng = np.random.default_rng(0)\n"
+        "corners = boxpose.box_corners((0.2, 0.15, 0.1)) + [0, 0, 1]\n"
+        "p = corners[np.arange(60) % 8] + rng.normal(scale=0.003, size=(60, 3))\n"
+        "print('started', flush=True)\n"
+        "while True:\n"
+        "    boxpose.robust_fit((0.2, 0.15, 0.1), p)\n"
+        "    boxpose.fit_pose_and_size(p[:40])\n"
+    )
+    process = subprocess.Popen(
+        [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert process.stdout.readline().strip() == "started"
+        time.sleep(0.5)
+        process.send_signal(signal.SIGINT)
+        _, stderr = process.communicate(timeout=15)
+    finally:
+        process.kill()
+    assert process.returncode != 0 and "KeyboardInterrupt" in stderr, stderr
+
+
+@pytest.mark.parametrize("rows", [1, 7, 9, 100])
+def test_paper_error_takes_exactly_the_eight_true_corners(rows):
+    corners = boxpose.box_corners(SIZE)
+    truth_corners = np.vstack([corners] * 13)[:rows]
+    with pytest.raises(
+        ValueError, match=rf"8 ground-truth corners, shape \(8, 3\), got shape \({rows}, 3\)"
+    ):
+        boxpose.paper_error(SIZE, np.eye(4), truth_corners)
+    assert boxpose.paper_error(SIZE, np.eye(4), corners) == 0.0
+
+
+@pytest.mark.parametrize(
+    "intrinsics, depth, message",
+    [
+        ((0.0, 0.0, 5.0, 5.0), None, "focal lengths fx = 0 and fy = 0 must be finite and positive"),
+        ((np.nan, 100.0, 5.0, 5.0), None, "fx = NaN"),
+        ((100.0, -100.0, 5.0, 5.0), None, "must be finite and positive"),
+        ((100.0, np.inf, 5.0, 5.0), None, "must be finite and positive"),
+        ((100.0, 100.0, np.inf, 5.0), None, "principal point cx = inf, cy = 5 must be finite"),
+        ((100.0, 100.0, 5.0, np.nan), None, "principal point"),
+        ((100.0, 100.0, 5.0, 5.0), np.ones((0, 0), np.float32), "non-empty (H, W) image"),
+        ((100.0, 100.0, 5.0, 5.0), np.ones((4, 0), np.float32), "got shape (4, 0)"),
+    ],
+)
+def test_robust_fit_refuses_an_impossible_camera_or_an_empty_depth_image(
+    intrinsics, depth, message
+):
+    """Each returned a pose before, the depth check silently doing nothing."""
+    points = transform(random_pose(np.random.default_rng(3)), boxpose.box_corners(SIZE))
+    depth = np.ones((10, 10), np.float32) if depth is None else depth
+    with pytest.raises(ValueError, match=re.escape(message)):
+        boxpose.robust_fit(SIZE, points, depth=depth, intrinsics=intrinsics)
+
+
+def test_lists_and_other_real_dtypes_are_converted_like_float64():
+    """A list or a float32 array (torch, images) is what a user passes first; each raised
+    "TypeError: 'ndarray' object is not an instance of 'ndarray'"."""
+    rng = np.random.default_rng(5)
+    truth = random_pose(rng)
+    points = transform(truth, boxpose.box_corners(SIZE)) + rng.normal(scale=0.002, size=(8, 3))
+    expected = boxpose.robust_fit(SIZE, points)["pose"]
+    assert np.array_equal(boxpose.robust_fit(SIZE, points.tolist())["pose"], expected)
+    rounded = points.astype(np.float32)
+    assert np.array_equal(
+        boxpose.robust_fit(SIZE, rounded)["pose"],
+        boxpose.robust_fit(SIZE, rounded.astype(np.float64))["pose"],
+    )
+    assert np.allclose(boxpose.kabsch(np.eye(4, 3, dtype=int), np.eye(4, 3)), np.eye(4))
+    assert boxpose.translation_error(truth.tolist(), truth.astype(np.float32)) < 1e-6
+    scores = rng.uniform(0.5, 1.0, 8)
+    assert (
+        boxpose.fast_exact_search(SIZE, points.tolist(), scores.tolist())["peaks"]
+        == (boxpose.fast_exact_search(SIZE, points, scores)["peaks"])
+    )
+    heatmap = boxpose.render_target_heatmap((8, 16, 16), np.array([[3.0, 5.0, 9.0]]), 1.5)
+    for given in (heatmap.astype(np.float64), heatmap.tolist()):
+        coords, _ = boxpose.nms(given, count=1, sigma=1.5)
+        assert np.array_equal(coords, boxpose.nms(heatmap, count=1, sigma=1.5)[0])
+    mask = np.zeros((6, 6), bool)
+    mask[1:4, 1:4] = True
+    assert boxpose.mask_iou(mask.astype(np.uint8), mask.tolist()) == 1.0
+    ious = np.array([[0.9]])
+    assert boxpose.average_precision([(np.ones(1), ious.tolist())], 0.5) == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize(
+    "call, error, message",
+    [
+        (
+            lambda p: boxpose.robust_fit(SIZE, p.ravel()),
+            ValueError,
+            "points must be a float64 ndarray of shape (N, 3) (integer or float arrays and "
+            "nested lists of numbers are converted), got shape (24,)",
+        ),
+        (
+            lambda p: boxpose.robust_fit(SIZE, p[:, :2]),
+            ValueError,
+            "points must be a float64 ndarray of shape (N, 3)",
+        ),
+        (lambda p: boxpose.kabsch(p > 0, p), TypeError, "source must be a float64 ndarray"),
+        (
+            lambda p: boxpose.kabsch(p, p.astype(complex)),
+            TypeError,
+            "got a complex128 array of shape",
+        ),
+        (
+            lambda p: boxpose.kabsch(p, [["a", "b", "c"]]),
+            TypeError,
+            "got a list read as a <U1 array of shape (1, 3)",
+        ),
+        (lambda p: boxpose.kabsch(p, [[1.0, 2.0, 3.0], [1.0]]), ValueError, "cannot read as"),
+        (
+            lambda p: boxpose.nms(p),
+            ValueError,
+            "heatmap must be a float32 ndarray of shape (D, H, W)",
+        ),
+        (lambda p: boxpose.add_s(SIZE, np.eye(3), np.eye(4)), ValueError, "got shape (3, 3)"),
+        (
+            lambda p: boxpose.mask_iou(np.full((4, 4), 255, np.uint8), np.ones((4, 4), bool)),
+            ValueError,
+            "got the value 255: pass `a != 0`",
+        ),
+        (lambda p: boxpose.mask_iou(np.ones(4, bool), np.ones(4, bool)), ValueError, "(H, W)"),
+    ],
+    ids=[
+        "flat",
+        "two-columns",
+        "bool",
+        "complex",
+        "strings",
+        "ragged",
+        "2d-heatmap",
+        "3x3-pose",
+        "0-255-mask",
+        "1d-mask",
+    ],
+)
+def test_type_and_shape_errors_say_what_the_argument_must_be(call, error, message):
+    points = boxpose.box_corners(SIZE)
+    with pytest.raises(error, match=re.escape(message)):
+        call(points)

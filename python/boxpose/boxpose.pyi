@@ -4,9 +4,12 @@
 tests/test_packaging.py fails when a function's name, parameters, their kinds or defaults here
 disagree with the compiled module's; the types follow the Rust extraction rules:
 
-- point sets, poses and coordinates are float64 ndarrays exactly (rust-numpy converts nothing:
-  a list or a float32 array raises TypeError); a pose is a 4 × 4 rigid transform;
-- heatmaps are (D, H, W) float32 ndarrays;
+- point sets, poses and coordinates are float64 ndarrays, heatmaps (D, H, W) float32 ndarrays;
+  an integer or float array of another dtype (float32 from torch or images, int64) or a nested
+  list of numbers is converted (a copy), while booleans, complex numbers, strings and objects
+  raise TypeError and a wrong shape ValueError, each naming the argument and what it must be
+  (`_Real`); a pose is a 4 × 4 rigid transform;
+- masks are boolean (H, W) arrays; numbers are converted only when every one is 0 or 1;
 - sizes and the small fixed-length parameters are any sequence of floats of that length
   (list, tuple or 1-d array).
 """
@@ -40,6 +43,10 @@ __all__ = [
 
 _F64 = NDArray[np.float64]
 _F32 = NDArray[np.float32]
+# An array argument: an integer or float ndarray or nested lists of numbers, converted to float64
+# (float32 for heatmaps, scores and depth images) when it is not that already.
+_Real = NDArray[np.floating[Any]] | NDArray[np.integer[Any]] | Sequence[Any]
+_Mask = NDArray[np.bool_] | NDArray[np.integer[Any]] | Sequence[Any]
 # (dx, dy, dz) in metres; any length-3 sequence of floats.
 _Size = Sequence[float] | NDArray[np.floating[Any]]
 _Params = Sequence[float] | NDArray[np.floating[Any]]
@@ -81,70 +88,80 @@ def box_corners(size: _Size) -> _F64:
     """The 8 corners (8, 3) of a box of `size` in its own frame, in boxpose corner order."""
 
 def nms(
-    heatmap: _F32, count: int = 8, sigma: float = 2.0, refine_radius: int = 0
+    heatmap: _Real, count: int = 8, sigma: float = 2.0, refine_radius: int = 0
 ) -> tuple[_F64, _F32]:
     """Peaks of a (D, H, W) heatmap: (coords (N, 3) as (z_bin, v, u), scores (N,))."""
 
-def render_target_heatmap(shape: tuple[int, int, int], centres: _F64, sigma: float) -> _F32:
+def render_target_heatmap(shape: tuple[int, int, int], centres: _Real, sigma: float) -> _F32:
     """A (D, H, W) training target: a 3D Gaussian at each (z_bin, v, u) centre, max-combined."""
 
-def back_project(coords: _F64, intrinsics: _Params, crop: _Params, depth_bins: _Params) -> _F64:
+def back_project(coords: _Real, intrinsics: _Params, crop: _Params, depth_bins: _Params) -> _F64:
     """Camera-frame points (N, 3) of voxel coordinates (N, 3) as (z_bin, v, u) in a crop.
 
     `intrinsics` = (fx, fy, cx, cy), `crop` = (x0, y0, sx, sy), `depth_bins` = (z_ref, z_min,
     bin_size).
     """
 
-def kabsch(source: _F64, target: _F64) -> _F64:
+def kabsch(source: _Real, target: _Real) -> _F64:
     """Least-squares rigid transform (4 × 4) mapping `source` onto `target`."""
 
-def umeyama(source: _F64, target: _F64) -> tuple[float, _F64]:
+def umeyama(source: _Real, target: _Real) -> tuple[float, _F64]:
     """Least-squares similarity transform: (scale, 4 × 4 rigid part)."""
 
-def paper_exact_search(size: _Size, points: _F64, scores: _F64, m: int = 5) -> _CorrespondenceFit:
+def paper_exact_search(size: _Size, points: _Real, scores: _Real, m: int = 5) -> _CorrespondenceFit:
     """The paper's search over every assignment of the `m` best points to the 8 corners."""
 
-def fast_exact_search(size: _Size, points: _F64, scores: _F64, m: int = 5) -> _CorrespondenceFit:
+def fast_exact_search(size: _Size, points: _Real, scores: _Real, m: int = 5) -> _CorrespondenceFit:
     """Same optimum as `paper_exact_search`, by symmetry reduction and branch-and-bound."""
 
 def robust_fit(
     size: _Size,
-    points: _F64,
+    points: _Real,
     inlier_threshold: float | None = None,
     *,
     method: Literal["adaptive", "fixed_threshold"] = "adaptive",
-    depth: NDArray[np.float32] | None = None,
+    depth: _Real | None = None,
     intrinsics: Sequence[float] | None = None,
 ) -> _RobustFit:
     """Pose of a box of known size that survives up to half the points being outliers;
-    with a depth image and its camera's (fx, fy, cx, cy), mirror ties are settled by it."""
+    with a depth image and its camera's (fx, fy, cx, cy), mirror ties are settled by it.
+
+    At most 60 points (ValueError above): the exhaustive search grows with about the fourth
+    power of the count, and a call at the cap takes under a second (see docs/geometry.md); pass
+    the highest-scoring peaks. `depth` must be a non-empty (H, W) image in metres, `fx` and
+    `fy` finite and positive, `cx` and `cy` finite (ValueError otherwise)."""
 
 def fit_pose_and_size(
-    points: _F64, *, method: Literal["robust", "least_squares"] = "robust"
+    points: _Real, *, method: Literal["robust", "least_squares"] = "robust"
 ) -> _SizedFit:
-    """Pose and box size together, for boxes of unknown size."""
+    """Pose and box size together, for boxes of unknown size.
 
-def paper_error(size: _Size, estimate: _F64, truth_corners: _F64) -> float:
-    """The paper's error (m²) of a pose against the (8, 3) ground-truth corners."""
+    At most 40 points (ValueError above): the search over right angles and triangles of points
+    grows faster still with the count, and a call at the cap takes under a second."""
 
-def add_s(size: _Size, estimate: _F64, truth: _F64) -> float:
+def paper_error(size: _Size, estimate: _Real, truth_corners: _Real) -> float:
+    """The paper's error (m²) of a pose against the ground-truth corners, exactly 8: shape
+    (8, 3) (ValueError otherwise)."""
+
+def add_s(size: _Size, estimate: _Real, truth: _Real) -> float:
     """ADD-S as bop_toolkit's `adi` (metres)."""
 
 def mssd(size: _Size, estimate: _F64, truth: _F64) -> float:
     """MSSD: maximum corner distance, minimised over the box's symmetry group (metres)."""
 
-def rotation_error_deg(size: _Size, estimate: _F64, truth: _F64) -> float:
+def rotation_error_deg(size: _Size, estimate: _Real, truth: _Real) -> float:
     """Rotation error in degrees, minimised over the box's symmetry group."""
 
-def translation_error(estimate: _F64, truth: _F64) -> float:
+def translation_error(estimate: _Real, truth: _Real) -> float:
     """Distance between the two box centres (metres)."""
 
-def iou_3d(size_a: _Size, pose_a: _F64, size_b: _Size, pose_b: _F64) -> float:
+def iou_3d(size_a: _Size, pose_a: _Real, size_b: _Size, pose_b: _Real) -> float:
     """Intersection over union of two oriented boxes."""
 
-def mask_iou(a: NDArray[np.bool_], b: NDArray[np.bool_]) -> float:
-    """Intersection over union of two boolean masks of one image, as COCO's mask IoU."""
+def mask_iou(a: _Mask, b: _Mask) -> float:
+    """Intersection over union of two boolean masks of one image, as COCO's mask IoU (numbers
+    only when all are 0 or 1: pass `labels == k` for a label image)."""
 
-def average_precision(images: list[tuple[_F32, _F64]], threshold: float) -> float:
+def average_precision(images: list[tuple[_Real, _Real]], threshold: float) -> float:
     """COCO's average precision of one category at IoU `threshold`, as pycocotools computes it:
     per image (scores (D,) float32, ious (D, G)). NaN when no image has a true instance."""

@@ -2,8 +2,11 @@
 //!
 //! Conventions: metres; points are (N, 3) float64 arrays in the camera frame; a pose is a 4 × 4
 //! homogeneous matrix mapping box-frame points into the camera frame; a box is given by its size
-//! (dx, dy, dz). Heatmaps are (D, H, W) float32 arrays over (z-bin, v, u). Invalid input (NaN,
-//! too few or degenerate points, empty heatmaps) raises `ValueError` with the reason.
+//! (dx, dy, dz). Heatmaps are (D, H, W) float32 arrays over (z-bin, v, u). An array argument of
+//! another integer or float dtype, or a nested list of numbers, is converted ([`real_array`]);
+//! booleans, complex numbers, strings and objects raise `TypeError` naming the argument and what
+//! it must be. Invalid input (a wrong shape, NaN, too few or degenerate points, too many points
+//! for a fit, empty heatmaps) raises `ValueError` with the reason.
 
 use boxpose_geometry::adaptive::FitConfidence;
 use boxpose_geometry::align::nearest_rotation;
@@ -18,10 +21,12 @@ use boxpose_geometry::{
 use nalgebra::{
     Isometry3, Matrix3, Matrix4, Point3, RowVector4, Translation3, UnitQuaternion, Vector3,
 };
+use numpy::ndarray::{Dimension, Ix1, Ix2, Ix3};
 use numpy::{
-    IntoPyArray, PyArray1, PyArray2, PyArray3, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArray3,
+    Element, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayDescrMethods, PyReadonlyArray,
+    PyReadonlyArray2, PyUntypedArray, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::PyValueError;
+use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -32,12 +37,95 @@ fn value_error(e: GeometryError) -> PyErr {
     PyValueError::new_err(e.to_string())
 }
 
-fn points(array: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<Point3<f64>>> {
+/// A shape as Python prints it: `(24,)`, `(5, 2)`.
+fn shape_text(shape: &[usize]) -> String {
+    match shape {
+        [length] => format!("({length},)"),
+        _ => {
+            let sides: Vec<String> = shape.iter().map(usize::to_string).collect();
+            format!("({})", sides.join(", "))
+        }
+    }
+}
+
+/// What an array argument of element type `T` must be, for the error messages.
+fn array_description<T: Element>(py: Python<'_>, shape: &str) -> String {
+    format!(
+        "a {} ndarray of shape {shape} (integer or float arrays and nested lists of numbers are \
+         converted)",
+        numpy::dtype::<T>(py)
+    )
+}
+
+/// `value` as a numpy array (`numpy.asarray`: an array as it is) whose dtype kind is one of
+/// `kinds` (numpy's letters: b bool, i/u integers, f floats); any other dtype is a `TypeError`
+/// and a ragged list a `ValueError`, each naming `what` and saying what it must be (`expected`).
+fn numpy_array<'py>(
+    value: &Bound<'py, PyAny>,
+    what: &str,
+    expected: &str,
+    kinds: &[u8],
+) -> PyResult<Bound<'py, PyUntypedArray>> {
+    let type_name = value.get_type().name()?;
+    let array = value
+        .py()
+        .import("numpy")?
+        .call_method1("asarray", (value,))
+        .map_err(|e| {
+            PyValueError::new_err(format!(
+                "{what} must be {expected}, got a {type_name} that numpy cannot read as one \
+                 array ({e})"
+            ))
+        })?
+        .cast_into::<PyUntypedArray>()?;
+    let dtype = array.dtype();
+    if !kinds.contains(&dtype.kind()) {
+        let source = if value.is_instance_of::<PyUntypedArray>() {
+            String::new()
+        } else {
+            format!("a {type_name} read as ")
+        };
+        return Err(PyTypeError::new_err(format!(
+            "{what} must be {expected}, got {source}a {dtype} array of shape {}",
+            shape_text(array.shape())
+        )));
+    }
+    Ok(array)
+}
+
+/// `value` as a `T` array of `D`'s dimensions: a `T` array as it is (no copy), any other integer
+/// or float array or nested list of numbers converted (a copy), since lists and float32 arrays
+/// (from torch, from images) are what users pass first. Booleans, complex numbers, strings and
+/// objects are refused: converting them would be a guess.
+fn real_array<'py, T: Element, D: Dimension>(
+    value: &Bound<'py, PyAny>,
+    what: &str,
+    shape: &str,
+) -> PyResult<PyReadonlyArray<'py, T, D>> {
+    if let Ok(array) = value.extract::<PyReadonlyArray<'py, T, D>>() {
+        return Ok(array);
+    }
+    let expected = array_description::<T>(value.py(), shape);
+    let array = numpy_array(value, what, &expected, b"iuf")?;
+    array
+        .call_method1("astype", (numpy::dtype::<T>(value.py()),))?
+        .extract()
+        .map_err(|_| {
+            PyValueError::new_err(format!(
+                "{what} must be {expected}, got shape {}",
+                shape_text(array.shape())
+            ))
+        })
+}
+
+fn points(value: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<Point3<f64>>> {
+    let array = real_array::<f64, Ix2>(value, what, "(N, 3)")?;
     let view = array.as_array();
     if view.ncols() != 3 {
         return Err(PyValueError::new_err(format!(
-            "{what} must have shape (N, 3), got {:?}",
-            view.shape()
+            "{what} must be {}, got shape {}",
+            array_description::<f64>(value.py(), "(N, 3)"),
+            shape_text(view.shape())
         )));
     }
     Ok(view
@@ -45,6 +133,52 @@ fn points(array: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Vec<Point3<f64>
         .into_iter()
         .map(|r| Point3::new(r[0], r[1], r[2]))
         .collect())
+}
+
+/// The most points `robust_fit` takes. Its search tries every triple of points against every
+/// triple of corners and scores each hypothesis on every point, so its time grows with about the
+/// fourth power of the count, fastest for peaks crowded at the corners, where most triples match
+/// (measured on a loaded 2-core machine: 60 such points 0.8 s, 100 points 5.7 s; 400 spread
+/// points took 157 s). At this cap a call is bounded, and a Ctrl-C, which Python raises when the
+/// call returns, is answered within that time. A box has 8 corners: the highest-scoring peaks
+/// hold them.
+const MAX_KNOWN_SIZE_FIT_POINTS: usize = 60;
+
+/// The most points `fit_pose_and_size` takes: its search also fits the sides, from every right
+/// angle and acute triangle of points, and grows faster still (measured as above: 40 points
+/// 0.4 s, 80 spread points took 12 s).
+const MAX_SIZE_FIT_POINTS: usize = 40;
+
+/// Refuses more than `max` points for `fit`, saying why and what to pass instead.
+fn ensure_at_most(points: &[Point3<f64>], max: usize, fit: &str) -> PyResult<()> {
+    if points.len() > max {
+        return Err(PyValueError::new_err(format!(
+            "points: {fit} takes at most {max} points (its exhaustive search grows with about the \
+             fourth power of the count), got {}; pass the highest-scoring peaks, e.g. \
+             points[np.argsort(scores)[-{max}:]]",
+            points.len()
+        )));
+    }
+    Ok(())
+}
+
+/// Refuses a camera no depth image can come from: the focal lengths (pixels) must be finite
+/// and positive and the principal point finite, else the depth check silently does nothing.
+fn ensure_camera(intrinsics: [f64; 4]) -> PyResult<()> {
+    let [fx, fy, cx, cy] = intrinsics;
+    if !(fx.is_finite() && fx > 0.0 && fy.is_finite() && fy > 0.0) {
+        return Err(PyValueError::new_err(format!(
+            "intrinsics (fx, fy, cx, cy): the focal lengths fx = {fx} and fy = {fy} must be \
+             finite and positive (pixels)"
+        )));
+    }
+    if !(cx.is_finite() && cy.is_finite()) {
+        return Err(PyValueError::new_err(format!(
+            "intrinsics (fx, fy, cx, cy): the principal point cx = {cx}, cy = {cy} must be finite \
+             (pixels)"
+        )));
+    }
+    Ok(())
 }
 
 fn box_model(size: [f64; 3]) -> PyResult<BoxModel> {
@@ -55,8 +189,8 @@ fn isometry(matrix: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Isometry3<f6
     let view = matrix.as_array();
     if view.shape() != [4, 4] {
         return Err(PyValueError::new_err(format!(
-            "{what} must be a 4 × 4 matrix, got {:?}",
-            view.shape()
+            "{what} must be a 4 × 4 matrix, got shape {}",
+            shape_text(view.shape())
         )));
     }
     let m = Matrix4::from_fn(|r, c| view[[r, c]]);
@@ -96,6 +230,16 @@ fn isometry(matrix: &PyReadonlyArray2<f64>, what: &str) -> PyResult<Isometry3<f6
 /// How far a pose's rotation block may be from orthonormal (float32 round trips stay ~1e-7).
 const RIGID_TOLERANCE: f64 = 1e-5;
 
+/// A pose argument as a float64 4 × 4 array, converted as [`real_array`] converts.
+fn pose_matrix<'py>(value: &Bound<'py, PyAny>, what: &str) -> PyResult<PyReadonlyArray2<'py, f64>> {
+    real_array(value, what, "(4, 4)")
+}
+
+/// A pose argument as a rigid transform ([`pose_matrix`], then [`isometry`]).
+fn pose(value: &Bound<'_, PyAny>, what: &str) -> PyResult<Isometry3<f64>> {
+    isometry(&pose_matrix(value, what)?, what)
+}
+
 fn matrix<'py>(py: Python<'py>, pose: &Isometry3<f64>) -> Bound<'py, PyArray2<f64>> {
     let m = pose.to_homogeneous();
     numpy::ndarray::Array2::from_shape_fn((4, 4), |(r, c)| m[(r, c)]).into_pyarray(py)
@@ -119,11 +263,12 @@ fn box_corners<'py>(py: Python<'py>, size: [f64; 3]) -> PyResult<Bound<'py, PyAr
 #[pyo3(signature = (heatmap, count = 8, sigma = 2.0, refine_radius = 0))]
 fn nms<'py>(
     py: Python<'py>,
-    heatmap: PyReadonlyArray3<f32>,
+    heatmap: &Bound<'py, PyAny>,
     count: usize,
     sigma: f64,
     refine_radius: usize,
 ) -> PyResult<PeaksAndScores<'py>> {
+    let heatmap = real_array::<f32, Ix3>(heatmap, "heatmap", "(D, H, W)")?;
     let view = heatmap.as_array();
     let (depth, height, width) = view.dim();
     let volume: Vec<f32> = view.iter().copied().collect();
@@ -154,10 +299,10 @@ fn nms<'py>(
 fn render_target_heatmap<'py>(
     py: Python<'py>,
     shape: (usize, usize, usize),
-    centres: PyReadonlyArray2<f64>,
+    centres: &Bound<'py, PyAny>,
     sigma: f64,
 ) -> PyResult<Bound<'py, PyArray3<f32>>> {
-    let centres: Vec<VoxelCoord> = points(&centres, "centres")?
+    let centres: Vec<VoxelCoord> = points(centres, "centres")?
         .iter()
         .map(|p| VoxelCoord {
             z_bin: p[0],
@@ -204,13 +349,13 @@ fn voxel_grid(intrinsics: [f64; 4], crop: [f64; 4], depth_bins: [f64; 3]) -> Vox
 #[pyfunction]
 fn back_project<'py>(
     py: Python<'py>,
-    coords: PyReadonlyArray2<f64>,
+    coords: &Bound<'py, PyAny>,
     intrinsics: [f64; 4],
     crop: [f64; 4],
     depth_bins: [f64; 3],
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
     let grid = voxel_grid(intrinsics, crop, depth_bins);
-    let out = points(&coords, "coords")?
+    let out = points(coords, "coords")?
         .iter()
         .map(|p| {
             grid.back_project(&VoxelCoord {
@@ -228,10 +373,10 @@ fn back_project<'py>(
 #[pyfunction]
 fn kabsch<'py>(
     py: Python<'py>,
-    source: PyReadonlyArray2<f64>,
-    target: PyReadonlyArray2<f64>,
+    source: &Bound<'py, PyAny>,
+    target: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyArray2<f64>>> {
-    let pose = align::kabsch(&points(&source, "source")?, &points(&target, "target")?)
+    let pose = align::kabsch(&points(source, "source")?, &points(target, "target")?)
         .map_err(value_error)?;
     Ok(matrix(py, &pose))
 }
@@ -241,10 +386,10 @@ fn kabsch<'py>(
 #[pyfunction]
 fn umeyama<'py>(
     py: Python<'py>,
-    source: PyReadonlyArray2<f64>,
-    target: PyReadonlyArray2<f64>,
+    source: &Bound<'py, PyAny>,
+    target: &Bound<'py, PyAny>,
 ) -> PyResult<(f64, Bound<'py, PyArray2<f64>>)> {
-    let similarity = align::umeyama(&points(&source, "source")?, &points(&target, "target")?)
+    let similarity = align::umeyama(&points(source, "source")?, &points(target, "target")?)
         .map_err(value_error)?;
     Ok((similarity.scaling(), matrix(py, &similarity.isometry)))
 }
@@ -272,13 +417,15 @@ fn search<'py>(
     py: Python<'py>,
     run: Search,
     size: [f64; 3],
-    points_: PyReadonlyArray2<f64>,
-    scores: PyReadonlyArray1<f64>,
+    points_: &Bound<'py, PyAny>,
+    scores: &Bound<'py, PyAny>,
     m: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
     let model = box_model(size)?;
-    let pts = points(&points_, "points")?;
-    let scores = scores.as_array().to_vec();
+    let pts = points(points_, "points")?;
+    let scores = real_array::<f64, Ix1>(scores, "scores", "(N,)")?
+        .as_array()
+        .to_vec();
     let fit = py
         .detach(|| run(&model, &pts, &scores, m))
         .map_err(value_error)?;
@@ -293,8 +440,8 @@ fn search<'py>(
 fn paper_exact_search<'py>(
     py: Python<'py>,
     size: [f64; 3],
-    points: PyReadonlyArray2<f64>,
-    scores: PyReadonlyArray1<f64>,
+    points: &Bound<'py, PyAny>,
+    scores: &Bound<'py, PyAny>,
     m: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
     search(
@@ -313,8 +460,8 @@ fn paper_exact_search<'py>(
 fn fast_exact_search<'py>(
     py: Python<'py>,
     size: [f64; 3],
-    points: PyReadonlyArray2<f64>,
-    scores: PyReadonlyArray1<f64>,
+    points: &Bound<'py, PyAny>,
+    scores: &Bound<'py, PyAny>,
     m: usize,
 ) -> PyResult<Bound<'py, PyDict>> {
     search(
@@ -354,24 +501,35 @@ fn confidence_items(dict: &Bound<'_, PyDict>, c: &FitConfidence) -> PyResult<()>
 /// column) and `intrinsics` (fx, fy, cx, cy of the camera whose frame the points are in), the
 /// adaptive fit settles mirror ties with it (`pipeline::Fitted::resolve_mirror`):
 /// "mirror_ambiguous" is then what is left after the depth image's say.
+///
+/// At most [`MAX_KNOWN_SIZE_FIT_POINTS`] points (either method).
 #[pyfunction]
 #[pyo3(signature = (size, points, inlier_threshold = None, *, method = "adaptive", depth = None, intrinsics = None))]
 fn robust_fit<'py>(
     py: Python<'py>,
     size: [f64; 3],
-    points: PyReadonlyArray2<f64>,
+    points: &Bound<'py, PyAny>,
     inlier_threshold: Option<f64>,
     method: &str,
-    depth: Option<PyReadonlyArray2<f32>>,
+    depth: Option<&Bound<'py, PyAny>>,
     intrinsics: Option<[f64; 4]>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let model = box_model(size)?;
-    let pts = self::points(&points, "points")?;
-    let depth_image = match (&depth, intrinsics) {
+    let pts = self::points(points, "points")?;
+    ensure_at_most(&pts, MAX_KNOWN_SIZE_FIT_POINTS, "robust_fit")?;
+    let depth_image = match (depth, intrinsics) {
         (None, None) => None,
         (Some(depth), Some(intrinsics)) if method == "adaptive" => {
+            let depth = real_array::<f32, Ix2>(depth, "depth", "(H, W)")?;
             let view = depth.as_array();
             let (height, width) = view.dim();
+            if height == 0 || width == 0 {
+                return Err(PyValueError::new_err(format!(
+                    "depth must be a non-empty (H, W) image in metres, got shape {}",
+                    shape_text(view.shape())
+                )));
+            }
+            ensure_camera(intrinsics)?;
             Some((
                 width,
                 height,
@@ -399,21 +557,25 @@ fn robust_fit<'py>(
                     "inlier_threshold applies to method=\"fixed_threshold\" only",
                 ));
             }
-            let mut fit = py
-                .detach(|| robust::adaptive_fit(&model, &pts, &robust::AdaptiveParams::default()))
+            let fit = py
+                .detach(|| -> boxpose_geometry::Result<_> {
+                    let mut fit =
+                        robust::adaptive_fit(&model, &pts, &robust::AdaptiveParams::default())?;
+                    if let Some((width, height, intrinsics, depth_m)) = &depth_image {
+                        let mut fitted = pipeline::Fitted::from_adaptive(&model, &fit);
+                        let view = DepthView {
+                            width: *width,
+                            height: *height,
+                            intrinsics: *intrinsics,
+                            depth_m,
+                        };
+                        fitted.resolve_mirror(&pts, &view);
+                        fit.pose = fitted.pose;
+                        fit.confidence = fitted.own_confidence.unwrap_or(fit.confidence);
+                    }
+                    Ok(fit)
+                })
                 .map_err(value_error)?;
-            if let Some((width, height, intrinsics, depth_m)) = &depth_image {
-                let mut fitted = pipeline::Fitted::from_adaptive(&model, &fit);
-                let view = DepthView {
-                    width: *width,
-                    height: *height,
-                    intrinsics: *intrinsics,
-                    depth_m,
-                };
-                fitted.resolve_mirror(&pts, &view);
-                fit.pose = fitted.pose;
-                fit.confidence = fitted.own_confidence.unwrap_or(fit.confidence);
-            }
             dict.set_item("pose", matrix(py, &fit.pose))?;
             dict.set_item("inlier_rms", fit.inlier_rms())?;
             dict.set_item("inliers", fit.inliers)?;
@@ -474,14 +636,17 @@ struct SizedFit {
 /// Returns {"method", "size", "pose", "nearest_corners", "residuals", "inliers", "inlier_count",
 /// "inlier_rms", and the confidence fields of `robust_fit`}; the least-squares fit's confidence
 /// is the noise-adaptive assessment of its box (`size_fit::assess_sized_box`).
+///
+/// At most [`MAX_SIZE_FIT_POINTS`] points (either method).
 #[pyfunction]
 #[pyo3(signature = (points, *, method = "robust"))]
 fn fit_pose_and_size<'py>(
     py: Python<'py>,
-    points: PyReadonlyArray2<f64>,
+    points: &Bound<'py, PyAny>,
     method: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let pts = self::points(&points, "points")?;
+    let pts = self::points(points, "points")?;
+    ensure_at_most(&pts, MAX_SIZE_FIT_POINTS, "fit_pose_and_size")?;
     let fit = match method {
         "robust" => py
             .detach(|| -> boxpose_geometry::Result<_> {
@@ -546,15 +711,21 @@ fn fit_pose_and_size<'py>(
 #[pyfunction]
 fn paper_error(
     size: [f64; 3],
-    estimate: PyReadonlyArray2<f64>,
-    truth_corners: PyReadonlyArray2<f64>,
+    estimate: &Bound<'_, PyAny>,
+    truth_corners: &Bound<'_, PyAny>,
 ) -> PyResult<f64> {
-    metrics::paper_error(
-        &box_model(size)?,
-        &isometry(&estimate, "estimate")?,
-        &points(&truth_corners, "truth_corners")?,
-    )
-    .map_err(value_error)
+    let truth = points(truth_corners, "truth_corners")?;
+    // Any other count is a mistake (a subset, a stacked batch): the nearest-corner error against
+    // it would still be a number.
+    if truth.len() != 8 {
+        return Err(PyValueError::new_err(format!(
+            "truth_corners must be the box's 8 ground-truth corners, shape (8, 3), got shape ({}, \
+             3)",
+            truth.len()
+        )));
+    }
+    metrics::paper_error(&box_model(size)?, &pose(estimate, "estimate")?, &truth)
+        .map_err(value_error)
 }
 
 type PoseMetric = fn(&BoxModel, &Isometry3<f64>, &Isometry3<f64>) -> boxpose_geometry::Result<f64>;
@@ -576,12 +747,13 @@ fn pose_metric(
 /// ADD-S as bop_toolkit's `adi`: mean distance from each true-placed point of the box's surface
 /// sample to the nearest estimate-placed one (metres; see `metrics::add_s` for the sample).
 #[pyfunction]
-fn add_s(
-    size: [f64; 3],
-    estimate: PyReadonlyArray2<f64>,
-    truth: PyReadonlyArray2<f64>,
-) -> PyResult<f64> {
-    pose_metric(metrics::add_s, size, estimate, truth)
+fn add_s(size: [f64; 3], estimate: &Bound<'_, PyAny>, truth: &Bound<'_, PyAny>) -> PyResult<f64> {
+    pose_metric(
+        metrics::add_s,
+        size,
+        pose_matrix(estimate, "estimate")?,
+        pose_matrix(truth, "truth")?,
+    )
 }
 
 /// MSSD: maximum corner distance, minimised over the box's symmetry group (metres, as in BOP).
@@ -598,55 +770,93 @@ fn mssd(
 #[pyfunction]
 fn rotation_error_deg(
     size: [f64; 3],
-    estimate: PyReadonlyArray2<f64>,
-    truth: PyReadonlyArray2<f64>,
+    estimate: &Bound<'_, PyAny>,
+    truth: &Bound<'_, PyAny>,
 ) -> PyResult<f64> {
-    pose_metric(metrics::rotation_error_deg, size, estimate, truth)
+    pose_metric(
+        metrics::rotation_error_deg,
+        size,
+        pose_matrix(estimate, "estimate")?,
+        pose_matrix(truth, "truth")?,
+    )
 }
 
 /// Distance between the two box centres (metres).
 #[pyfunction]
-fn translation_error(
-    estimate: PyReadonlyArray2<f64>,
-    truth: PyReadonlyArray2<f64>,
-) -> PyResult<f64> {
-    metrics::translation_error(
-        &isometry(&estimate, "estimate")?,
-        &isometry(&truth, "truth")?,
-    )
-    .map_err(value_error)
+fn translation_error(estimate: &Bound<'_, PyAny>, truth: &Bound<'_, PyAny>) -> PyResult<f64> {
+    metrics::translation_error(&pose(estimate, "estimate")?, &pose(truth, "truth")?)
+        .map_err(value_error)
 }
 
 /// Intersection over union of two oriented boxes.
 #[pyfunction]
 fn iou_3d(
     size_a: [f64; 3],
-    pose_a: PyReadonlyArray2<f64>,
+    pose_a: &Bound<'_, PyAny>,
     size_b: [f64; 3],
-    pose_b: PyReadonlyArray2<f64>,
+    pose_b: &Bound<'_, PyAny>,
 ) -> PyResult<f64> {
     metrics::iou_3d(
         &box_model(size_a)?,
-        &isometry(&pose_a, "pose_a")?,
+        &pose(pose_a, "pose_a")?,
         &box_model(size_b)?,
-        &isometry(&pose_b, "pose_b")?,
+        &pose(pose_b, "pose_b")?,
     )
     .map_err(value_error)
 }
 
-/// Intersection over union of two boolean masks of one image, as COCO's mask IoU.
-#[pyfunction]
-fn mask_iou(a: PyReadonlyArray2<bool>, b: PyReadonlyArray2<bool>) -> PyResult<f64> {
-    let (a, b) = (a.as_array(), b.as_array());
-    if a.dim() != b.dim() {
+/// A mask argument: a boolean (H, W) array, or numbers that are all 0 or 1 (a uint8 mask read
+/// from an image), as its shape and its pixels in row-major order. Other numbers are refused: a
+/// label image or a 0/255 mask read as "nonzero" could silently be the wrong mask.
+fn mask(value: &Bound<'_, PyAny>, what: &str) -> PyResult<(Vec<usize>, Vec<bool>)> {
+    let flat = |m: PyReadonlyArray2<bool>| {
+        let view = m.as_array();
+        (view.shape().to_vec(), view.iter().copied().collect())
+    };
+    if let Ok(m) = value.extract::<PyReadonlyArray2<bool>>() {
+        return Ok(flat(m));
+    }
+    let expected = "a bool ndarray of shape (H, W) (integer or float arrays and lists of 0 and 1 \
+                    are converted)";
+    let array = numpy_array(value, what, expected, b"biuf")?;
+    let wrong_shape = || {
+        PyValueError::new_err(format!(
+            "{what} must be {expected}, got shape {}",
+            shape_text(array.shape())
+        ))
+    };
+    if array.dtype().kind() == b'b' {
+        return array.extract().map(flat).map_err(|_| wrong_shape());
+    }
+    let numbers: PyReadonlyArray2<f64> = array
+        .call_method1("astype", (numpy::dtype::<f64>(value.py()),))?
+        .extract()
+        .map_err(|_| wrong_shape())?;
+    let view = numbers.as_array();
+    if let Some(other) = view.iter().find(|v| **v != 0.0 && **v != 1.0) {
         return Err(PyValueError::new_err(format!(
-            "masks of different shapes {:?} and {:?}",
-            a.dim(),
-            b.dim()
+            "{what} must be {expected}, got the value {other}: pass `{what} != 0` for every \
+             nonzero pixel, or `{what} == label` for one instance of a label image"
         )));
     }
-    let flat = |m: numpy::ndarray::ArrayView2<bool>| m.iter().copied().collect::<Vec<bool>>();
-    Ok(detection::mask_iou(&flat(a), &flat(b)))
+    Ok((
+        view.shape().to_vec(),
+        view.iter().map(|v| *v == 1.0).collect(),
+    ))
+}
+
+/// Intersection over union of two boolean masks of one image, as COCO's mask IoU.
+#[pyfunction]
+fn mask_iou(a: &Bound<'_, PyAny>, b: &Bound<'_, PyAny>) -> PyResult<f64> {
+    let ((a_shape, a), (b_shape, b)) = (mask(a, "a")?, mask(b, "b")?);
+    if a_shape != b_shape {
+        return Err(PyValueError::new_err(format!(
+            "masks of different shapes {} and {}",
+            shape_text(&a_shape),
+            shape_text(&b_shape)
+        )));
+    }
+    Ok(detection::mask_iou(&a, &b))
 }
 
 /// COCO's average precision of one category at IoU `threshold`, as pycocotools computes it:
@@ -655,7 +865,7 @@ fn mask_iou(a: PyReadonlyArray2<bool>, b: PyReadonlyArray2<bool>) -> PyResult<f6
 #[pyfunction]
 fn average_precision(
     py: Python<'_>,
-    images: Vec<(PyReadonlyArray1<f32>, PyReadonlyArray2<f64>)>,
+    images: Vec<(Bound<'_, PyAny>, Bound<'_, PyAny>)>,
     threshold: f64,
 ) -> PyResult<f64> {
     if !(0.0..=1.0).contains(&threshold) {
@@ -665,6 +875,8 @@ fn average_precision(
     }
     let mut converted = Vec::with_capacity(images.len());
     for (index, (scores, ious)) in images.iter().enumerate() {
+        let scores = real_array::<f32, Ix1>(scores, &format!("image {index}: scores"), "(D,)")?;
+        let ious = real_array::<f64, Ix2>(ious, &format!("image {index}: ious"), "(D, G)")?;
         let (scores, ious) = (scores.as_array(), ious.as_array());
         let (rows, true_count) = ious.dim();
         if rows != scores.len() {
