@@ -209,6 +209,15 @@ def test_metrics_agree_with_their_definitions():
     flipped = truth.copy()
     flipped[:3, :2] *= -1
     assert boxpose.rotation_error_deg(SIZE, flipped, truth) == pytest.approx(0, abs=1e-6)
+    # A quarter turn about z of a 30 × 29 × 10 cm box: the exact MSSD calls it a wrong
+    # orientation, the cube-group error sees the 1 cm / √2 its corners really moved.
+    near_square = (0.30, 0.29, 0.10)
+    quarter = truth.copy()
+    quarter[:3, 0], quarter[:3, 1] = truth[:3, 1], -truth[:3, 0]
+    assert boxpose.mssd(near_square, quarter, truth) > 0.1 * np.linalg.norm(near_square)
+    assert boxpose.cube_mssd(near_square, quarter, near_square, truth) == pytest.approx(
+        0.01 / np.sqrt(2)
+    )
 
 
 @pytest.mark.parametrize(

@@ -34,6 +34,7 @@ __all__ = [
     "paper_error",
     "add_s",
     "mssd",
+    "cube_mssd",
     "rotation_error_deg",
     "translation_error",
     "iou_3d",
@@ -146,8 +147,15 @@ def paper_error(size: _Size, estimate: _Real, truth_corners: _Real) -> float:
 def add_s(size: _Size, estimate: _Real, truth: _Real) -> float:
     """ADD-S as bop_toolkit's `adi` (metres)."""
 
-def mssd(size: _Size, estimate: _F64, truth: _F64) -> float:
+def mssd(size: _Size, estimate: _Real, truth: _Real) -> float:
     """MSSD: maximum corner distance, minimised over the box's symmetry group (metres)."""
+
+def cube_mssd(estimated_size: _Size, estimate: _Real, true_size: _Size, truth: _Real) -> float:
+    """Corner MSSD modulo the cube's 24 rotations (metres): the largest distance between the
+    estimated box's corners and the true box's under the corner labelling that matches them best,
+    so a quarter turn of a nearly square box costs what its corners really move. The primary
+    correctness metric; `estimated_size` is the fitted size for a fit that estimates it, else the
+    true size."""
 
 def rotation_error_deg(size: _Size, estimate: _Real, truth: _Real) -> float:
     """Rotation error in degrees, minimised over the box's symmetry group."""

@@ -150,6 +150,7 @@ struct Truth {
 /// Metrics of one matched estimate.
 #[derive(Clone, Copy, Default)]
 struct Scores {
+    cube_mssd: f64,
     mssd: f64,
     add_s: f64,
     paper_error: f64,
@@ -168,6 +169,7 @@ fn score(truth: &Truth, estimate: &Isometry3<f64>) -> anyhow::Result<Scores> {
     let paper_error = metrics::paper_error(&truth.model, estimate, &corners)?;
     let d = truth.model.diameter();
     Ok(Scores {
+        cube_mssd: metrics::cube_mssd(&truth.model, estimate, &truth.model, &truth.pose)?,
         mssd: metrics::mssd(&truth.model, estimate, &truth.pose)?,
         add_s: metrics::add_s(&truth.model, estimate, &truth.pose)?,
         paper_error,
@@ -259,7 +261,8 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
     }
 
     // Matching, per (scene, image, obj_id): estimates by decreasing score, each to the unassigned
-    // instance with the smallest MSSD (bop_toolkit's per-object greedy matching, no threshold).
+    // instance with the smallest cube MSSD, the primary metric (bop_toolkit's per-object greedy
+    // matching on the error evaluated, no threshold).
     let mut groups: BTreeMap<(i64, i32, u32), Vec<Estimate>> = BTreeMap::new();
     for e in &estimates {
         groups
@@ -280,7 +283,7 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
             for &g in candidates.iter().filter(|g| !assigned.contains_key(g)) {
                 let s = score(&truths[g], &e.pose)
                     .with_context(|| format!("{name} line {}", e.line))?;
-                if best.as_ref().is_none_or(|(_, b)| s.mssd < b.mssd) {
+                if best.as_ref().is_none_or(|(_, b)| s.cube_mssd < b.cube_mssd) {
                     best = Some((g, s));
                 }
             }
@@ -304,19 +307,22 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
     let n = rows.len();
     let matched: Vec<&(Estimate, Scores)> =
         rows.iter().filter_map(|r| r.matched.as_ref()).collect();
-    let recall = |rows: &[&Row], k: f64| {
-        let hits = rows
-            .iter()
-            .filter(|r| {
-                r.matched
-                    .as_ref()
-                    .is_some_and(|(_, s)| s.mssd < k * truths[r.gt].model.diameter())
+    // Per row, `error` of its match over the diameter; +∞ for a missed instance.
+    let over_diameter = |rows: &[&Row], error: fn(&Scores) -> f64| -> Vec<f64> {
+        rows.iter()
+            .map(|r| {
+                r.matched.as_ref().map_or(f64::INFINITY, |(_, s)| {
+                    error(s) / truths[r.gt].model.diameter()
+                })
             })
-            .count();
+            .collect()
+    };
+    let recall = |rows: &[&Row], error: fn(&Scores) -> f64, k: f64| {
         if rows.is_empty() {
             f64::NAN
         } else {
-            hits as f64 / rows.len() as f64
+            let errors = over_diameter(rows, error);
+            errors.iter().filter(|&&e| e < k).count() as f64 / rows.len() as f64
         }
     };
     let mean = |f: fn(&Scores) -> f64| {
@@ -339,9 +345,14 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
         "instances": n,
         "instances_matched": matched.len(),
         "instances_missed": n - matched.len(),
-        "recall_mssd_0.05d": recall(&all, 0.05),
-        "recall_mssd_0.1d": recall(&all, 0.1),
+        "recall_cube_mssd_0.05d": recall(&all, |s| s.cube_mssd, 0.05),
+        "recall_cube_mssd_0.1d": recall(&all, |s| s.cube_mssd, 0.1),
+        "recall_mssd_0.05d": recall(&all, |s| s.mssd, 0.05),
+        "recall_mssd_0.1d": recall(&all, |s| s.mssd, 0.1),
+        "ar_cube_mssd": metrics::average_recall(&over_diameter(&all, |s| s.cube_mssd)),
+        "ar_mssd": metrics::average_recall(&over_diameter(&all, |s| s.mssd)),
         "mean_over_matched": {
+            "cube_mssd_m": mean(|s| s.cube_mssd),
             "mssd_m": mean(|s| s.mssd),
             "add_s_m": mean(|s| s.add_s),
             "paper_error_m2": mean(|s| s.paper_error),
@@ -371,8 +382,15 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
         println!("  skipped {m}");
     }
     println!(
-        "{:>8} {:>9} {:>8} {:>12} {:>11} {:>13} {:>9}",
-        "obj_id", "instances", "matched", "rec@0.05d", "rec@0.1d", "MSSD mm", "e_R deg"
+        "{:>8} {:>9} {:>8} {:>12} {:>11} {:>12} {:>13} {:>9}",
+        "obj_id",
+        "instances",
+        "matched",
+        "cube@0.05d",
+        "cube@0.1d",
+        "MSSD@0.1d",
+        "MSSD mm",
+        "e_R deg"
     );
     let mut per_obj: BTreeMap<Option<u32>, Vec<&Row>> = BTreeMap::new();
     for r in &rows {
@@ -401,12 +419,13 @@ fn bop(args: &BopArgs) -> anyhow::Result<()> {
             }
         };
         println!(
-            "{:>8} {:>9} {:>8} {:>12.3} {:>11.3} {:>13} {:>9}",
+            "{:>8} {:>9} {:>8} {:>12.3} {:>11.3} {:>12.3} {:>13} {:>9}",
             key.map_or("all".to_string(), |k| k.to_string()),
             group.len(),
             hits.len(),
-            recall(group, 0.05),
-            recall(group, 0.1),
+            recall(group, |s| s.cube_mssd, 0.05),
+            recall(group, |s| s.cube_mssd, 0.1),
+            recall(group, |s| s.mssd, 0.1),
             avg(|s| s.mssd * 1000.0),
             avg(|s| s.rotation_error_deg)
         );
@@ -486,6 +505,7 @@ fn write_rows(path: &Path, rows: &[Row], truths: &[Truth]) -> anyhow::Result<()>
                 .collect::<Float64Array>(),
         ),
         metric(|s| s.mssd),
+        metric(|s| s.cube_mssd),
         metric(|s| s.add_s),
         metric(|s| s.paper_error),
         metric(|s| s.paper_error_normalized),

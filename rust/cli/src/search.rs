@@ -156,8 +156,11 @@ struct RunArgs {
     /// The pose fit under test: paper (the paper's search over the 5 best peaks), fast, robust, size.
     #[arg(long, default_value = "paper", value_parser = ["paper", "fast", "robust", "size"])]
     fit: String,
-    /// Failure predicate: paper[:T] (the paper's error over diag²/3 above T, default 0.005) or
-    /// mssd[:F] (MSSD above F × diameter, default 0.1); not detecting the box is a failure either way.
+    /// Failure predicate: paper[:T] (the paper's error over diag²/3 above T, default 0.005),
+    /// cube-mssd[:F] (the corners' real displacement, the cube-group corner MSSD, above F ×
+    /// diameter, default 0.1: the primary correctness metric) or mssd[:F] (the exact-symmetry
+    /// MSSD, which also fails a quarter turn of a nearly square box); not detecting the box is a
+    /// failure either way.
     #[arg(long, default_value = "paper", value_parser = Predicate::parse)]
     fail_when: Predicate,
     /// Keypoint network folder.
@@ -514,7 +517,7 @@ fn replay(
     let describe = |r: &SampleRow| match (r.valid, r.score) {
         (false, _) => format!("invalid ({})", r.invalid_reason.as_deref().unwrap_or("")),
         (true, Some(score)) => format!(
-            "{} score {score:.4} (paper error / (diag²/3) {:.3e}, MSSD/d {:.3})",
+            "{} score {score:.4} (paper error / (diag²/3) {:.3e}, cube MSSD/d {:.3}, MSSD/d {:.3})",
             if r.failed { "FAILS," } else { "passes," },
             r.paper_error_normalized.unwrap_or(f64::NAN),
             r.mssd_over_diameter.unwrap_or(f64::NAN)
@@ -528,6 +531,7 @@ fn replay(
         "sample {sample} of {}:\n  recorded  {}\n  replayed  {}",
         run_dir.display(),
         describe(recorded),
+            r.cube_mssd_over_diameter.unwrap_or(f64::NAN),
         describe(&replayed)
     );
     std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;

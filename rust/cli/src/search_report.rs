@@ -42,6 +42,9 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
             r.paper_error_normalized
         }),
         Predicate::Mssd { fraction } => ("MSSD / diameter", fraction, |r| r.mssd_over_diameter),
+        Predicate::CubeMssd { fraction } => ("cube MSSD / diameter", fraction, |r| {
+            r.cube_mssd_over_diameter
+        }),
     };
     let weighted: Vec<(f64, f64)> = estimating
         .iter()
@@ -306,17 +309,18 @@ fn page(
         )?;
         writeln!(
             h,
-            "<table><tr><th>sample</th><th>stage</th><th>score</th><th>paper err. (norm.)</th><th>MSSD/d</th><th>detected</th><th>fit error</th></tr>"
+            "<table><tr><th>sample</th><th>stage</th><th>score</th><th>paper err. (norm.)</th><th>cube MSSD/d</th><th>MSSD/d</th><th>detected</th><th>fit error</th></tr>"
         )?;
         let opt = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.3e}"));
         for r in failing {
             writeln!(
                 h,
-                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
                 r.sample_id,
                 r.stage,
                 r.score.map_or("∞".into(), |v| format!("{v:.2}")),
                 opt(r.paper_error_normalized),
+                opt(r.cube_mssd_over_diameter),
                 opt(r.mssd_over_diameter),
                 r.detected.map_or("–", |d| if d { "yes" } else { "no" }),
                 escape(r.fit_error.as_deref().unwrap_or(""))

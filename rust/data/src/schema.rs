@@ -693,7 +693,13 @@ pub const SEARCH_SAMPLES: Table = Table {
             "mssd_over_diameter",
             Float64,
             "",
-            "MSSD (BOP) of the fit over the box's diameter.",
+            "MSSD (BOP) of the fit over the box's diameter: the orientation-aware error.",
+        )),
+        nullable(col(
+            "cube_mssd_over_diameter",
+            Float64,
+            "",
+            "Corner MSSD modulo the cube's 24 rotations over the box's diameter: how far the fitted corners really are from the true ones.",
         )),
         nullable(col("add_s_m", Float64, "m", "ADD-S of the fit.")),
         nullable(col(
@@ -805,7 +811,7 @@ const MIRROR_AMBIGUOUS: Column = nullable(col(
 ));
 
 /// One row per instance and pose fit: the columns that `eval-geometry` writes, and `eval` too.
-const FIT_COLUMNS: [Column; 17] = [
+const FIT_COLUMNS: [Column; 19] = [
     SCENE_ID,
     FRAME_ID,
     OBJECT_ID,
@@ -831,7 +837,19 @@ const FIT_COLUMNS: [Column; 17] = [
         "mssd_m",
         Float64,
         "m",
-        "Maximum symmetry-aware surface distance (BOP's MSSD, over the box's corners).",
+        "Maximum symmetry-aware surface distance (BOP's MSSD, over the box's corners): the orientation-aware error, which also asks for the right quarter turn of a box with two nearly equal sides.",
+    )),
+    nullable(col(
+        "cube_mssd_m",
+        Float64,
+        "m",
+        "Corner MSSD modulo the cube's 24 rotations: the largest distance between fitted and true corners under the corner labelling that matches them best (the primary correctness metric; never above mssd_m for a fit of known size).",
+    )),
+    nullable(col(
+        "iou_3d",
+        Float64,
+        "",
+        "3D IoU of the fitted box (its own size for a size fit) and the true box.",
     )),
     nullable(col(
         "add_s_m",
@@ -871,8 +889,8 @@ const FIT_COLUMNS: [Column; 17] = [
 ];
 
 /// [`FIT_COLUMNS`], then what `eval` adds per instance.
-const EVAL_COLUMNS: [Column; 19] = {
-    let mut columns = [FIT_COLUMNS[0]; 19];
+const EVAL_COLUMNS: [Column; 21] = {
+    let mut columns = [FIT_COLUMNS[0]; 21];
     let mut i = 0;
     while i < FIT_COLUMNS.len() {
         columns[i] = FIT_COLUMNS[i];
@@ -1064,6 +1082,12 @@ pub const EVAL_RESULTS: Table = Table {
         )),
         nullable(col("score", Float64, "", "The matched estimate's score.")),
         nullable(col("mssd_m", Float64, "m", "MSSD of the matched estimate.")),
+        nullable(col(
+            "cube_mssd_m",
+            Float64,
+            "m",
+            "Corner MSSD modulo the cube's rotations of the matched estimate (the primary metric).",
+        )),
         nullable(col("add_s_m", Float64, "m", "ADD-S (BOP's adi).")),
         nullable(col("paper_error_m2", Float64, "m²", "The paper's error.")),
         nullable(col(

@@ -164,6 +164,13 @@ impl BoxModel {
     }
 }
 
+/// The corner permutations of the cube's 24 proper rotations (identity first): permutation `π`
+/// sends corner `i` to corner `π[i]`, the corner whose sign vector is the rotated sign vector of
+/// `i`. What the corners of any box can be relabelled by when its side lengths are ignored.
+pub fn cube_corner_permutations() -> &'static [[usize; CORNER_COUNT]] {
+    BoxModel::unit().symmetry_permutations()
+}
+
 /// The sign vector (±1, ±1, ±1) of corner `i`.
 pub(crate) fn corner_signs(i: usize) -> Vector3<f64> {
     Vector3::from_fn(|axis, _| if (i >> axis) & 1 == 1 { 1.0 } else { -1.0 })

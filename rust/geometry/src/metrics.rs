@@ -4,7 +4,7 @@
 
 use nalgebra::{Isometry3, Point3, UnitQuaternion, Vector3};
 
-use crate::box_model::{BoxModel, CORNER_COUNT};
+use crate::box_model::{BoxModel, CORNER_COUNT, cube_corner_permutations};
 use crate::error::{GeometryError, Result, ensure_finite, ensure_finite_points};
 
 /// The paper's counterexample threshold on [`paper_error`] for its unit box; for other boxes it
@@ -232,6 +232,67 @@ pub fn mssd(model: &BoxModel, estimate: &Isometry3<f64>, truth: &Isometry3<f64>)
                 .fold(0.0, f64::max)
         })
         .fold(f64::INFINITY, f64::min))
+}
+
+/// Corner MSSD modulo the cube's rotations: how far the fitted corners really are from the true
+/// ones, whatever corner each is called.
+///
+/// e = min_{π ∈ C} max_{i} ‖estimate·c^E_i − truth·c^B_{π(i)}‖
+///
+/// with c^E the corners of `estimated_box`, c^B those of `true_box` and C the 24 proper rotations
+/// of the cube acting on corner labels ([`cube_corner_permutations`]). For a box with exact
+/// symmetries, every π of its own group is in C, so e ≤ [`mssd`], with equality when the best π is
+/// one of them; a quarter turn of a box with an a × b face costs the corners' real displacement
+/// (|a − b|/√2 for the turn about the face's normal), so the error grows with how distinguishable
+/// the sides are instead of jumping to ≈ d/2 as MSSD's does. It is symmetric in its two poses,
+/// non-negative, and zero exactly when the two boxes have the same corner set. For a fit that
+/// estimates the size (`estimated_box` ≠ `true_box`) a wrong size counts.
+pub fn cube_mssd(
+    estimated_box: &BoxModel,
+    estimate: &Isometry3<f64>,
+    true_box: &BoxModel,
+    truth: &Isometry3<f64>,
+) -> Result<f64> {
+    ensure_pose("estimate", estimate)?;
+    ensure_pose("truth", truth)?;
+    let placed: Vec<Point3<f64>> = estimated_box
+        .corners()
+        .iter()
+        .map(|c| estimate * c)
+        .collect();
+    let true_corners: Vec<Point3<f64>> = true_box.corners().iter().map(|c| truth * c).collect();
+    Ok(cube_corner_permutations()
+        .iter()
+        .map(|pi| {
+            placed
+                .iter()
+                .enumerate()
+                .map(|(i, c)| (c - true_corners[pi[i]]).norm())
+                .fold(0.0, f64::max)
+        })
+        .fold(f64::INFINITY, f64::min))
+}
+
+/// The thresholds of BOP's average recall of MSSD (Hodaň et al. 2020): 0.05, 0.10, …, 0.50 of the
+/// object's diameter.
+pub const AR_MSSD_THRESHOLDS: [f64; 10] = [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5];
+
+/// BOP's average recall of an error over [`AR_MSSD_THRESHOLDS`]:
+///
+/// AR = (1/|Θ|) Σ_{θ ∈ Θ} (1/n) · #{k : e_k < θ}
+///
+/// with `errors_over_diameter` the n errors divided by each object's diameter; a fit that returned
+/// no pose is passed as +∞ (a miss at every threshold). 0 for no errors.
+pub fn average_recall(errors_over_diameter: &[f64]) -> f64 {
+    if errors_over_diameter.is_empty() {
+        return 0.0;
+    }
+    let n = errors_over_diameter.len() as f64;
+    AR_MSSD_THRESHOLDS
+        .iter()
+        .map(|&theta| errors_over_diameter.iter().filter(|&&e| e < theta).count() as f64 / n)
+        .sum::<f64>()
+        / AR_MSSD_THRESHOLDS.len() as f64
 }
 
 /// Rotation error modulo the box's symmetries, in degrees:

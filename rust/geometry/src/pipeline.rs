@@ -262,7 +262,15 @@ pub fn isometry(quat_wxyz: [f64; 4], translation: [f64; 3]) -> Isometry3<f64> {
 pub struct Scores {
     /// [`metrics::paper_error`] of the fitted corners against the true ones.
     pub paper_error: f64,
+    /// [`metrics::mssd`] for a fit of known size (the orientation-aware error: a quarter turn of a
+    /// box with two nearly equal sides scores ≈ half its diameter); for a fitted size,
+    /// [`Fitted::mssd`].
     pub mssd_m: f64,
+    /// [`metrics::cube_mssd`] of the fitted box against the true one: the corners' real
+    /// displacement, whatever the fit called them (the primary correctness metric).
+    pub cube_mssd_m: f64,
+    /// [`metrics::iou_3d`] of the fitted box (its own size for a size fit) and the true one.
+    pub iou_3d: f64,
     pub add_s_m: f64,
     pub rotation_error_deg: f64,
     pub translation_error_m: f64,
@@ -374,6 +382,8 @@ fn fit_and_score_methods(
         Ok(Scores {
             paper_error: metrics::paper_error(&fitted.model, &fitted.pose, &truth_corners)?,
             mssd_m,
+            cube_mssd_m: metrics::cube_mssd(&fitted.model, &fitted.pose, model, truth)?,
+            iou_3d: metrics::iou_3d(&fitted.model, &fitted.pose, model, truth)?,
             add_s_m,
             rotation_error_deg,
             translation_error_m: metrics::translation_error(&fitted.pose, truth)?,

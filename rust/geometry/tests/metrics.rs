@@ -323,3 +323,134 @@ fn bad_inputs_are_errors() {
         Err(GeometryError::NonFinite { .. })
     ));
 }
+
+/// A random box (sides 4–60 cm) and a random pose, from proptest's inputs.
+fn box_and_pose(
+    sides: [f64; 3],
+    axis: [f64; 3],
+    angle: f64,
+    at: [f64; 3],
+) -> (BoxModel, Isometry3<f64>) {
+    let model = BoxModel::new(Vector3::from(sides)).unwrap();
+    let axis = Vector3::from(axis);
+    let rotation = if axis.norm() < 1e-6 {
+        UnitQuaternion::identity()
+    } else {
+        UnitQuaternion::from_scaled_axis(axis.normalize() * angle)
+    };
+    (
+        model,
+        Isometry3::from_parts(Translation3::from(Vector3::from(at)), rotation),
+    )
+}
+
+mod cube_mssd_properties {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn side() -> impl Strategy<Value = f64> {
+        0.04..0.6f64
+    }
+
+    fn unit() -> impl Strategy<Value = f64> {
+        -1.0..1.0f64
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+
+        /// Symmetric in its two poses, non-negative, never above the exact-symmetry MSSD, and
+        /// equal to it for a cube (whose own group is the cube's).
+        #[test]
+        fn symmetric_non_negative_and_at_most_mssd(
+            sides in [side(), side(), side()],
+            a in [unit(), unit(), unit()], angle_a in 0.0..std::f64::consts::PI,
+            b in [unit(), unit(), unit()], angle_b in 0.0..std::f64::consts::PI,
+            shift in [unit(), unit(), unit()],
+        ) {
+            let (model, truth) = box_and_pose(sides, a, angle_a, [0.0, 0.0, 1.0]);
+            let (_, estimate) = box_and_pose(sides, b, angle_b, [0.1 * shift[0], 0.1 * shift[1], 1.0 + 0.1 * shift[2]]);
+            let e = cube_mssd(&model, &estimate, &model, &truth).unwrap();
+            let reverse = cube_mssd(&model, &truth, &model, &estimate).unwrap();
+            prop_assert!(e >= 0.0);
+            prop_assert!((e - reverse).abs() < 1e-12, "{e} vs {reverse}");
+            prop_assert!(e <= mssd(&model, &estimate, &truth).unwrap() + 1e-12);
+            let cube = BoxModel::new(Vector3::repeat(sides[0])).unwrap();
+            let exact = mssd(&cube, &estimate, &truth).unwrap();
+            let modulo = cube_mssd(&cube, &estimate, &cube, &truth).unwrap();
+            prop_assert!((exact - modulo).abs() < 1e-12, "{exact} vs {modulo}");
+        }
+
+        /// Zero for every relabelling of the same corners (each of the cube's rotations applied
+        /// to a cube, the box's own symmetries to any box), and positive for another corner set.
+        #[test]
+        fn zero_exactly_for_the_same_corner_set(
+            sides in [side(), side(), side()],
+            a in [unit(), unit(), unit()], angle in 0.0..std::f64::consts::PI,
+            shift in [unit(), unit(), unit()],
+        ) {
+            let (model, truth) = box_and_pose(sides, a, angle, [0.0, 0.0, 1.0]);
+            for symmetry in model.symmetries() {
+                let same = Isometry3::from_parts(
+                    truth.translation,
+                    truth.rotation * UnitQuaternion::from_rotation_matrix(&symmetry.rotation),
+                );
+                prop_assert!(cube_mssd(&model, &same, &model, &truth).unwrap() < 1e-12);
+            }
+            let moved = Isometry3::from_parts(
+                Translation3::from(truth.translation.vector + Vector3::from(shift) * 0.01),
+                truth.rotation,
+            );
+            let displacement = (Vector3::from(shift) * 0.01).norm();
+            let e = cube_mssd(&model, &moved, &model, &truth).unwrap();
+            // A shift smaller than half the shortest side keeps each corner nearest its own.
+            prop_assert!((e - displacement).abs() < 1e-12, "{e} vs {displacement}");
+        }
+
+        /// A quarter turn about the normal of an a × b face moves every corner by |a − b|/√2 (the
+        /// face's corners rotate onto the other side's corners), where the exact MSSD counts the
+        /// turn as a wrong orientation.
+        #[test]
+        fn a_quarter_turn_costs_the_corners_real_displacement(
+            sides in [side(), side(), side()],
+            a in [unit(), unit(), unit()], angle in 0.0..std::f64::consts::PI,
+            axis in 0usize..3,
+        ) {
+            let (model, truth) = box_and_pose(sides, a, angle, [0.0, 0.0, 1.0]);
+            let estimate = turned(&truth, Vector3::ith(axis, 1.0), 90.0);
+            let (a_side, b_side) = (sides[(axis + 1) % 3], sides[(axis + 2) % 3]);
+            let expected = (a_side - b_side).abs() / std::f64::consts::SQRT_2;
+            let e = cube_mssd(&model, &estimate, &model, &truth).unwrap();
+            prop_assert!((e - expected).abs() < 1e-9, "{e} vs {expected}");
+        }
+    }
+}
+
+#[test]
+fn a_quarter_turn_of_a_nearly_square_box_is_graded_not_a_cliff() {
+    // 30 × 29 × 10 cm: MSSD calls a quarter turn about z as wrong as a pose half a diagonal away;
+    // the cube-group error sees the centimetre the corners actually moved.
+    let model = BoxModel::new(Vector3::new(0.30, 0.29, 0.10)).unwrap();
+    let estimate = turned(&truth(), Vector3::z(), 90.0);
+    let exact = mssd(&model, &estimate, &truth()).unwrap();
+    let modulo = cube_mssd(&model, &estimate, &model, &truth()).unwrap();
+    assert!(exact > 0.1 * model.diameter(), "{exact}");
+    assert!((modulo - 0.01 / 2f64.sqrt()).abs() < 1e-12, "{modulo}");
+}
+
+#[test]
+fn a_wrong_size_counts_in_the_cube_group_error() {
+    // The fitted box 2 cm longer along x, centred on the truth: its +x corners are 1 cm out.
+    let fitted = BoxModel::new(Vector3::new(0.32, 0.2, 0.1)).unwrap();
+    let e = cube_mssd(&fitted, &truth(), &generic(), &truth()).unwrap();
+    assert!((e - 0.01).abs() < 1e-12, "{e}");
+}
+
+#[test]
+fn average_recall_is_the_mean_recall_over_bop_thresholds() {
+    assert_eq!(average_recall(&[]), 0.0);
+    assert_eq!(average_recall(&[0.0, 0.01]), 1.0);
+    assert_eq!(average_recall(&[f64::INFINITY]), 0.0);
+    // 0.12 < θ for θ ≥ 0.15 (8 of 10 thresholds); 0.3 for θ ≥ 0.35 (4 of 10): (0.8 + 0.4) / 2
+    assert!((average_recall(&[0.12, 0.3]) - 0.6).abs() < 1e-12);
+}

@@ -6,7 +6,8 @@ use boxpose_data::{Frame, Instance};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::depth::DepthView;
 use boxpose_geometry::heatmap::VoxelGrid;
-use boxpose_geometry::pipeline::{self, FitOutcome, Method};
+use boxpose_geometry::metrics;
+use boxpose_geometry::pipeline::{self, FitOutcome, Method, Scores};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::LearnError;
@@ -91,20 +92,35 @@ pub(crate) fn missed_instance(instance: &Instance) -> Result<InstanceEval, Learn
     })
 }
 
-/// Aggregates of many [`InstanceEval`]s.
+/// Aggregates of many [`InstanceEval`]s. Every recall counts a failed fit or a missed box as a
+/// miss. "cube MSSD" is [`metrics::cube_mssd`], the primary correctness metric (the corners' real
+/// displacement); "MSSD" the exact-symmetry one, which also asks for the right quarter turn.
 #[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
 pub struct Summary {
     pub instances: usize,
     pub heatmap_mse: f64,
     /// Fraction of true corners found.
     pub corner_recall: f64,
-    /// Fraction of instances whose robust fit (known size) has MSSD below 0.05 / 0.1 of the
-    /// box's diameter (a failed fit counts as a miss).
+    /// Fraction of instances whose robust fit (known size) has cube MSSD below 0.05 / 0.1 of the
+    /// box's diameter.
+    pub robust_cube_mssd_recall_005: f64,
+    pub robust_cube_mssd_recall_010: f64,
+    /// The same with the exact-symmetry MSSD.
     pub robust_mssd_recall_005: f64,
     pub robust_mssd_recall_010: f64,
-    /// The same for the pose-and-size fit (size unknown).
+    /// BOP's average recall over 0.05…0.50 of the diameter ([`metrics::average_recall`]) of the
+    /// robust fit's cube MSSD and exact MSSD.
+    pub robust_ar_cube_mssd: f64,
+    pub robust_ar_mssd: f64,
+    /// The pose-and-size fit (size unknown): cube MSSD and MSSD recalls (for a fitted size the two
+    /// agree: [`pipeline::Fitted::mssd`]), and the share with 3D IoU above 0.5 / 0.7 / 0.9.
+    pub size_cube_mssd_recall_005: f64,
+    pub size_cube_mssd_recall_010: f64,
     pub size_mssd_recall_005: f64,
     pub size_mssd_recall_010: f64,
+    pub size_iou_recall_050: f64,
+    pub size_iou_recall_070: f64,
+    pub size_iou_recall_090: f64,
     /// Median of the paper's error of the paper's own search.
     pub paper_error_median: f64,
 }
@@ -116,10 +132,25 @@ impl Summary {
             ("val_instances", self.instances as f64),
             ("heatmap_mse", self.heatmap_mse),
             ("corner_recall", self.corner_recall),
+            (
+                "robust_cube_mssd_recall_005",
+                self.robust_cube_mssd_recall_005,
+            ),
+            (
+                "robust_cube_mssd_recall_010",
+                self.robust_cube_mssd_recall_010,
+            ),
             ("robust_mssd_recall_005", self.robust_mssd_recall_005),
             ("robust_mssd_recall_010", self.robust_mssd_recall_010),
+            ("robust_ar_cube_mssd", self.robust_ar_cube_mssd),
+            ("robust_ar_mssd", self.robust_ar_mssd),
+            ("size_cube_mssd_recall_005", self.size_cube_mssd_recall_005),
+            ("size_cube_mssd_recall_010", self.size_cube_mssd_recall_010),
             ("size_mssd_recall_005", self.size_mssd_recall_005),
             ("size_mssd_recall_010", self.size_mssd_recall_010),
+            ("size_iou_recall_050", self.size_iou_recall_050),
+            ("size_iou_recall_070", self.size_iou_recall_070),
+            ("size_iou_recall_090", self.size_iou_recall_090),
             ("paper_error_median", self.paper_error_median),
         ]
         .into_iter()
@@ -128,19 +159,27 @@ impl Summary {
     }
 }
 
-/// Fraction of `evals` whose `method` fit has MSSD below `fraction` of the diameter.
-fn mssd_recall(evals: &[InstanceEval], method: Method, fraction: f64) -> f64 {
-    let hits = evals
+/// Per instance, `metric` of its `method` fit (+∞ where the fit failed or the box was missed).
+fn per_instance(
+    evals: &[InstanceEval],
+    method: Method,
+    metric: fn(&Scores, f64) -> f64,
+) -> Vec<f64> {
+    evals
         .iter()
-        .filter(|e| {
-            e.fits.iter().any(|(m, s)| {
-                *m == method
-                    && s.scores()
-                        .is_some_and(|s| s.mssd_m < fraction * e.diameter_m)
-            })
+        .map(|e| {
+            e.fits
+                .iter()
+                .find(|(m, _)| *m == method)
+                .and_then(|(_, outcome)| outcome.scores())
+                .map_or(f64::INFINITY, |s| metric(s, e.diameter_m))
         })
-        .count();
-    hits as f64 / evals.len().max(1) as f64
+        .collect()
+}
+
+/// Fraction of `values` below `threshold`.
+fn share_below(values: &[f64], threshold: f64) -> f64 {
+    values.iter().filter(|&&v| v < threshold).count() as f64 / values.len().max(1) as f64
 }
 
 /// The mean, or NaN for no values (every box missed has no heatmap to score).
@@ -166,6 +205,12 @@ pub fn summarize(evals: &[InstanceEval]) -> Summary {
         })
         .collect();
     paper_errors.sort_by(f64::total_cmp);
+    let cube = |method| per_instance(evals, method, |s, d| s.cube_mssd_m / d);
+    let exact = |method| per_instance(evals, method, |s, d| s.mssd_m / d);
+    let (robust_cube, robust_exact) = (cube(Method::Robust), exact(Method::Robust));
+    let (size_cube, size_exact) = (cube(Method::SizeAndPose), exact(Method::SizeAndPose));
+    // 1 − IoU, so that a failed fit (+∞) is a miss like the distances' misses.
+    let size_iou_gap = per_instance(evals, Method::SizeAndPose, |s, _| 1.0 - s.iou_3d);
     Summary {
         instances: evals.len(),
         heatmap_mse: mean(evals.iter().filter(|e| !e.missed).map(|e| e.heatmap_mse)),
@@ -174,10 +219,19 @@ pub fn summarize(evals: &[InstanceEval]) -> Summary {
             .map(|e| e.corners_found as f64 / 8.0)
             .sum::<f64>()
             / n,
-        robust_mssd_recall_005: mssd_recall(evals, Method::Robust, 0.05),
-        robust_mssd_recall_010: mssd_recall(evals, Method::Robust, 0.1),
-        size_mssd_recall_005: mssd_recall(evals, Method::SizeAndPose, 0.05),
-        size_mssd_recall_010: mssd_recall(evals, Method::SizeAndPose, 0.1),
+        robust_cube_mssd_recall_005: share_below(&robust_cube, 0.05),
+        robust_cube_mssd_recall_010: share_below(&robust_cube, 0.1),
+        robust_mssd_recall_005: share_below(&robust_exact, 0.05),
+        robust_mssd_recall_010: share_below(&robust_exact, 0.1),
+        robust_ar_cube_mssd: metrics::average_recall(&robust_cube),
+        robust_ar_mssd: metrics::average_recall(&robust_exact),
+        size_cube_mssd_recall_005: share_below(&size_cube, 0.05),
+        size_cube_mssd_recall_010: share_below(&size_cube, 0.1),
+        size_mssd_recall_005: share_below(&size_exact, 0.05),
+        size_mssd_recall_010: share_below(&size_exact, 0.1),
+        size_iou_recall_050: share_below(&size_iou_gap, 0.5),
+        size_iou_recall_070: share_below(&size_iou_gap, 0.3),
+        size_iou_recall_090: share_below(&size_iou_gap, 0.1),
         paper_error_median: paper_errors
             .get(paper_errors.len() / 2)
             .copied()

@@ -758,12 +758,34 @@ fn add_s(size: [f64; 3], estimate: &Bound<'_, PyAny>, truth: &Bound<'_, PyAny>) 
 
 /// MSSD: maximum corner distance, minimised over the box's symmetry group (metres, as in BOP).
 #[pyfunction]
-fn mssd(
-    size: [f64; 3],
-    estimate: PyReadonlyArray2<f64>,
-    truth: PyReadonlyArray2<f64>,
+fn mssd(size: [f64; 3], estimate: &Bound<'_, PyAny>, truth: &Bound<'_, PyAny>) -> PyResult<f64> {
+    pose_metric(
+        metrics::mssd,
+        size,
+        pose_matrix(estimate, "estimate")?,
+        pose_matrix(truth, "truth")?,
+    )
+}
+
+/// Corner MSSD modulo the cube's 24 rotations (metres): the largest distance between the
+/// estimated box's corners and the true box's under the corner labelling that matches them best,
+/// so a quarter turn of a nearly square box costs what its corners really move. The primary
+/// correctness metric; `estimated_size` is the fitted size for a fit that estimates it, else the
+/// true size.
+#[pyfunction]
+fn cube_mssd(
+    estimated_size: [f64; 3],
+    estimate: &Bound<'_, PyAny>,
+    true_size: [f64; 3],
+    truth: &Bound<'_, PyAny>,
 ) -> PyResult<f64> {
-    pose_metric(metrics::mssd, size, estimate, truth)
+    metrics::cube_mssd(
+        &box_model(estimated_size)?,
+        &pose(estimate, "estimate")?,
+        &box_model(true_size)?,
+        &pose(truth, "truth")?,
+    )
+    .map_err(value_error)
 }
 
 /// Rotation error in degrees, minimised over the box's symmetry group.
@@ -914,6 +936,7 @@ fn boxpose(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(paper_error, m)?)?;
     m.add_function(wrap_pyfunction!(add_s, m)?)?;
     m.add_function(wrap_pyfunction!(mssd, m)?)?;
+    m.add_function(wrap_pyfunction!(cube_mssd, m)?)?;
     m.add_function(wrap_pyfunction!(rotation_error_deg, m)?)?;
     m.add_function(wrap_pyfunction!(translation_error, m)?)?;
     m.add_function(wrap_pyfunction!(iou_3d, m)?)?;

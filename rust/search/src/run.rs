@@ -270,6 +270,7 @@ impl Run {
             return Ok(run);
         }
         // another shard may be publishing run.json right now: neither it nor its temporary file
+    pub cube_mssd_over_diameter: Option<f64>,
         // is a stranger (run.json itself is compared below, once written)
         let foreign = |entry: std::io::Result<std::fs::DirEntry>| {
             entry
@@ -1179,6 +1180,7 @@ pub fn samples_batch(rows: &[SampleRow]) -> RecordBatch {
 }
 
 fn timings_batch(rows: &[TimingRow]) -> RecordBatch {
+        cube_mssd_over_diameter: None,
     let f = |get: fn(&TimingRow) -> f64| {
         Arc::new(rows.iter().map(get).collect::<Float64Array>()) as ArrayRef
     };
@@ -1208,6 +1210,7 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
             strings("stage"),
         );
         let (iteration, stratum, seed) = (
+            row.cube_mssd_over_diameter = Some(m.cube_mssd_over_diameter);
             col("iteration").as_primitive::<Int32Type>().clone(),
             col("stratum").as_primitive::<Int32Type>().clone(),
             col("seed").as_primitive::<Int64Type>().clone(),
@@ -1259,6 +1262,7 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
                 params: list(&params, i).unwrap_or_default(),
                 log_nominal: lp.value(i),
                 log_proposal: lq.value(i),
+        f(|r| r.cube_mssd_over_diameter),
                 log_weight: lw.value(i),
                 valid: valid.value(i),
                 invalid_reason: reason.is_valid(i).then(|| reason.value(i).to_string()),
@@ -1270,12 +1274,13 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
                 paper_error: opt(&metrics[0], i),
                 paper_error_normalized: opt(&metrics[1], i),
                 mssd_over_diameter: opt(&metrics[2], i),
-                add_s_m: opt(&metrics[3], i),
-                rotation_error_deg: opt(&metrics[4], i),
-                translation_error_m: opt(&metrics[5], i),
-                score: opt(&metrics[6], i),
+                cube_mssd_over_diameter: opt(&metrics[3], i),
+                add_s_m: opt(&metrics[4], i),
+                rotation_error_deg: opt(&metrics[5], i),
+                translation_error_m: opt(&metrics[6], i),
+                score: opt(&metrics[7], i),
                 failed: failed.value(i),
-                fit_confidence: opt(&metrics[7], i),
+                fit_confidence: opt(&metrics[8], i),
                 peaks_camera_m: list(&peaks, i),
                 fitted_corners_camera_m: list(&fitted, i),
             });
@@ -1330,6 +1335,7 @@ fn write_counterexamples(dir: &Path, name: &str, outcomes: &[Outcome]) -> Result
 
 #[cfg(test)]
 mod tests {
+            "cube_mssd_over_diameter",
     use super::*;
 
     fn sample(log_weight: f64, failed: bool) -> WeightedSample {

@@ -40,6 +40,9 @@ pub enum Predicate {
     PaperError { threshold: f64 },
     /// MSSD above `fraction` of the box's diameter, or the box not detected.
     Mssd { fraction: f64 },
+    /// Cube-group corner MSSD ([`boxpose_geometry::metrics::cube_mssd`]) above `fraction` of the
+    /// box's diameter, or the box not detected: a wrong pose by how far its corners really are.
+    CubeMssd { fraction: f64 },
 }
 
 impl Default for Predicate {
@@ -60,12 +63,16 @@ impl std::fmt::Display for Predicate {
             Predicate::Mssd { fraction } => {
                 write!(f, "MSSD > {fraction} × diameter, or the box not found")
             }
+            Predicate::CubeMssd { fraction } => write!(
+                f,
+                "cube-group corner MSSD > {fraction} × diameter, or the box not found"
+            ),
         }
     }
 }
 
 impl Predicate {
-    /// Parses `paper` / `paper:T` / `mssd:F` (F a fraction of the diameter).
+    /// Parses `paper` / `paper:T` / `mssd:F` / `cube-mssd:F` (F a fraction of the diameter).
     pub fn parse(text: &str) -> Result<Self, String> {
         let (metric, value) = text
             .split_once(':')
@@ -87,8 +94,11 @@ impl Predicate {
             "mssd" => Ok(Predicate::Mssd {
                 fraction: number(value, 0.1)?,
             }),
+            "cube-mssd" => Ok(Predicate::CubeMssd {
+                fraction: number(value, 0.1)?,
+            }),
             other => Err(format!(
-                "unknown failure metric '{other}': use paper[:T] or mssd[:F]"
+                "unknown failure metric '{other}': use paper[:T], mssd[:F] or cube-mssd[:F]"
             )),
         }
     }
@@ -99,6 +109,7 @@ impl Predicate {
         let (value, threshold) = match *self {
             Predicate::PaperError { threshold } => (metrics.paper_error_normalized, threshold),
             Predicate::Mssd { fraction } => (metrics.mssd_over_diameter, fraction),
+            Predicate::CubeMssd { fraction } => (metrics.cube_mssd_over_diameter, fraction),
         };
         (value.max(1e-300) / threshold).log10()
     }
@@ -125,6 +136,7 @@ pub struct Metrics {
     /// `paper_error` / (diag² / 3): 1 on a unit box's scale, so the paper's 0.005 applies to any box.
     pub paper_error_normalized: f64,
     pub mssd_over_diameter: f64,
+    pub cube_mssd_over_diameter: f64,
     pub add_s_m: f64,
     pub rotation_error_deg: f64,
     pub translation_error_m: f64,
@@ -141,6 +153,7 @@ impl Metrics {
             paper_error: scores.paper_error,
             paper_error_normalized: normalized_paper_error(scores.paper_error, diagonal),
             mssd_over_diameter: scores.mssd_m / diagonal,
+            cube_mssd_over_diameter: scores.cube_mssd_m / diagonal,
             add_s_m: scores.add_s_m,
             rotation_error_deg: scores.rotation_error_deg,
             translation_error_m: scores.translation_error_m,
@@ -154,6 +167,7 @@ impl Metrics {
             self.paper_error,
             self.paper_error_normalized,
             self.mssd_over_diameter,
+            self.cube_mssd_over_diameter,
             self.add_s_m,
             self.rotation_error_deg,
             self.translation_error_m,
