@@ -8,6 +8,7 @@ import io
 import json
 import math
 import os
+import shutil
 import signal
 import subprocess
 import time
@@ -133,6 +134,11 @@ def test_monte_carlo_run_writes_its_tables_estimate_and_report(mc_run, boxpose_b
     assert e["ci_method"] == "clopper_pearson"
     lo, hi = e["ci95"]
     assert lo <= e["p_hat"] <= hi and 0.0 <= lo and hi <= 1.0
+    assert math.isclose(e["p_valid"], len(valid) / 6)
+    # one stratum (no neighbours), flat: its counts and estimate
+    (stratum,) = summary["strata"]
+    assert stratum["neighbours"] == 0 and stratum["samples"] == 6 and stratum["valid"] == len(valid)
+    assert stratum["p_hat"] == e["p_hat"] and "strata" not in e
     assert (mc_run / "report" / "index.html").is_file()
     if samples.failed.any():
         r = subprocess.run(
@@ -219,6 +225,42 @@ def test_a_resumed_run_with_other_settings_is_refused(mc_run, spaces, boxpose_bi
         check=False,
     )
     assert r.returncode != 0 and "another search" in r.stderr, r.stderr
+    # the setting that differs is named, with both values
+    assert "--seed is 3 there, 4 here" in r.stderr, r.stderr
+
+
+def test_a_refused_search_leaves_no_run_behind(spaces, boxpose_bin, tmp_path):
+    """Everything a search needs is checked before run.json is written: a refused command used
+    to leave a run.json that then refused the corrected command as "another search"."""
+    bad_recipes = {}
+    floor = spaces["single"].parent / "floor.toml"
+    for name, old, new in (
+        ("samples", "samples = 1", "samples = 0"),
+        ("width", "width = 96", "width = 0"),
+    ):
+        recipe_path = tmp_path / f"recipe-{name}.toml"
+        recipe_path.write_text(floor.read_text().replace(old, new, 1))
+        space = tmp_path / f"space-{name}.toml"
+        space.write_text(spaces["single"].read_text().replace(str(floor), str(recipe_path)))
+        bad_recipes[name] = space
+    out = tmp_path / "run"
+    for space, args, said in (
+        (spaces["single"], ["--model", "models/keypoint-slm"], "--model models/keypoint-slm"),
+        (
+            spaces["single"],
+            ["--crops", "predicted", "--segmenter", "models/segmenter-slm"],
+            "--segmenter models/segmenter-slm",
+        ),
+        (spaces["single"], ["--num-shards", 0], "--num-shards 0"),
+        (bad_recipes["samples"], [], "render.samples"),
+        (bad_recipes["width"], [], "camera.frames_per_scene, width and height"),
+    ):
+        r = search(boxpose_bin, space, "--out", out, "--samples", 4, *args, check=False)
+        assert r.returncode != 0 and said in r.stderr, r.stderr
+        assert "Traceback" not in r.stderr and not out.exists(), (args, r.stderr)
+    # the corrected command starts the run
+    r = search(boxpose_bin, spaces["single"], "--out", out, "--samples", 4, "--pending")
+    assert json.loads(r.stdout)["batches"] == [0]
 
 
 @pytest.fixture(scope="module")
@@ -495,6 +537,29 @@ def test_cross_entropy_on_clutter_pools_its_strata(spaces, boxpose_bin, tmp_path
     assert [s["neighbours"] for s in summary["strata"]] == [1, 2] and summary["estimate"][
         "samples"
     ] == 4
+    # P(valid) is a probability (the weights' mean was stored, above 1 when they averaged so),
+    # and each stratum is one flat entry (no Rust `Ok` wrapper, no nested stratum 0)
+    e = summary["estimate"]
+    assert 0.0 <= e["p_valid"] <= 1.0
+    if e["valid"] == e["samples"]:
+        assert e["p_valid"] == 1.0
+    assert '"Ok"' not in (out / "summary.json").read_text() and "strata" not in e
+    for stratum, neighbours in zip(summary["strata"], [1, 2], strict=True):
+        assert stratum["neighbours"] == neighbours and stratum["samples"] == 2
+        assert stratum["nominal_probability"] == 0.5
+
+
+def test_merge_redraws_the_report_and_lists_only_what_the_run_holds(mc_run, boxpose_bin, tmp_path):
+    copy = tmp_path / "copied-run"
+    shutil.copytree(mc_run, copy)
+    # a run without failures has no counterexamples/ (removed here to make one)
+    shutil.rmtree(copy / "counterexamples", ignore_errors=True)
+    shutil.rmtree(copy / "report")
+    r = search(boxpose_bin, "merge", copy)
+    assert (copy / "report" / "index.html").is_file()
+    assert str(copy) in (copy / "report" / "index.html").read_text()
+    (line,) = [line for line in r.stdout.splitlines() if line.startswith("run: ")]
+    assert "counterexamples/" not in line and "report/index.html" in line, line
 
 
 def test_a_sample_replays_to_its_recorded_outcome(mc_run, boxpose_bin, tmp_path):

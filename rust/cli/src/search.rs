@@ -260,7 +260,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let summary = run.merge()?;
             print_estimate(&run.dir, &summary.estimate, summary.samples_spent);
             print_warnings(&summary.warnings);
-            Ok(())
+            // the report draws the merged tables, and names the folder it is in now
+            search_report::write(&run.dir, 6)
         }
         None => search(&args.run),
     }
@@ -303,9 +304,19 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         model: args.model.display().to_string(),
         segmenter: (crops == Crops::Predicted).then(|| args.segmenter.display().to_string()),
     };
-    // everything that can be refused is checked before the networks and Blender load
+    // everything that can be refused is checked before run.json is written (a refused command
+    // leaves no run behind to refuse the corrected one) and before the networks and Blender load
     let record = RunRecord::new(&space, settings)?;
     let method = sut::method_named(&args.fit).map_err(anyhow::Error::msg)?;
+    boxpose_search::run::check_shard(args.shard, args.num_shards)?;
+    KeypointModel::check_folder(&args.model)
+        .with_context(|| format!("--model {}", args.model.display()))?;
+    if crops == Crops::Predicted {
+        SegmenterModel::check_folder(&args.segmenter)
+            .with_context(|| format!("--segmenter {}", args.segmenter.display()))?;
+    }
+    boxpose_render::check_recipe(&space.recipe_toml, &space.file.recipe)
+        .context("the search space's base recipe")?;
     let run = Run::create(out, record)?;
     if args.pending {
         println!("{}", serde_json::to_string(&run.pending()?)?);
@@ -520,6 +531,7 @@ fn replay(
             "{} score {score:.4} (paper error / (diag²/3) {:.3e}, cube MSSD/d {:.3}, MSSD/d {:.3})",
             if r.failed { "FAILS," } else { "passes," },
             r.paper_error_normalized.unwrap_or(f64::NAN),
+            r.cube_mssd_over_diameter.unwrap_or(f64::NAN),
             r.mssd_over_diameter.unwrap_or(f64::NAN)
         ),
         (true, None) => format!(
@@ -531,7 +543,6 @@ fn replay(
         "sample {sample} of {}:\n  recorded  {}\n  replayed  {}",
         run_dir.display(),
         describe(recorded),
-            r.cube_mssd_over_diameter.unwrap_or(f64::NAN),
         describe(&replayed)
     );
     std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
@@ -605,8 +616,6 @@ fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
         .map_or("no interval (no failure)".to_string(), |(lo, hi)| {
             format!("95% CI [{lo:.3e}, {hi:.3e}] ({:?})", e.ci_method)
         });
-    // with every sample valid, P(valid) is 1; its weighted estimate mean(w) only says how far
-    // the weights are from averaging 1 (a diagnostic, in summary.json)
     let p_valid = if e.valid == e.samples {
         "1 (every sample valid)".to_string()
     } else {
@@ -616,8 +625,14 @@ fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
         "P(fail | valid) = {:.3e}  {ci}\n  {} samples in the estimate ({} valid, {} failing), {spent} spent in all; P(valid) = {p_valid}; ESS {:.0}, failure ESS {:.1}, largest weight share {:.2}",
         e.p_hat, e.samples, e.valid, e.failures, e.kish_ess, e.failure_ess, e.max_weight_share
     );
+    // counterexamples/ exists once a sample failed
+    let counterexamples = if run.join("counterexamples").is_dir() {
+        "counterexamples/, "
+    } else {
+        ""
+    };
     println!(
-        "run: {}  (samples.parquet, summary.json, counterexamples/, report/index.html)",
+        "run: {}  (samples.parquet, summary.json, {counterexamples}report/index.html)",
         run.display()
     );
 }

@@ -15,7 +15,7 @@ use crate::LearnError;
 use crate::config::NetworkConfig;
 use crate::data::{self, CropWindow};
 use crate::model::KeypointNet;
-use crate::model_dir::{load_model_dir, save_model_dir};
+use crate::model_dir::{check_model_dir, load_model_dir, save_model_dir};
 
 pub(crate) const NETWORK_FILE: &str = "network.toml";
 /// Peaks taken from each heatmap: one per box corner, as the paper.
@@ -42,6 +42,12 @@ impl KeypointModel {
             net,
             device,
         })
+    }
+
+    /// Checks that `dir` holds a keypoint network [`load`](Self::load) would read (a valid
+    /// network.toml and the weights file), without loading its weights.
+    pub fn check_folder(dir: &Path) -> Result<(), LearnError> {
+        check_model_dir(dir, NETWORK_FILE, NetworkConfig::validate).map(|_| ())
     }
 
     /// Writes the model folder (network.toml, model.bpk) atomically: into `dir.tmp`, then renamed.

@@ -20,6 +20,25 @@ pub(crate) fn load_model_dir<C: DeserializeOwned>(
     validate: impl FnOnce(&C) -> Result<(), LearnError>,
     build: impl FnOnce(&C) -> ResNetDeconv,
 ) -> Result<(C, ResNetDeconv), LearnError> {
+    let config = check_model_dir(dir, config_file, validate)?;
+    let weights = dir.join(WEIGHTS_FILE);
+    let net = build(&config).try_load_file(&weights).map_err(|e| {
+        LearnError::Checkpoint(
+            weights.clone(),
+            format!("cannot load the weights ({e}); were they trained with this {config_file}?"),
+        )
+    })?;
+    Ok((config, net.valid()))
+}
+
+/// Reads a trained network's folder as [`load_model_dir`] does — its config, checked by
+/// `validate`, and the presence of its weights — without loading the weights: what a command
+/// checks before it starts work that the model is needed for later.
+pub(crate) fn check_model_dir<C: DeserializeOwned>(
+    dir: &Path,
+    config_file: &str,
+    validate: impl FnOnce(&C) -> Result<(), LearnError>,
+) -> Result<C, LearnError> {
     let config: C = read_model_config(dir, config_file)?;
     validate(&config).map_err(|e| LearnError::Checkpoint(dir.join(config_file), e.to_string()))?;
     let weights = dir.join(WEIGHTS_FILE);
@@ -30,13 +49,7 @@ pub(crate) fn load_model_dir<C: DeserializeOwned>(
                 .into(),
         ));
     }
-    let net = build(&config).try_load_file(&weights).map_err(|e| {
-        LearnError::Checkpoint(
-            weights.clone(),
-            format!("cannot load the weights ({e}); were they trained with this {config_file}?"),
-        )
-    })?;
-    Ok((config, net.valid()))
+    Ok(config)
 }
 
 /// A model folder's network config (`config_file`, TOML).

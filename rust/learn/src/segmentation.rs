@@ -21,7 +21,7 @@ use crate::config::{self, AugmentConfig, Backbone, DataConfig, OptimizerConfig};
 use crate::data::{self, InstanceSet};
 use crate::loader::ExampleSource;
 use crate::model::ResNetDeconv;
-use crate::model_dir::{check_same_network, load_model_dir, save_model_dir};
+use crate::model_dir::{check_model_dir, check_same_network, load_model_dir, save_model_dir};
 use crate::training::Task;
 
 pub(crate) const SEGMENTER_FILE: &str = "segmenter.toml";
@@ -318,6 +318,12 @@ impl SegmenterModel {
             net,
             device,
         })
+    }
+
+    /// Checks that `dir` holds a segmenter [`load`](Self::load) would read (a valid
+    /// segmenter.toml and the weights file), without loading its weights.
+    pub fn check_folder(dir: &Path) -> Result<(), LearnError> {
+        check_model_dir(dir, SEGMENTER_FILE, SegmenterConfig::validate).map(|_| ())
     }
 
     /// Writes the model folder (segmenter.toml, model.bpk) atomically.

@@ -185,9 +185,12 @@ pub struct ImportanceEstimate {
     pub valid: u64,
     /// Valid failing samples (each sample counted once).
     pub failures: u64,
-    /// Unbiased estimate of P(valid) = Σ_s P0(s) (1/n_s) Σ w_i V_i.
+    /// Estimate of P(valid): Σ_s P0(s) Σ w_i V_i / Σ w_i, self-normalised (as the ratio
+    /// estimator of P(fail | valid) is) so that it is a probability — 1 when every sample is
+    /// valid, V/n for plain Monte Carlo — whereas the unbiased (1/n_s) Σ w_i V_i exceeds 1
+    /// whenever the weights happen to average above 1.
     pub p_valid: f64,
-    /// Its standard error.
+    /// Its standard error (delta method).
     pub p_valid_std_error: f64,
     /// Unbiased estimate of P(fail ∧ valid) = Σ_s P0(s) (1/n_s) Σ w_i I_i.
     pub p_fail_and_valid: f64,
@@ -199,7 +202,9 @@ pub struct ImportanceEstimate {
     pub failure_ess: f64,
     /// Largest failing weight's share max w I / Σ w I (0 with no failure).
     pub max_weight_share: f64,
-    /// Per-stratum estimates, in stratum order.
+    /// Per-stratum estimates, in stratum order (left out of the JSON when a caller pooled them
+    /// away: the search reports its strata on their own).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub strata: Vec<StratumEstimate>,
 }
 
@@ -252,6 +257,9 @@ struct Sums {
     a2: f64,
     b: f64,
     b2: f64,
+    /// Σ w and Σ w² over every sample, valid or not: P(valid)'s normaliser.
+    w: f64,
+    w2: f64,
 }
 
 fn ratio_ess(sum: f64, sum_sq: f64) -> f64 {
@@ -342,6 +350,8 @@ impl ImportanceEstimate {
             let w = s.log_weight.exp();
             let t = &mut sums[s.stratum];
             t.n += 1;
+            t.w += w;
+            t.w2 += w * w;
             if s.valid {
                 t.valid += 1;
                 t.b += w;
@@ -385,7 +395,15 @@ impl ImportanceEstimate {
                 continue;
             }
             let (a_mean, a_var) = mean_var(t.a, t.a2, t.n);
-            let (b_mean, b_var) = mean_var(t.b, t.b2, t.n);
+            // P(valid) as the ratio Σ w V / Σ w, delta-method variance
+            // Σ (w V − r w)² / (Σ w)² (valid samples' w·V = w, so Σ (w V)(w) = Σ (w V)²)
+            let (valid_share, valid_share_var) = if t.w > 0.0 {
+                let r = t.b / t.w;
+                let num = (t.b2 - 2.0 * r * t.b2 + r * r * t.w2).max(0.0);
+                (r, num / (t.w * t.w))
+            } else {
+                (0.0, 0.0)
+            };
             // Failing samples are valid, so Σ a·b = Σ a².
             let (ps, vs) = if ratio {
                 if t.b > 0.0 {
@@ -402,8 +420,8 @@ impl ImportanceEstimate {
             var += p0 * p0 * vs;
             p_joint += p0 * a_mean;
             var_joint += p0 * p0 * a_var;
-            p_valid += p0 * b_mean;
-            var_valid += p0 * p0 * b_var;
+            p_valid += p0 * valid_share;
+            var_valid += p0 * p0 * valid_share_var;
             per_stratum.push(StratumEstimate {
                 stratum,
                 nominal_probability: p0,
@@ -507,6 +525,24 @@ mod tests {
         assert_ne!(e.ci_method, CiMethod::ClopperPearson);
     }
 
+    /// Every sample valid: P(valid) is 1 whatever the weights average (they average 1 only in
+    /// expectation; their mean was once reported as P(valid), e.g. 1.07).
+    #[test]
+    fn p_valid_is_one_when_every_sample_is_valid() {
+        let samples: Vec<WeightedSample> = [1.5f64, 0.9, 1.2, 0.7]
+            .iter()
+            .map(|w| WeightedSample {
+                log_weight: w.ln(),
+                valid: true,
+                failed: false,
+                stratum: 0,
+            })
+            .collect();
+        let e = ImportanceEstimate::compute_ratio(&samples, &[1.0]).unwrap();
+        assert_eq!(e.p_valid, 1.0);
+        assert_eq!(e.p_valid_std_error, 0.0);
+    }
+
     #[test]
     fn ratio_by_hand() {
         let s = |w: f64, valid, failed| WeightedSample {
@@ -527,7 +563,8 @@ mod tests {
         assert!(close(e.p_hat, r, 1e-12));
         let num = (2.0f64 - r * 2.0).powi(2) + 2.0 * (0.0f64 - r).powi(2);
         assert!(close(e.std_error, (num / 16.0).sqrt(), 1e-12));
-        assert!(close(e.p_valid, 1.0, 1e-12));
+        // Σ w V / Σ w: the invalid sample's weight 1 of 5
+        assert!(close(e.p_valid, 4.0 / 5.0, 1e-12));
         assert!(close(e.p_fail_and_valid, 0.5, 1e-12));
         assert_eq!((e.samples, e.valid, e.failures), (4, 3, 1));
     }

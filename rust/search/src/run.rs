@@ -140,6 +140,79 @@ impl RunRecord {
     }
 }
 
+/// Refuses a shard that is not one of `num_shards` (checked before a run folder is touched).
+pub fn check_shard(shard: usize, num_shards: usize) -> Result<()> {
+    if num_shards == 0 || shard >= num_shards {
+        return Err(SearchError::Sample(format!(
+            "--shard {shard} is not below --num-shards {num_shards} (shards are numbered 0 to N − 1, N ≥ 1)"
+        )));
+    }
+    Ok(())
+}
+
+/// What differs between the search a run folder holds (`run`) and a command's (`this`), in the
+/// command's terms: the flag (or the file) and both values.
+fn differences(run: &RunRecord, this: &RunRecord) -> Vec<String> {
+    let mut out = Vec::new();
+    if run.space_toml != this.space_toml {
+        out.push("the search space differs".to_string());
+    }
+    if run.recipe_toml != this.recipe_toml {
+        out.push("the base recipe differs".to_string());
+    }
+    if run.pile != this.pile {
+        out.push("the pile's boxes differ (its dataset changed since the run started)".to_string());
+    }
+    let fields = |settings: &RunSettings| match serde_json::to_value(settings) {
+        Ok(serde_json::Value::Object(fields)) => fields,
+        _ => unreachable!("run settings serialise as a JSON object"),
+    };
+    let (theirs, ours) = (fields(&run.settings), fields(&this.settings));
+    let shown = |value: Option<&serde_json::Value>| match value {
+        Some(serde_json::Value::String(text)) => text.clone(),
+        Some(serde_json::Value::Null) | None => "none".to_string(),
+        Some(value) => value.to_string(),
+    };
+    let mut differ =
+        |name: &str, theirs: Option<&serde_json::Value>, ours: Option<&serde_json::Value>| {
+            if theirs != ours {
+                out.push(format!(
+                    "{} is {} there, {} here",
+                    setting_flag(name),
+                    shown(theirs),
+                    shown(ours)
+                ));
+            }
+        };
+    for (key, value) in &theirs {
+        match (key.as_str(), value, ours.get(key)) {
+            ("ce", serde_json::Value::Object(theirs), Some(serde_json::Value::Object(ours))) => {
+                for (ce_key, value) in theirs {
+                    // the final stage's sample count is --samples, compared above
+                    if ce_key != "final_samples" {
+                        differ(&format!("ce.{ce_key}"), Some(value), ours.get(ce_key));
+                    }
+                }
+            }
+            (_, value, ours) => differ(key, Some(value), ours),
+        }
+    }
+    if out.is_empty() {
+        out.push("its record differs".to_string());
+    }
+    out
+}
+
+/// The command-line flag that sets a field of [`RunSettings`] (dotted for `ce`).
+fn setting_flag(field: &str) -> String {
+    let flag = match field {
+        "predicate" => "fail-when",
+        "ce.defensive_lambda" => "ce-lambda",
+        other => other,
+    };
+    format!("--{}", flag.replace(['_', '.'], "-"))
+}
+
 /// What iteration K does: its stage, its number of samples, the proposal it draws from.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct IterationPlan {
@@ -197,6 +270,7 @@ pub struct SampleRow {
     pub paper_error: Option<f64>,
     pub paper_error_normalized: Option<f64>,
     pub mssd_over_diameter: Option<f64>,
+    pub cube_mssd_over_diameter: Option<f64>,
     pub add_s_m: Option<f64>,
     pub rotation_error_deg: Option<f64>,
     pub translation_error_m: Option<f64>,
@@ -251,26 +325,17 @@ impl Run {
         if path.exists() {
             let run = Self::open(dir)?;
             if run.record != record {
-                let what = if run.record.space_toml != record.space_toml {
-                    "the search space"
-                } else if run.record.recipe_toml != record.recipe_toml {
-                    "the base recipe"
-                } else if run.record.pile != record.pile {
-                    "the pile's boxes (its dataset changed since the run started)"
-                } else {
-                    "the sampler settings (sampler, samples, batch size, seed, crops, fit, failure predicate, CE settings or models)"
-                };
                 return Err(SearchError::Run {
                     path: dir.to_path_buf(),
                     problem: format!(
-                        "it holds another search ({what} differ from this command's); resume it with its own settings or choose a new --out"
+                        "it holds another search ({}); resume it with its own settings or choose a new --out",
+                        differences(&run.record, &record).join("; ")
                     ),
                 });
             }
             return Ok(run);
         }
         // another shard may be publishing run.json right now: neither it nor its temporary file
-    pub cube_mssd_over_diameter: Option<f64>,
         // is a stranger (run.json itself is compared below, once written)
         let foreign = |entry: std::io::Result<std::fs::DirEntry>| {
             entry
@@ -485,11 +550,7 @@ impl Run {
         num_shards: usize,
         observer: &mut dyn Observer,
     ) -> Result<()> {
-        if num_shards == 0 || shard >= num_shards {
-            return Err(SearchError::Sample(format!(
-                "--shard {shard} is not below --num-shards {num_shards}"
-            )));
-        }
+        check_shard(shard, num_shards)?;
         let mut iteration = 0u32;
         loop {
             let plan = self.wait_for_plan(iteration, observer)?;
@@ -898,18 +959,12 @@ impl Run {
             },
             warnings: warnings(&headline),
             estimate: headline,
-            strata: if self.record.strata.len() > 1 {
-                self.record
-                    .strata
-                    .iter()
-                    .map(|&n| StratumSummary {
-                        neighbours: n,
-                        estimate: estimate(samples, s.sampler, Some(n)).map_err(|e| e.to_string()),
-                    })
-                    .collect()
-            } else {
-                Vec::new()
-            },
+            strata: self
+                .record
+                .strata
+                .iter()
+                .map(|&n| StratumSummary::new(samples, s.sampler, n, self.record.strata.len()))
+                .collect(),
             boxpose_version: env!("CARGO_PKG_VERSION").into(),
             mujoco_version: boxpose_physics::MUJOCO_VERSION.into(),
         })
@@ -930,10 +985,7 @@ pub fn estimate(
     sampler: Sampler,
     neighbours: Option<u32>,
 ) -> Result<ImportanceEstimate> {
-    let stage = match sampler {
-        Sampler::Mc => "mc",
-        Sampler::Ce => "final",
-    };
+    let stage = estimating_stage(sampler);
     let weighted: Vec<WeightedSample> = rows
         .iter()
         .filter(|r| r.stage == stage && neighbours.is_none_or(|n| r.stratum == n as i32))
@@ -944,8 +996,22 @@ pub fn estimate(
             stratum: 0,
         })
         .collect();
-    ImportanceEstimate::compute_ratio(&weighted, &[1.0])
-        .map_err(|e| SearchError::Sample(format!("estimate: {e}")))
+    let mut estimate = ImportanceEstimate::compute_ratio(&weighted, &[1.0])
+        .map_err(|e| SearchError::Sample(format!("estimate: {e}")))?;
+    // The strata are pooled into one ratio (they are allocated in proportion and never tilted):
+    // the estimator's single pseudo-stratum repeats the totals, and each stratum's own estimate
+    // is in `Summary::strata`.
+    estimate.strata.clear();
+    Ok(estimate)
+}
+
+/// The stage whose samples a sampler's estimator uses: all of Monte Carlo's, cross-entropy's
+/// final (frozen-proposal) batch.
+fn estimating_stage(sampler: Sampler) -> &'static str {
+    match sampler {
+        Sampler::Mc => "mc",
+        Sampler::Ce => "final",
+    }
 }
 
 /// Effective failures below which an importance-sampling interval is flagged.
@@ -976,13 +1042,45 @@ pub fn warnings(e: &ImportanceEstimate) -> Vec<String> {
     out
 }
 
-/// One stratum's own estimate.
-#[derive(Debug, Clone, Serialize, Deserialize)]
+/// One stratum's own estimate of P(fail | valid), from the samples the headline estimate uses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StratumSummary {
     /// Number of neighbouring boxes.
     pub neighbours: u32,
-    /// Its estimate, or why there is none (e.g. no valid sample in it).
-    pub estimate: std::result::Result<ImportanceEstimate, String>,
+    /// Its nominal probability (every stratum has the same).
+    pub nominal_probability: f64,
+    /// Samples drawn in it (valid or not), valid ones and valid failing ones.
+    pub samples: u64,
+    pub valid: u64,
+    pub failures: u64,
+    /// P(fail | valid) in it, its standard error and 95% interval (as for the headline); none
+    /// when it has no valid sample.
+    pub p_hat: Option<f64>,
+    pub std_error: Option<f64>,
+    pub ci95: Option<(f64, f64)>,
+}
+
+impl StratumSummary {
+    /// Stratum `neighbours`, one of `strata` strata, from the rows of the sampler's estimating
+    /// stage.
+    fn new(samples: &[SampleRow], sampler: Sampler, neighbours: u32, strata: usize) -> Self {
+        let stage = estimating_stage(sampler);
+        let rows: Vec<&SampleRow> = samples
+            .iter()
+            .filter(|r| r.stage == stage && r.stratum == neighbours as i32)
+            .collect();
+        let estimate = estimate(samples, sampler, Some(neighbours)).ok();
+        Self {
+            neighbours,
+            nominal_probability: 1.0 / strata as f64,
+            samples: rows.len() as u64,
+            valid: rows.iter().filter(|r| r.valid).count() as u64,
+            failures: rows.iter().filter(|r| r.valid && r.failed).count() as u64,
+            p_hat: estimate.as_ref().map(|e| e.p_hat),
+            std_error: estimate.as_ref().map(|e| e.std_error),
+            ci95: estimate.and_then(|e| e.ci95),
+        }
+    }
 }
 
 /// Mean seconds per sample in each stage.
@@ -1014,7 +1112,7 @@ pub struct Summary {
     pub mean_seconds: StageMeans,
     /// P(fail | valid) with its 95% interval, from the estimating stage.
     pub estimate: ImportanceEstimate,
-    /// The same per stratum (number of neighbours), when the space has more than one.
+    /// The same per stratum (number of neighbours; one stratum of 0 without neighbours).
     pub strata: Vec<StratumSummary>,
     /// Why the interval may not be trusted (see [`warnings`]); empty when nothing stands out.
     pub warnings: Vec<String>,
@@ -1082,6 +1180,7 @@ fn sample_row(
         paper_error: None,
         paper_error_normalized: None,
         mssd_over_diameter: None,
+        cube_mssd_over_diameter: None,
         add_s_m: None,
         rotation_error_deg: None,
         translation_error_m: None,
@@ -1111,6 +1210,7 @@ fn sample_row(
             row.paper_error = Some(m.paper_error);
             row.paper_error_normalized = Some(m.paper_error_normalized);
             row.mssd_over_diameter = Some(m.mssd_over_diameter);
+            row.cube_mssd_over_diameter = Some(m.cube_mssd_over_diameter);
             row.add_s_m = Some(m.add_s_m);
             row.rotation_error_deg = Some(m.rotation_error_deg);
             row.translation_error_m = Some(m.translation_error_m);
@@ -1162,6 +1262,7 @@ pub fn samples_batch(rows: &[SampleRow]) -> RecordBatch {
         f(|r| r.paper_error),
         f(|r| r.paper_error_normalized),
         f(|r| r.mssd_over_diameter),
+        f(|r| r.cube_mssd_over_diameter),
         f(|r| r.add_s_m),
         f(|r| r.rotation_error_deg),
         f(|r| r.translation_error_m),
@@ -1180,7 +1281,6 @@ pub fn samples_batch(rows: &[SampleRow]) -> RecordBatch {
 }
 
 fn timings_batch(rows: &[TimingRow]) -> RecordBatch {
-        cube_mssd_over_diameter: None,
     let f = |get: fn(&TimingRow) -> f64| {
         Arc::new(rows.iter().map(get).collect::<Float64Array>()) as ArrayRef
     };
@@ -1210,7 +1310,6 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
             strings("stage"),
         );
         let (iteration, stratum, seed) = (
-            row.cube_mssd_over_diameter = Some(m.cube_mssd_over_diameter);
             col("iteration").as_primitive::<Int32Type>().clone(),
             col("stratum").as_primitive::<Int32Type>().clone(),
             col("seed").as_primitive::<Int64Type>().clone(),
@@ -1235,6 +1334,7 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
             "paper_error",
             "paper_error_normalized",
             "mssd_over_diameter",
+            "cube_mssd_over_diameter",
             "add_s_m",
             "rotation_error_deg",
             "translation_error_m",
@@ -1262,7 +1362,6 @@ pub fn read_samples(path: &Path) -> Result<Vec<SampleRow>> {
                 params: list(&params, i).unwrap_or_default(),
                 log_nominal: lp.value(i),
                 log_proposal: lq.value(i),
-        f(|r| r.cube_mssd_over_diameter),
                 log_weight: lw.value(i),
                 valid: valid.value(i),
                 invalid_reason: reason.is_valid(i).then(|| reason.value(i).to_string()),
@@ -1335,7 +1434,6 @@ fn write_counterexamples(dir: &Path, name: &str, outcomes: &[Outcome]) -> Result
 
 #[cfg(test)]
 mod tests {
-            "cube_mssd_over_diameter",
     use super::*;
 
     fn sample(log_weight: f64, failed: bool) -> WeightedSample {
@@ -1364,5 +1462,50 @@ mod tests {
         // Monte Carlo's exact interval needs no warning, however few the failures
         let mc: Vec<WeightedSample> = (0..100).map(|i| sample(0.0, i == 0)).collect();
         assert!(warnings(&ImportanceEstimate::compute_ratio(&mc, &[1.0]).unwrap()).is_empty());
+    }
+
+    #[test]
+    fn a_run_of_another_search_names_each_setting_that_differs() {
+        let record = RunRecord {
+            format: RUN_FORMAT,
+            settings: RunSettings {
+                sampler: Sampler::Ce,
+                samples: 100,
+                batch_size: 25,
+                seed: 3,
+                crops: Crops::Gt,
+                whole_frames: false,
+                fit: "paper".into(),
+                predicate: Predicate::default(),
+                ce: CeConfig::default(),
+                ce_tilt: Vec::new(),
+                model: "models/keypoint-slim".into(),
+                segmenter: None,
+            },
+            space_toml: "name = \"single_box\"".into(),
+            recipe_toml: String::new(),
+            dimensions: Vec::new(),
+            strata: vec![0],
+            pile: None,
+        };
+        let mut other = record.clone();
+        other.settings.seed = 4;
+        other.settings.model = "models/keypoint-slm".into();
+        other.settings.ce.defensive_lambda = 0.25;
+        other.settings.ce.final_samples += 1;
+        let mut found = differences(&record, &other);
+        found.sort();
+        let lambda = record.settings.ce.defensive_lambda;
+        assert_eq!(
+            found,
+            [
+                format!("--ce-lambda is {lambda} there, 0.25 here"),
+                "--model is models/keypoint-slim there, models/keypoint-slm here".into(),
+                "--seed is 3 there, 4 here".into(),
+            ]
+        );
+        other = record.clone();
+        other.space_toml = "name = \"clutter\"".into();
+        assert_eq!(differences(&record, &other), ["the search space differs"]);
     }
 }
