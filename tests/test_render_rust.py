@@ -4,6 +4,7 @@ Python worker wrote: identical ground truth, the same image within noise, crops,
 import io
 import json
 import os
+import shutil
 import signal
 import subprocess
 import time
@@ -172,6 +173,17 @@ def test_rust_errors_are_clear(dataset, boxpose_bin, tmp_path):
         r.returncode != 0
         and "crop (0, 0, 500, 10) is not a non-empty region of the 96×72 image" in r.stderr
     )
+    # an argument error, not a failure inside Blender: no traceback, and no output folder
+    assert "Traceback" not in r.stderr and not (tmp_path / "x").exists(), r.stderr
+    # the scene has frames 0 and 1: another id would silently draw a new camera
+    r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--frame", 7, "--out", tmp_path / "x")
+    assert r.returncode != 0 and "--frame 7: scene 0 of" in r.stderr, r.stderr
+    assert "has frames 0, 1 only" in r.stderr
+    r = boxpose(
+        boxpose_bin, "render", dataset, "--scene", 0, "--samples", 0, "--out", tmp_path / "x"
+    )
+    assert r.returncode != 0 and "--samples" in r.stderr and "1.." in r.stderr, r.stderr
+    assert not (tmp_path / "x").exists()
     fake = tmp_path / "nobpy" / "bpy"
     fake.mkdir(parents=True)
     (fake / "__init__.py").write_text("raise ImportError('No module named bpy (simulated)')\n")
@@ -191,6 +203,42 @@ def test_rust_errors_are_clear(dataset, boxpose_bin, tmp_path):
     r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--out", dataset)
     assert r.returncode != 0 and "is the input dataset" in r.stderr
     assert sorted(p.name for p in (dataset / "frames").iterdir()) == before
+
+
+def folder_bytes(root: Path) -> dict[str, bytes]:
+    return {
+        str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()
+    }
+
+
+def test_render_refuses_an_out_holding_a_dataset(dataset, boxpose_bin, tmp_path):
+    """The render writes one `part-00000-of-00001` shard per table: into another dataset, or an
+    earlier render, those would replace its rows (its manifest then describing a dataset that is
+    gone). Such an --out is refused, and left exactly as it was."""
+    other = tmp_path / "other"
+    shutil.copytree(dataset, other)
+    (other / "manifest.json").write_text('{"scenes": 2}\n')
+    manifest_only = tmp_path / "manifest-only"
+    manifest_only.mkdir()
+    (manifest_only / "manifest.json").write_text("{}\n")
+    for out, held in (
+        (other, "scenes, objects, frames, instances, manifest.json"),
+        (manifest_only, "manifest.json"),
+    ):
+        before = folder_bytes(out)
+        r = boxpose(boxpose_bin, "render", dataset, "--scene", 1, "--out", out)
+        assert r.returncode != 0 and f"already holds {held}" in r.stderr, r.stderr
+        assert "choose a new folder for --out" in r.stderr
+        assert folder_bytes(out) == before
+
+    # a second render into one folder would drop the first one's rows
+    out = tmp_path / "renders"
+    r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--threads", 1, "--out", out)
+    assert r.returncode == 0, r.stderr
+    before = folder_bytes(out)
+    r = boxpose(boxpose_bin, "render", dataset, "--scene", 1, "--out", out)
+    assert r.returncode != 0 and "choose a new folder for --out" in r.stderr, r.stderr
+    assert folder_bytes(out) == before
 
 
 def test_blender_output_survives_a_crash_while_it_is_filtered(dataset, boxpose_bin, tmp_path):

@@ -214,6 +214,14 @@ class Session:
             if crop is not None:
                 raise RenderInputError("give crop or crop_object, not both")
             crop = self._region_around(full_camera, world_boxes, *crop_object)
+        if crop is not None:
+            # an argument error (one line), not a failure inside Blender (a traceback)
+            x0, y0, x1, y1 = (int(v) for v in crop)
+            w, h = full_camera.width, full_camera.height
+            if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+                raise RenderInputError(
+                    f"crop {tuple(crop)} is not a non-empty region of the {w}×{h} image"
+                )
         camera = full_camera if crop is None else full_camera.crop(*crop)
         b = self.blender
         for oid, m in world_boxes.items():

@@ -1,10 +1,11 @@
 //! `boxpose render`: re-render frames of a dataset's scene in-process (embedded Blender).
 
+use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use boxpose_data::{Pose, schema, shard_file_name, write_shard};
+use boxpose_data::{DataError, Dataset, Pose, schema, shard_file_name, write_shard};
 use boxpose_render::arrow::array::{Array, AsArray};
 use boxpose_render::arrow::record_batch::RecordBatch;
 use boxpose_render::{RenderRequest, Renderer, scene_rows};
@@ -16,6 +17,11 @@ use boxpose_render::{RenderRequest, Renderer, scene_rows};
 /// counts, or with boxes moved. Writes DIR/scene-S-frame-F-rgb.png and -mask.png (16-bit,
 /// object_id + 1), and DIR as a dataset of the rendered rows (scenes/, objects/, frames/,
 /// instances/, one shard each) that `boxpose inspect` and pandas read.
+///
+/// --out must be a new folder (or one without dataset tables): a folder already holding tables
+/// or a manifest.json — another dataset, or an earlier render — is refused rather than have its
+/// rows replaced. Render several frames of a scene with one command (repeat --frame), or render
+/// into one folder per command.
 #[derive(clap::Args)]
 pub struct Args {
     /// Dataset folder holding the scene (its scenes/ and objects/ tables).
@@ -23,15 +29,18 @@ pub struct Args {
     /// scene_id of the scene to render.
     #[arg(long)]
     scene: i64,
-    /// frame_id(s) to render (repeat the flag for several; the scene is loaded once).
+    /// frame_id(s) to render (repeat the flag for several; the scene is loaded once). Each must
+    /// be one of the scene's frames in the dataset; a dataset without a frames table (scenes not
+    /// rendered yet) renders any id, drawing its camera from the frame's seed as the Blender
+    /// stage does.
     #[arg(long = "frame", default_value = "0")]
     frames: Vec<i32>,
     /// Render only pixels x0 ≤ x < x1, y0 ≤ y < y1 of the frame (Cycles border render); the
     /// output frame is that region, its principal point shifted.
     #[arg(long, value_parser = parse_crop, value_name = "x0,y0,x1,y1")]
     crop: Option<[u32; 4]>,
-    /// Cycles samples per pixel (default: the recipe's).
-    #[arg(long)]
+    /// Cycles samples per pixel, at least 1 (default: the recipe's).
+    #[arg(long, value_parser = clap::value_parser!(i32).range(1..))]
     samples: Option<i32>,
     /// Denoise with OpenImageDenoise (true/false; default: the recipe's).
     #[arg(long)]
@@ -45,7 +54,7 @@ pub struct Args {
     /// Cycles threads (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
-    /// Output folder.
+    /// Output folder: new, or holding no dataset tables and no manifest.json.
     #[arg(long)]
     out: PathBuf,
 }
@@ -100,8 +109,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             args.out.display()
         );
     }
+    refuse_dataset_folder(&args.out)?;
     let (scenes, objects) = scene_rows(&args.dataset, args.scene)
         .with_context(|| format!("reading scene {} of {}", args.scene, args.dataset.display()))?;
+    check_frames(&args.dataset, args.scene, &args.frames)?;
     let start = Instant::now();
     let mut renderer = Renderer::new(args.threads).context("starting the embedded Blender")?;
     let started = start.elapsed().as_secs_f64();
@@ -112,9 +123,6 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.scene,
         load.elapsed().as_secs_f64()
     );
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("creating {}", args.out.display()))?;
-
     let (mut frames, mut instances) = (Vec::new(), Vec::new());
     for &frame_id in &args.frames {
         let request = RenderRequest {
@@ -143,6 +151,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             frame.intrinsics.fx,
         );
         let stem = format!("scene-{:06}-frame-{frame_id:03}", args.scene);
+        // created once the first render succeeded: a refused request leaves nothing behind
+        std::fs::create_dir_all(&args.out)
+            .with_context(|| format!("creating {}", args.out.display()))?;
         write_png(&args.out.join(format!("{stem}-rgb.png")), f, "rgb_png")?;
         write_png(
             &args.out.join(format!("{stem}-mask.png")),
@@ -170,6 +181,64 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     write_shard(&args.out, &schema::FRAMES, &name, &frames)?;
     println!("rows: {}", args.out.display());
     Ok(())
+}
+
+/// Refuses an --out that holds dataset tables or a manifest.json: the rendered rows are written
+/// as the folder's only shards (`part-00000-of-00001`), which would replace another dataset's
+/// rows (leaving its manifest describing a dataset that is gone) or an earlier render's.
+fn refuse_dataset_folder(out: &Path) -> anyhow::Result<()> {
+    let held: Vec<&str> = [
+        schema::SCENES.name,
+        schema::OBJECTS.name,
+        schema::FRAMES.name,
+        schema::INSTANCES.name,
+        "manifest.json",
+    ]
+    .into_iter()
+    .filter(|name| out.join(name).exists())
+    .collect();
+    anyhow::ensure!(
+        held.is_empty(),
+        "--out {} already holds {} (another dataset, or an earlier render): rendering into it would \
+         replace those rows; choose a new folder for --out",
+        out.display(),
+        held.join(", ")
+    );
+    Ok(())
+}
+
+/// Checks that every requested frame is one of the scene's frames in the dataset: an unknown id
+/// would silently draw a camera no frame of the dataset has. A dataset without a frames table
+/// (its scenes not rendered yet) may render any id.
+fn check_frames(dataset: &Path, scene: i64, requested: &[i32]) -> anyhow::Result<()> {
+    let index = match Dataset::open(dataset)?.frame_index() {
+        Err(DataError::MissingTable(_, table)) if table == schema::FRAMES.name => return Ok(()),
+        index => index?,
+    };
+    let frames: BTreeSet<i32> = index
+        .iter()
+        .filter(|entry| entry.scene_id == scene)
+        .map(|entry| entry.frame_id)
+        .collect();
+    let unknown: Vec<String> = requested
+        .iter()
+        .filter(|frame| !frames.contains(frame))
+        .map(|frame| frame.to_string())
+        .collect();
+    if unknown.is_empty() {
+        return Ok(());
+    }
+    let listed: Vec<String> = frames.iter().map(|frame| frame.to_string()).collect();
+    let has = if listed.is_empty() {
+        "has no frames".to_string()
+    } else {
+        format!("has frames {} only; give one of those", listed.join(", "))
+    };
+    bail!(
+        "--frame {}: scene {scene} of {} {has}",
+        unknown.join(", "),
+        dataset.display()
+    )
 }
 
 fn write_png(path: &Path, batch: &RecordBatch, column: &str) -> anyhow::Result<()> {
