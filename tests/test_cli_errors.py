@@ -41,3 +41,43 @@ def test_a_dataset_path_that_is_not_utf8_is_one_error_not_a_panic(tmp_path, boxp
         stderr = result.stderr.decode(errors="replace")
         assert result.returncode == 1, stderr
         assert "is not valid UTF-8" in stderr and "panicked" not in stderr
+
+
+def run_into_closed_pipe(boxpose_bin, *args) -> subprocess.CompletedProcess:
+    """Runs boxpose with its stdout a pipe nobody reads any more, as `boxpose … | head -1` leaves
+    it once head has exited: every write fails with EPIPE."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        return subprocess.run(
+            [str(boxpose_bin), *map(str, args)], stdout=write_end, stderr=subprocess.PIPE, text=True
+        )
+    finally:
+        os.close(write_end)
+
+
+def test_output_into_a_closed_pipe_ends_quietly(tmp_path, boxpose_bin):
+    import boxpose_io
+    from blender_scripts.synthetic import synthetic_scene
+    from conftest import tiny_recipe
+
+    scene, objects = synthetic_scene(0, tiny_recipe(64, 64, 1), 2, seed=1)
+    for table, rows in (("scenes", [scene]), ("objects", objects)):
+        boxpose_io.write_shard(
+            boxpose_io.shard_path(tmp_path, table, 0, 1), boxpose_io.table_from_rows(table, rows)
+        )
+    for args in (("dump", tmp_path), ("schema", "--markdown"), ("schema",)):
+        result = run_into_closed_pipe(boxpose_bin, *args)
+        assert (result.returncode, result.stderr) == (0, ""), (args, result.stderr)
+
+
+def test_eval_geometry_out_is_a_file_path(tmp_path, boxpose_bin):
+    result = subprocess.run(
+        [str(boxpose_bin), "eval-geometry", str(tmp_path / "dataset"), "--out", str(tmp_path)],
+        capture_output=True,
+        text=True,
+    )
+    assert result.returncode == 1
+    (line,) = result.stderr.strip().splitlines()
+    assert f"--out {tmp_path} is a folder" in line and "eval_geometry.parquet" in line, line
+    assert "Is a directory" not in line

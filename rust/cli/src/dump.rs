@@ -1,4 +1,3 @@
-use std::io::Write;
 use std::path::Path;
 
 use boxpose_data::{Dataset, Frame, Instance, Object, Pose, Scene};
@@ -8,19 +7,20 @@ use serde_json::{Value, json};
 /// line, tagged with its table.
 pub fn run(path: &Path) -> anyhow::Result<()> {
     let dataset = Dataset::open(path)?;
-    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
-    for scene in dataset.scenes()? {
-        writeln!(out, "{}", scene_json(&scene))?;
-    }
-    for object in dataset.objects()? {
-        writeln!(out, "{}", object_json(&object))?;
-    }
-    if dataset.shards(&boxpose_data::schema::FRAMES).is_ok() {
-        for frame in dataset.frames()? {
-            writeln!(out, "{}", frame_json(&frame?))?;
+    crate::to_stdout(|out| {
+        for scene in dataset.scenes()? {
+            writeln!(out, "{}", scene_json(&scene))?;
         }
-    }
-    Ok(())
+        for object in dataset.objects()? {
+            writeln!(out, "{}", object_json(&object))?;
+        }
+        if dataset.shards(&boxpose_data::schema::FRAMES).is_ok() {
+            for frame in dataset.frames()? {
+                writeln!(out, "{}", frame_json(&frame?))?;
+            }
+        }
+        Ok(())
+    })
 }
 
 fn scene_json(s: &Scene) -> Value {

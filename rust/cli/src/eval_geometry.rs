@@ -35,7 +35,7 @@ const CORNER_PEAK_SCORE: f32 = 0.8;
 pub struct Args {
     /// Dataset folder with rendered frames.
     dataset: PathBuf,
-    /// Output Parquet file: one row per instance and method.
+    /// Output Parquet file (a file path, not a folder): one row per instance and method.
     #[arg(long, default_value = "results/eval_geometry.parquet")]
     out: PathBuf,
     /// Standard deviation of the noise added to each true corner before drawing its peak (m).
@@ -60,6 +60,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.resolution >= 8,
         "--resolution {} is too coarse (use at least 8)",
         args.resolution
+    );
+    // checked before the work: `eval --out` is a folder, this one a file
+    anyhow::ensure!(
+        !args.out.is_dir(),
+        "--out {} is a folder: eval-geometry writes one Parquet file, so give its path (e.g. --out {})",
+        args.out.display(),
+        args.out.join("eval_geometry.parquet").display()
     );
     let dataset = Dataset::open(&args.dataset)?;
     let frames = dataset.frames()?;

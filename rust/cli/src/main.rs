@@ -15,6 +15,7 @@ mod search_report;
 mod settle;
 mod train;
 
+use std::io::{BufWriter, ErrorKind, Write};
 use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
@@ -88,20 +89,54 @@ fn main() -> std::process::ExitCode {
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {
-            eprintln!("error: {error:#}");
+            eprintln!("error: {}", one_line(&error));
             std::process::ExitCode::FAILURE
         }
     }
 }
 
+/// The error and its causes joined by ": ", each cause once: many errors already print their
+/// cause in their own message (`path: No such file or directory`), and repeating it reads as two
+/// failures.
+fn one_line(error: &anyhow::Error) -> String {
+    let mut line = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if !line.contains(&cause) {
+            line.push_str(": ");
+            line.push_str(&cause);
+        }
+    }
+    line
+}
+
+/// Runs `write` on standard output, buffered, and flushes it. A reader that stops reading early
+/// (`boxpose dump DATASET | head -1`) closes the pipe: that is not a failure, the output it
+/// wanted was written.
+pub(crate) fn to_stdout(
+    write: impl FnOnce(&mut dyn Write) -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let mut out = BufWriter::new(std::io::stdout().lock());
+    match write(&mut out).and_then(|()| Ok(out.flush()?)) {
+        Err(error)
+            if error
+                .downcast_ref::<std::io::Error>()
+                .is_some_and(|e| e.kind() == ErrorKind::BrokenPipe) =>
+        {
+            Ok(())
+        }
+        result => result,
+    }
+}
+
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        Command::Schema { markdown: true } => print!("{}", boxpose_data::schema::to_markdown()),
+        Command::Schema { markdown: true } => {
+            to_stdout(|out| Ok(out.write_all(boxpose_data::schema::to_markdown().as_bytes())?))?
+        }
         Command::Schema { markdown: false } => {
-            println!(
-                "{}",
-                serde_json::to_string_pretty(&boxpose_data::schema::to_json())?
-            )
+            let json = serde_json::to_string_pretty(&boxpose_data::schema::to_json())?;
+            to_stdout(|out| Ok(writeln!(out, "{json}")?))?
         }
         Command::Inspect { dataset } => inspect::run(&dataset)?,
         Command::Dump { dataset } => dump::run(&dataset)?,
@@ -117,4 +152,26 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::EvalResults(args) => eval_results::run(&args)?,
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_cause_already_in_the_message_is_not_repeated() {
+        let io = std::io::Error::from(ErrorKind::IsADirectory);
+        let data = boxpose_data::DataError::Io {
+            path: PathBuf::from("results/out"),
+            source: io,
+        };
+        let cause = std::io::Error::from(ErrorKind::IsADirectory).to_string();
+        let error = anyhow::Error::new(data).context("writing the table");
+        assert_eq!(
+            one_line(&error),
+            format!("writing the table: results/out: {cause}")
+        );
+        let error = anyhow::Error::new(std::io::Error::other("disk full")).context("writing x");
+        assert_eq!(one_line(&error), "writing x: disk full");
+    }
 }
