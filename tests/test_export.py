@@ -365,3 +365,51 @@ def test_export_help_and_refusals(boxpose_bin, dataset, bop, tmp_path):
     assert r.returncode != 0 and "is not an empty folder" in r.stderr
     r = boxpose(boxpose_bin, "export", "coco", tmp_path / "missing", tmp_path / "x")
     assert r.returncode != 0 and not (tmp_path / "x").exists()
+
+
+def test_predict_reads_the_bop_depth_with_its_depth_scale(
+    bop, dataset, rows, boxpose_bin, tmp_path
+):
+    """`predict` on the BOP export's own files (uint16 depth × depth_scale = mm, 0.1 here) finds
+    the pose it finds on the dataset row; read as millimetres (the default) the box lands 10×
+    too far, and predict warns."""
+    frames, instances = rows
+    f = frames.iloc[0]
+    target = instances[
+        (instances.scene_id == f.scene_id)
+        & (instances.frame_id == f.frame_id)
+        & (instances.visible_pixels > 0)
+    ].iloc[0]
+    r = boxpose(
+        boxpose_bin, "predict", dataset, "--scene", f.scene_id, "--frame", f.frame_id,
+        "--out", tmp_path / "row",
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    boxes = load(tmp_path / "row" / "predictions.json")["boxes"]
+    (from_row,) = [b for b in boxes if b["object_id"] == target.object_id]
+
+    scene = bop / "test" / f"{f.scene_id:06d}"
+    depth_scale = load(scene / "scene_camera.json")[str(f.frame_id)]["depth_scale"]
+    files = [
+        "predict",
+        "--rgb", scene / "rgb" / f"{f.frame_id:06d}.png",
+        "--depth", scene / "depth" / f"{f.frame_id:06d}.png",
+        "--intrinsics", f"{f.fx},{f.fy},{f.cx},{f.cy}",
+        "--bbox", ",".join(str(int(v)) for v in target.visible_bbox_px),
+    ]  # fmt: skip
+    r = boxpose(boxpose_bin, *files, "--depth-scale", depth_scale, "--out", tmp_path / "files")
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+    (from_files,) = load(tmp_path / "files" / "predictions.json")["boxes"]
+    # the row's reference depth is its mask's median, the files' the whole box's: a few mm apart
+    row_fit, files_fit = from_row["fit"], from_files["fit"]
+    for key in ("pose_translation_m", "size_m"):
+        assert np.allclose(row_fit[key], files_fit[key], atol=0.01), key
+    assert abs(np.dot(row_fit["pose_quat_wxyz"], files_fit["pose_quat_wxyz"])) > np.cos(
+        np.radians(5) / 2
+    )
+
+    r = boxpose(boxpose_bin, *files, "--out", tmp_path / "millimetres")
+    assert r.returncode == 0, r.stderr
+    assert "warning:" in r.stderr and "--depth-scale" in r.stderr, r.stderr
+    (misread,) = load(tmp_path / "millimetres" / "predictions.json")["boxes"]
+    assert misread["reference_depth_m"] > 5 * from_files["reference_depth_m"]

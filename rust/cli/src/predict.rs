@@ -80,9 +80,14 @@ pub struct Args {
     /// An 8-bit RGB PNG to predict on instead of a dataset frame.
     #[arg(long, requires_all = ["depth", "intrinsics"], conflicts_with = "dataset")]
     rgb: Option<PathBuf>,
-    /// Its depth: a 16-bit PNG in millimetres (0 = no measurement), the same size.
+    /// Its depth: a 16-bit PNG (0 = no measurement), the same size, in units of --depth-scale
+    /// millimetres.
     #[arg(long)]
     depth: Option<PathBuf>,
+    /// Millimetres per unit of the --depth PNG, as BOP's depth_scale: 1 for a PNG in
+    /// millimetres; `boxpose export bop` writes 0.1 (see its scene_camera.json).
+    #[arg(long, default_value_t = 1.0)]
+    depth_scale: f64,
     /// Its intrinsics: fx,fy,cx,cy in pixels.
     #[arg(long, value_delimiter = ',')]
     intrinsics: Option<Vec<f64>>,
@@ -177,6 +182,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         }
         (None, Some(rgb)) => {
             anyhow::ensure!(
+                args.depth_scale.is_finite() && args.depth_scale > 0.0,
+                "--depth-scale {} must be a positive number of millimetres per PNG unit \
+                 (1 for millimetres; BOP's depth_scale, 0.1 for `boxpose export bop`)",
+                args.depth_scale
+            );
+            anyhow::ensure!(
                 args.intrinsics.as_ref().is_none_or(|k| k.len() == 4),
                 "--intrinsics takes 4 values: fx,fy,cx,cy"
             );
@@ -192,9 +203,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 args.intrinsics
                     .as_deref()
                     .context("--intrinsics is required with --rgb")?,
+                args.depth_scale,
             )?;
             if args.bbox.is_empty() {
                 let targets = predicted_targets(&frame, &model, &args.segmenter, args.backend)?;
+                warn_implausible_depths(&frame, &targets, &model, args.depth_scale);
                 return finish(args, &model, frame, targets);
             }
             let targets = args
@@ -219,6 +232,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                     })
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
+            warn_implausible_depths(&frame, &targets, &model, args.depth_scale);
             (frame, targets)
         }
         _ => bail!(
@@ -407,8 +421,48 @@ fn predicted_targets(
         .collect())
 }
 
-/// A frame from an RGB PNG and a 16-bit depth PNG in millimetres.
-fn frame_from_files(rgb_path: &Path, depth_path: &Path, k: &[f64]) -> anyhow::Result<Frame> {
+/// Warns about each box whose measured depth makes it implausible for the network: wider, at
+/// that depth, than the heatmap's whole depth range, or narrower than a tenth of it. A depth PNG
+/// read in the wrong unit does that (BOP's 0.1 mm units read as millimetres put a box 10× too
+/// far, so 10× too large), and the fit then reports a confident pose that is far off.
+fn warn_implausible_depths(
+    frame: &Frame,
+    targets: &[Target],
+    model: &KeypointModel,
+    depth_scale: f64,
+) {
+    let [near, far] = model.config.depth_range_m;
+    let depth_range = far - near;
+    for target in targets {
+        let [x0, y0, x1, y1] = target.bbox;
+        let z = target.crop.z_ref;
+        let across = (f64::from(x1 - x0) / frame.intrinsics.fx)
+            .max(f64::from(y1 - y0) / frame.intrinsics.fy)
+            * z;
+        let problem = if across > depth_range {
+            "wider than"
+        } else if across < depth_range / 10.0 {
+            "under a tenth of"
+        } else {
+            continue;
+        };
+        eprintln!(
+            "warning: the box in {target_bbox:?} is {across:.3} m across at its depth {z:.3} m \
+             (read with --depth-scale {depth_scale} mm per unit): {problem} the network's depth \
+             range ({depth_range:.2} m), so the depth is probably misread; is --depth-scale right? \
+             (`boxpose export bop` writes 0.1: see its scene_camera.json)",
+            target_bbox = target.bbox
+        );
+    }
+}
+
+/// A frame from an RGB PNG and a 16-bit depth PNG in units of `depth_scale` millimetres.
+fn frame_from_files(
+    rgb_path: &Path,
+    depth_path: &Path,
+    k: &[f64],
+    depth_scale: f64,
+) -> anyhow::Result<Frame> {
     let read = |path: &Path| -> anyhow::Result<(png::OutputInfo, Vec<u8>)> {
         let file =
             std::fs::File::open(path).with_context(|| format!("cannot open {}", path.display()))?;
@@ -435,7 +489,7 @@ fn frame_from_files(rgb_path: &Path, depth_path: &Path, k: &[f64]) -> anyhow::Re
     let (dinfo, depth_bytes) = read(depth_path)?;
     anyhow::ensure!(
         dinfo.color_type == png::ColorType::Grayscale && dinfo.bit_depth == png::BitDepth::Sixteen,
-        "{}: expected a 16-bit greyscale PNG of millimetres",
+        "{}: expected a 16-bit greyscale PNG of depths (units of --depth-scale millimetres)",
         depth_path.display()
     );
     anyhow::ensure!(
@@ -450,7 +504,7 @@ fn frame_from_files(rgb_path: &Path, depth_path: &Path, k: &[f64]) -> anyhow::Re
     );
     let depth = depth_bytes
         .chunks(2)
-        .map(|b| u16::from_be_bytes([b[0], b[1]]) as f32 / 1000.0)
+        .map(|b| (f64::from(u16::from_be_bytes([b[0], b[1]])) * depth_scale / 1000.0) as f32)
         .collect();
     let (width, height) = (info.width as usize, info.height as usize);
     Ok(Frame {
