@@ -889,20 +889,20 @@ const FIT_COLUMNS: [Column; 19] = [
 ];
 
 /// [`FIT_COLUMNS`], then what `eval` adds per instance.
-const EVAL_COLUMNS: [Column; 21] = {
-    let mut columns = [FIT_COLUMNS[0]; 21];
+const EVAL_COLUMNS: [Column; FIT_COLUMNS.len() + 2] = {
+    let mut columns = [FIT_COLUMNS[0]; FIT_COLUMNS.len() + 2];
     let mut i = 0;
     while i < FIT_COLUMNS.len() {
         columns[i] = FIT_COLUMNS[i];
         i += 1;
     }
-    columns[17] = nullable(col(
+    columns[FIT_COLUMNS.len()] = nullable(col(
         "heatmap_mse",
         Float64,
         "",
         "Mean squared error of the predicted heatmap against the target; null where the segmenter missed the box.",
     ));
-    columns[18] = col(
+    columns[FIT_COLUMNS.len() + 1] = col(
         "corners_found",
         Int32,
         "",
