@@ -796,3 +796,40 @@ def test_a_pile_space_refuses_a_missing_pile_and_neighbours_beside_it(
         r = search(boxpose_bin, space, "--out", tmp_path / "run", check=False)
         assert r.returncode != 0 and words in r.stderr, r.stderr
         assert not (tmp_path / "run").exists()
+
+
+SHIFT_SPACES = sorted((REPO / "configs" / "search").glob("shift_*.toml"))
+
+
+@pytest.mark.parametrize("space", SHIFT_SPACES, ids=lambda p: p.stem)
+def test_a_shift_space_draws_inside_its_shifted_ranges(space, boxpose_bin, tmp_path):
+    """Each shipped shift space runs end to end (on a tiny render of its own base recipe), every
+    parameter it draws lies in the range it declares, and the fit's cube-group error never
+    exceeds its exact-symmetry MSSD (the paper's fit knows the box's size)."""
+    declared = tomllib.loads(space.read_text())
+    base = declared["recipe"]
+    tiny_recipe = tmp_path / f"{base}.toml"
+    tiny_recipe.write_text(recipe(base))
+    tiny_space = tmp_path / space.name
+    tiny_space.write_text(
+        space.read_text().replace(f'recipe = "{base}"', f'recipe = "{tiny_recipe}"', 1)
+    )
+    out = tmp_path / "run"
+    search(boxpose_bin, tiny_space, "--out", out, "--samples", 3, "--batch-size", 3, "--threads", 1)
+    dimensions = json.loads((out / "run.json").read_text())["dimensions"]
+    samples = pd.read_parquet(out / "samples.parquet")
+    assert len(samples) == 3
+
+    def bounds(name: str) -> tuple[float, float]:
+        section, key, *axis = name.split(".")
+        value = declared[section][key]
+        value = value[axis[0]] if axis else value
+        return tuple(value["within"] if isinstance(value, dict) else value)
+
+    for params in samples.params:
+        for name, value in zip(dimensions, params, strict=True):
+            if name.split(".")[0] in ("target", "camera", "lighting") and "orientation" not in name:
+                low, high = bounds(name)
+                assert low <= value <= high, (name, value, (low, high))
+    fitted = samples.dropna(subset=["cube_mssd_over_diameter", "mssd_over_diameter"])
+    assert (fitted.cube_mssd_over_diameter <= fitted.mssd_over_diameter + 1e-12).all()

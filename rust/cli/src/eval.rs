@@ -15,6 +15,7 @@ use boxpose_learn::data;
 use boxpose_learn::evaluation::{self, CropSource, InstanceEval};
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::{self, SegmenterModel};
+use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::fit_table::{self, FitRow};
@@ -200,6 +201,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         summary.heatmap_mse
     );
     fit_table::print(&fit_rows);
+    print_targets(&summary);
     println!(
         "per-instance metrics: {}",
         args.out.join("eval.parquet").display()
@@ -210,6 +212,38 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         println!("no fit succeeded: no error histogram");
     }
     Ok(())
+}
+
+/// The learning targets' shares with their 95 % Clopper–Pearson intervals and counts.
+fn print_targets(summary: &evaluation::Summary) {
+    let line = |what: &str, share: f64, n: usize| {
+        if n == 0 {
+            println!("  {what}: no such box");
+            return;
+        }
+        let hits = (share * n as f64).round() as u64;
+        let (low, high) = clopper_pearson(hits, n as u64, 0.95);
+        println!(
+            "  {what}: {:.1} % [{:.1}, {:.1}] ({hits}/{n})",
+            100.0 * share,
+            100.0 * low,
+            100.0 * high
+        );
+    };
+    let n = summary.instances;
+    println!("robust fit, 95 % Clopper–Pearson intervals:");
+    line("cube MSSD < 0.1 d", summary.robust_cube_mssd_recall_010, n);
+    line("cube MSSD < 0.05 d", summary.robust_cube_mssd_recall_005, n);
+    line(
+        "exact MSSD < 0.1 d, sides all ≥ 1 cm apart",
+        summary.robust_mssd_recall_010_distinct_sides,
+        summary.distinct_sides_instances,
+    );
+    line(
+        "right quarter turn (exact MSSD < 0.1 d), two sides within 1 cm",
+        summary.robust_right_quarter_turn_near_square,
+        summary.near_square_instances,
+    );
 }
 
 /// Removes an output an earlier run into the same folder wrote and this one does not, so that
