@@ -13,17 +13,27 @@
 //!   direction instead of a diagonal Gaussian ([`acg`]).
 //! - [`ce`]: one stateless step of the multilevel cross-entropy method, its configuration, and
 //!   an in-memory reference driver for cheap score functions (tests, benchmarks).
+//! - [`splitting`]: subset simulation (adaptive multilevel splitting with a fixed conditional
+//!   probability per level): levels on the continuous score, moves that keep the nominal
+//!   conditioned on a level invariant (pCN, and small rotations on orientation blocks), the
+//!   estimate with an interval that accounts for the chains' correlation, and an in-memory
+//!   driver (not yet a sampler of `boxpose search`).
 //! - [`rng`]: per-sample random generators, so sample `i`'s z depends only on its id.
 
 pub mod acg;
 pub mod ce;
 pub mod proposal;
 pub mod rng;
+pub mod splitting;
 pub mod stats;
 
 pub use ce::{CeConfig, CeError, CeRun, CeStep, ce_step, run_in_memory, run_in_memory_from};
 pub use proposal::{Component, Proposal, ProposalError, RotationShape, log_nominal};
 pub use rng::sample_rng;
+pub use splitting::{
+    Level, Particle, SplittingConfig, SplittingError, SplittingEstimate, SplittingRun,
+    correlation_factor, propose_move,
+};
 pub use stats::{
     CiMethod, EstimateError, EstimatorKind, ImportanceEstimate, WeightedSample, clopper_pearson,
     normal_cdf, normal_quantile, wilson,
