@@ -833,3 +833,13 @@ def test_a_shift_space_draws_inside_its_shifted_ranges(space, boxpose_bin, tmp_p
                 assert low <= value <= high, (name, value, (low, high))
     fitted = samples.dropna(subset=["cube_mssd_over_diameter", "mssd_over_diameter"])
     assert (fitted.cube_mssd_over_diameter <= fitted.mssd_over_diameter + 1e-12).all()
+
+
+def test_a_run_without_a_terminal_still_reports_its_progress(spaces, boxpose_bin, tmp_path):
+    """Where the progress bar cannot be drawn (stderr a pipe or a log file), a plain line reports
+    the samples done, the failures and the estimate so far — at least at each iteration's end."""
+    r = search(
+        boxpose_bin, spaces["single"], "--out", tmp_path / "run", "--samples", 2, "--batch-size", 2
+    )
+    line = next(x for x in r.stderr.splitlines() if x.startswith("mc 0: 2/2 samples"))
+    assert "failures" in line and "p̂" in line and "ETA" in line

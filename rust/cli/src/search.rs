@@ -3,6 +3,7 @@
 //! Carlo or cross-entropy importance sampling) with its 95% interval; `search report` draws a
 //! run, `search merge` joins the shards of one.
 
+use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -662,7 +663,14 @@ struct Progress {
     weight_failed: f64,
     total_failures: u64,
     started: Instant,
+    /// Where the bar cannot be drawn (stderr not a terminal: a log file, a Ray worker, a CI
+    /// job), a plain line every [`PLAIN_PROGRESS_EVERY`] and at the end of each iteration, when
+    /// the last one was written.
+    plain: Option<Instant>,
 }
+
+/// How often a run whose stderr is not a terminal writes a progress line.
+const PLAIN_PROGRESS_EVERY: std::time::Duration = std::time::Duration::from_secs(30);
 
 impl Progress {
     fn new() -> Self {
@@ -678,7 +686,26 @@ impl Progress {
             weight_failed: 0.0,
             total_failures: 0,
             started: Instant::now(),
+            plain: (!std::io::stderr().is_terminal()).then(Instant::now),
         }
+    }
+
+    /// The plain progress line, when stderr is not a terminal and it is due.
+    fn write_plain(&mut self) {
+        let Some(last) = self.plain else { return };
+        let (done, total) = (self.bar.position(), self.bar.length().unwrap_or(0));
+        if last.elapsed() < PLAIN_PROGRESS_EVERY && done < total {
+            return;
+        }
+        let eta = self.bar.eta().as_secs();
+        eprintln!(
+            "{}: {done}/{total} samples, {}, ETA {}:{:02}",
+            self.bar.prefix(),
+            self.bar.message(),
+            eta / 60,
+            eta % 60
+        );
+        self.plain = Some(Instant::now());
     }
 
     fn count(&mut self, row: &SampleRow) {
@@ -757,6 +784,7 @@ impl Observer for Progress {
         self.bar.inc(1);
         self.count(row);
         self.show();
+        self.write_plain();
     }
 
     fn waiting(&mut self, what: &str) {
