@@ -353,6 +353,20 @@ def test_coco_evaluates_to_ap_1_with_pycocotools(coco):
         assert e.stats[0] == pytest.approx(1.0), iou
 
 
+def test_exports_name_their_source_without_the_machines_absolute_path(bop, coco, dataset):
+    """A shared export records the dataset's folder name, not where it lay on the exporting
+    machine."""
+    parent = str(dataset.resolve().parent)
+    texts = [
+        (bop / "dataset_info.json").read_text(),
+        (bop / "dataset_info.md").read_text(),
+        (coco / "annotations.json").read_text(),
+    ]
+    assert all(parent not in text for text in texts)
+    assert json.loads(texts[0])["source"] == dataset.resolve().name
+    assert dataset.resolve().name in json.loads(texts[2])["info"]["description"]
+
+
 def test_export_help_and_refusals(boxpose_bin, dataset, bop, tmp_path):
     r = boxpose(boxpose_bin, "export", "--help")
     assert (

@@ -520,6 +520,18 @@ fn write_keyed(path: &Path, entries: &BTreeMap<i64, Value>) -> anyhow::Result<()
     fs::write(path, text).with_context(|| format!("cannot write {}", path.display()))
 }
 
+/// The dataset's folder name, as an export records its source: not the absolute path, which
+/// would leak the exporting machine's layout into a shared dataset.
+fn dataset_name(dataset: &Path) -> String {
+    fs::canonicalize(dataset)
+        .unwrap_or_else(|_| dataset.to_path_buf())
+        .file_name()
+        .map_or_else(
+            || dataset.display().to_string(),
+            |n| n.to_string_lossy().into_owned(),
+        )
+}
+
 fn write_json(path: &Path, value: &Value) -> anyhow::Result<()> {
     fs::write(path, serde_json::to_string_pretty(value)? + "\n")
         .with_context(|| format!("cannot write {}", path.display()))
@@ -679,7 +691,7 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
         },
     )?;
 
-    let source = fs::canonicalize(&args.dataset).unwrap_or_else(|_| args.dataset.clone());
+    let source = dataset_name(&args.dataset);
     let objects: BTreeMap<String, Value> = ids
         .iter()
         .map(|(&key, &id)| {
@@ -692,7 +704,7 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
     write_json(
         &out.join("dataset_info.json"),
         &json!({
-            "source": source.display().to_string(),
+            "source": source,
             "split": args.split,
             "scenes": scenes.len(), "images": images, "instances": annotations,
             "min_visib_fract": args.min_visib_fract,
@@ -709,7 +721,7 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
          - mask_visib/ is the exact instance mask; mask/ is the projected box silhouette (no occluders).\n\
          - test_targets_bop19.json lists the instances with visib_fract >= {}.\n\n\
          | obj_id | size_x (mm) | size_y (mm) | size_z (mm) | discrete symmetries |\n|---|---|---|---|---|\n",
-        source.display(),
+        source,
         scenes.len(),
         images,
         annotations,
@@ -802,13 +814,13 @@ fn coco(args: &CocoArgs, out: &Path) -> anyhow::Result<()> {
         bar.inc(1);
     }
     bar.finish_and_clear();
-    let source = fs::canonicalize(&args.dataset).unwrap_or_else(|_| args.dataset.clone());
+    let source = dataset_name(&args.dataset);
     let (n_images, n_annotations) = (images.len(), annotations.len());
     write_json(
         &out.join("annotations.json"),
         &json!({
             "info": {
-                "description": format!("boxpose dataset {} (boxpose export coco)", source.display()),
+                "description": format!("boxpose dataset {source} (boxpose export coco)"),
                 "version": env!("CARGO_PKG_VERSION"),
             },
             "licenses": [],
