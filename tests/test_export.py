@@ -5,6 +5,7 @@ models and their symmetries; COCO RLE masks, boxes and areas)."""
 import io
 import json
 import os
+import shutil
 import subprocess
 from collections import Counter
 from pathlib import Path
@@ -365,6 +366,25 @@ def test_exports_name_their_source_without_the_machines_absolute_path(bop, coco,
     assert all(parent not in text for text in texts)
     assert json.loads(texts[0])["source"] == dataset.resolve().name
     assert dataset.resolve().name in json.loads(texts[2])["info"]["description"]
+
+
+def test_a_partial_dataset_exports_with_a_warning(dataset, boxpose_bin, tmp_path):
+    """A dataset missing a shard (an unfinished render) still exports and evaluates what is
+    there, but says so instead of looking complete."""
+    partial = tmp_path / "partial"
+    shutil.copytree(dataset, partial)
+    for table in ("frames", "instances"):
+        (shard,) = (partial / table).glob("part-00000-of-00001.parquet")
+        shard.rename(shard.with_name("part-00000-of-00002.parquet"))
+    for args in (
+        ("export", "bop", partial, tmp_path / "bop"),
+        ("export", "coco", partial, tmp_path / "coco"),
+        ("eval-geometry", partial, "--out", tmp_path / "geometry.parquet"),
+    ):
+        r = boxpose(boxpose_bin, *args)
+        assert r.returncode == 0, r.stderr
+        assert "frames: 1 of 2 shards missing" in r.stderr, r.stderr
+        assert "instances: 1 of 2 shards missing" in r.stderr, r.stderr
 
 
 def test_export_help_and_refusals(boxpose_bin, dataset, bop, tmp_path):

@@ -69,6 +69,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         Crops::Gt => None,
     };
     let dataset = Dataset::open(&args.dataset)?;
+    crate::inspect::warn_if_incomplete(&dataset);
     let evaluated = |scene_id: i64| {
         args.held_out
             .is_none_or(|modulus| data::is_held_out(scene_id, i64::from(modulus)))

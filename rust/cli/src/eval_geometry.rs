@@ -69,6 +69,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.out.join("eval_geometry.parquet").display()
     );
     let dataset = Dataset::open(&args.dataset)?;
+    crate::inspect::warn_if_incomplete(&dataset);
     let frames = dataset.frames()?;
     let total = frames.instance_count(|_| true);
     let bar = ProgressBar::new(total as u64).with_style(ProgressStyle::with_template(

@@ -187,6 +187,7 @@ struct Row {
 
 fn bop(args: &BopArgs) -> anyhow::Result<()> {
     let dataset = Dataset::open(&args.dataset)?;
+    crate::inspect::warn_if_incomplete(&dataset);
     let ids = export::object_ids(&dataset)?;
     let known_obj: std::collections::BTreeSet<u32> = ids.values().copied().collect();
 

@@ -565,6 +565,7 @@ fn bop(args: &BopArgs, out: &Path) -> anyhow::Result<()> {
         args.split
     );
     let dataset = Dataset::open(&args.dataset)?;
+    crate::inspect::warn_if_incomplete(&dataset);
     let ids = object_ids(&dataset)?;
 
     for models in ["models", "models_eval"] {
@@ -772,6 +773,7 @@ fn rle(mask: &[bool], width: usize, height: usize) -> Value {
 
 fn coco(args: &CocoArgs, out: &Path) -> anyhow::Result<()> {
     let dataset = Dataset::open(&args.dataset)?;
+    crate::inspect::warn_if_incomplete(&dataset);
     let ids = object_ids(&dataset)?;
     let images_dir = out.join("images");
     fs::create_dir_all(&images_dir)?;

@@ -66,3 +66,20 @@ fn ensure_complete(dataset: &Dataset, table: &'static Table) -> anyhow::Result<(
     );
     Ok(())
 }
+
+/// Warns on stderr, per table, when a dataset lacks some of its `part-i-of-N` shards (an
+/// unfinished `make scenes`): commands that work on what is there (`export`, `eval*`) say that
+/// their output covers part of the dataset instead of looking complete.
+pub fn warn_if_incomplete(dataset: &Dataset) {
+    for table in [&SCENES, &OBJECTS, &FRAMES, &INSTANCES] {
+        if let Ok((missing, count)) = dataset.missing_shards(table)
+            && !missing.is_empty()
+        {
+            eprintln!(
+                "warning: {}: {} of {count} shards missing (an unfinished generation?); this                  output covers only the rest — `boxpose inspect` says what is missing",
+                dataset.root().join(table.name).display(),
+                missing.len()
+            );
+        }
+    }
+}
