@@ -7,10 +7,12 @@
 //! only), around the boxes the segmenter finds (`--crops predicted`, and files without `--bbox`),
 //! or around the bounding boxes given with `--bbox` (max exclusive).
 //!
-//! Each box's peaks are fitted by the noise-adaptive pose-and-size fit
-//! (`size_fit::robust_size_fit`, survives outlier peaks) or, with `--size-fit least-squares`, by
-//! the former least-squares fit (`size_fit::fit_pose_and_size`), for comparison. Every fit comes
-//! with its confidence (`adaptive::FitConfidence`: its own for the robust fit, the noise-adaptive
+//! Each box goes through `inference::perceive`, the pipeline `boxpose eval` and the search run:
+//! its peaks are fitted by the noise-adaptive pose-and-size fit (`size_and_pose` in eval's
+//! tables, `--fit size` in the search; survives outlier peaks) or, with
+//! `--size-fit least-squares`, by the former least-squares fit (`size_and_pose_ls`), for
+//! comparison, and mirror ties are settled with the frame's depth image. Every fit comes with its
+//! confidence (`adaptive::FitConfidence`: its own for the robust fit, the noise-adaptive
 //! assessment of its box for least squares), printed and written in both tables.
 
 use std::path::{Path, PathBuf};
@@ -22,12 +24,12 @@ use arrow::array::{
 };
 use arrow::datatypes::{Float32Type, Float64Type, Int32Type};
 use boxpose_data::{Dataset, Frame, Intrinsics, Pose};
-use boxpose_geometry::BoxModel;
 use boxpose_geometry::adaptive::FitConfidence;
-use boxpose_geometry::size_fit;
+use boxpose_geometry::pipeline::{Fitted, Method};
+use boxpose_geometry::{BoxModel, GeometryError};
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::evaluation::true_pose;
-use boxpose_learn::inference::{self, BoxPrediction, CropRequest, KeypointModel};
+use boxpose_learn::inference::{self, BoxQuery, CropRequest, KeypointModel, Perception};
 use boxpose_learn::segmentation::{self, SegmenterModel};
 use nalgebra::{Isometry3, Point3};
 use serde_json::json;
@@ -56,6 +58,13 @@ impl SizeFit {
         match self {
             SizeFit::Robust => "robust",
             SizeFit::LeastSquares => "least-squares",
+        }
+    }
+
+    fn method(self) -> Method {
+        match self {
+            SizeFit::Robust => Method::SizeAndPose,
+            SizeFit::LeastSquares => Method::SizeAndPoseLeastSquares,
         }
     }
 }
@@ -111,7 +120,7 @@ pub struct Args {
 struct Fit {
     model: BoxModel,
     pose: Isometry3<f64>,
-    /// Per peak: whether the fit counts it as an inlier (every peak, for least squares).
+    /// Per peak: whether the fit counts it as an inlier.
     inliers: Vec<bool>,
     /// Root mean square of the inliers' distances to their nearest fitted corner (metres).
     inlier_rms: f64,
@@ -119,43 +128,26 @@ struct Fit {
 }
 
 impl Fit {
+    /// What `predict` reports of a size-and-pose fit of `points` (its confidence: its own for the
+    /// robust fit, the noise-adaptive assessment of its box for least squares).
+    fn of(fitted: &Result<Fitted, GeometryError>, points: &[Point3<f64>]) -> Result<Self, String> {
+        let fitted = fitted.as_ref().map_err(ToString::to_string)?;
+        let inliers_of_size_fit = "a size-and-pose fit says which peaks are inliers";
+        Ok(Self {
+            model: fitted.model,
+            pose: fitted.pose,
+            inliers: fitted.inliers().expect(inliers_of_size_fit),
+            inlier_rms: fitted.inlier_rms().expect(inliers_of_size_fit),
+            confidence: fitted.confidence(points).map_err(|e| e.to_string())?,
+        })
+    }
+
     fn corners(&self) -> [Point3<f64>; 8] {
         self.model.corners().map(|c| self.pose * c)
     }
 
     fn inlier_count(&self) -> usize {
         self.inliers.iter().filter(|b| **b).count()
-    }
-}
-
-/// Fits the peaks of one box. The pipeline (`inference::predict`) already fitted them robustly,
-/// but keeps no confidence: the fit (deterministic, well under a millisecond) is run again here.
-fn fit_box(points: &[Point3<f64>], method: SizeFit) -> Result<Fit, String> {
-    match method {
-        SizeFit::Robust => {
-            let f = size_fit::robust_size_fit(points, &size_fit::RobustSizeParams::default())
-                .map_err(|e| e.to_string())?;
-            Ok(Fit {
-                inlier_rms: f.inlier_rms(),
-                model: f.model,
-                pose: f.pose,
-                inliers: f.inliers,
-                confidence: f.confidence,
-            })
-        }
-        SizeFit::LeastSquares => {
-            let f = size_fit::fit_pose_and_size(points, &size_fit::SizeFitParams::default())
-                .map_err(|e| e.to_string())?;
-            let confidence =
-                size_fit::assess_sized_box(points, &f.model, &f.pose).map_err(|e| e.to_string())?;
-            Ok(Fit {
-                model: f.model,
-                pose: f.pose,
-                inliers: f.inliers,
-                inlier_rms: f.inlier_rms,
-                confidence,
-            })
-        }
     }
 }
 
@@ -250,11 +242,17 @@ fn finish(
     targets: Vec<Target>,
 ) -> anyhow::Result<()> {
     anyhow::ensure!(!targets.is_empty(), "no box to predict in this frame");
-    let crops: Vec<CropRequest> = targets.iter().map(|t| t.crop).collect();
-    let predictions = inference::predict(model, &frame, &crops, 16)?;
+    let queries: Vec<BoxQuery> = targets
+        .iter()
+        .map(|t| BoxQuery {
+            crop: t.crop,
+            known_box: None,
+        })
+        .collect();
+    let predictions = inference::perceive(model, &frame, &queries, &[args.size_fit.method()], 16)?;
     let fits: Vec<Result<Fit, String>> = predictions
         .iter()
-        .map(|p| fit_box(&p.points, args.size_fit))
+        .map(|p| Fit::of(&p.fits[0].fitted, &p.points))
         .collect();
 
     std::fs::create_dir_all(&args.out)
@@ -377,15 +375,10 @@ fn gt_targets(frame: &Frame, model: &KeypointModel) -> Vec<Target> {
         .instances
         .iter()
         .filter_map(|instance| {
-            let bbox = instance.visible_bbox?;
-            let label = instance.mask_label();
-            let crop = CropRequest::around(frame, &model.config, bbox, |i| {
-                frame.instance_mask[i] == label
-            })?;
             Some(Target {
                 object_id: Some(instance.object_id),
-                bbox,
-                crop,
+                bbox: instance.visible_bbox?,
+                crop: CropRequest::of_instance(frame, &model.config, instance)?,
             })
         })
         .collect()
@@ -539,7 +532,7 @@ fn frame_from_files(
 fn to_json(
     frame: &Frame,
     targets: &[Target],
-    predictions: &[BoxPrediction],
+    predictions: &[Perception],
     fits: &[Result<Fit, String>],
     method: SizeFit,
 ) -> serde_json::Value {
@@ -588,7 +581,7 @@ fn write_parquet(
     path: &Path,
     frame: &Frame,
     targets: &[Target],
-    predictions: &[BoxPrediction],
+    predictions: &[Perception],
     outcomes: &[Result<Fit, String>],
     method: SizeFit,
 ) -> anyhow::Result<()> {

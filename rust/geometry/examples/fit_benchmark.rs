@@ -137,7 +137,7 @@ fn run(fit: Fit, case: &Case) -> (bool, f64, f64) {
     // rendered before the clock starts: the image is the input, not part of the fit
     let image = with_depth.then(|| case.depth_image());
     let start = Instant::now();
-    let mut fit = fit_method(method, &case.model, &case.points, &case.scores);
+    let mut fit = fit_method(method, Some(&case.model), &case.points, &case.scores);
     if let (Ok(fitted), Some(image)) = (&mut fit, &image) {
         fitted.resolve_mirror(&case.points, &image.view());
     }

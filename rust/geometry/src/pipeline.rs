@@ -78,8 +78,11 @@ pub struct Fitted {
     pub fits_size: bool,
     pub own_confidence: Option<FitConfidence>,
     /// Per point, the corner it is an inlier of, as the fit matched it; None for an outlier (the
-    /// noise-adaptive fits only).
+    /// noise-adaptive fits and the least-squares size fit only).
     pub inlier_corners: Option<Vec<Option<usize>>>,
+    /// Per point, its distance (metres) to the nearest corner of the fitted box, for the fits that
+    /// have [`Self::inlier_corners`].
+    pub residuals: Option<Vec<f64>>,
 }
 
 /// Per point, its corner if it is an inlier.
@@ -100,6 +103,7 @@ impl Fitted {
             fits_size: false,
             own_confidence: Some(fit.confidence),
             inlier_corners: Some(inlier_corners(&fit.inliers, &fit.nearest_corners)),
+            residuals: Some(fit.residuals.clone()),
         }
     }
 
@@ -111,7 +115,23 @@ impl Fitted {
             fits_size: true,
             own_confidence: Some(fit.confidence),
             inlier_corners: Some(inlier_corners(&fit.inliers, &fit.nearest_corners)),
+            residuals: Some(fit.residuals.clone()),
         }
+    }
+
+    /// Per point, whether the fit counts it as an inlier; None for the fits that do not say.
+    pub fn inliers(&self) -> Option<Vec<bool>> {
+        let corners = self.inlier_corners.as_ref()?;
+        Some(corners.iter().map(Option::is_some).collect())
+    }
+
+    /// Root mean square of the inliers' distances to their nearest fitted corner (metres); None
+    /// for the fits that do not say which points are inliers.
+    pub fn inlier_rms(&self) -> Option<f64> {
+        Some(robust::inlier_rms(
+            self.residuals.as_ref()?,
+            &self.inliers()?,
+        ))
     }
 
     /// Settles a mirror tie with the depth image. Four inlier peaks on one face of the box fit the
@@ -145,6 +165,9 @@ impl Fitted {
                 depth::resolve_mirror(&self.model, &self.pose, &plane, view, tolerance);
             if resolution.switched {
                 self.pose = resolution.pose;
+                if let Some(residuals) = &mut self.residuals {
+                    *residuals = nearest_corner_distances(&self.model, &self.pose, points);
+                }
                 still_ambiguous = false;
                 break;
             }
@@ -181,6 +204,24 @@ impl Fitted {
     }
 }
 
+/// Per point, its distance to the nearest corner of `model` at `pose`.
+fn nearest_corner_distances(
+    model: &BoxModel,
+    pose: &Isometry3<f64>,
+    points: &[Point3<f64>],
+) -> Vec<f64> {
+    let corners = model.corners().map(|c| pose * c);
+    points
+        .iter()
+        .map(|p| {
+            corners
+                .iter()
+                .map(|c| (p - c).norm())
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect()
+}
+
 /// The inlier peaks of each face of the box whose 4 corners each have one, from (peak, corner).
 fn faces_with_four_inliers(inliers: &[(Point3<f64>, usize)]) -> Vec<Vec<Point3<f64>>> {
     let mut at_corner: [Option<Point3<f64>>; CORNER_COUNT] = [None; CORNER_COUNT];
@@ -201,51 +242,89 @@ fn faces_with_four_inliers(inliers: &[(Point3<f64>, usize)]) -> Vec<Vec<Point3<f
 }
 
 /// Runs one fit on `points` (with NMS `scores`, best first; only the paper's searches use them).
+/// `known_box` is the box's true size, which every fit but the two size-and-pose fits needs.
 pub fn fit_method(
     method: Method,
-    model: &BoxModel,
+    known_box: Option<&BoxModel>,
     points: &[Point3<f64>],
     scores: &[f64],
 ) -> Result<Fitted, GeometryError> {
-    let known = |pose: Isometry3<f64>, own_confidence: Option<FitConfidence>| Fitted {
-        model: *model,
-        pose,
-        fits_size: false,
-        own_confidence,
-        inlier_corners: None,
+    let model = || {
+        known_box.ok_or(GeometryError::InvalidParameter {
+            name: "known_box",
+            reason: "a fit of known size needs the box's size",
+        })
     };
-    Ok(match method {
-        Method::PaperExact => known(
-            paper_exact_search(model, points, scores, PAPER_M)?.pose,
-            None,
-        ),
-        Method::FastExact => known(
-            fast_exact_search(model, points, scores, PAPER_M)?.pose,
-            None,
-        ),
-        Method::Robust => Fitted::from_adaptive(
-            model,
-            &robust::adaptive_fit(model, points, &robust::AdaptiveParams::default())?,
-        ),
+    let known = |pose: Isometry3<f64>| -> Result<Fitted, GeometryError> {
+        Ok(Fitted {
+            model: *model()?,
+            pose,
+            fits_size: false,
+            own_confidence: None,
+            inlier_corners: None,
+            residuals: None,
+        })
+    };
+    match method {
+        Method::PaperExact => known(paper_exact_search(model()?, points, scores, PAPER_M)?.pose),
+        Method::FastExact => known(fast_exact_search(model()?, points, scores, PAPER_M)?.pose),
+        Method::Robust => Ok(Fitted::from_adaptive(
+            model()?,
+            &robust::adaptive_fit(model()?, points, &robust::AdaptiveParams::default())?,
+        )),
         Method::RobustFixedThreshold => known(
-            robust::robust_fit(model, points, &robust::RobustParams::for_box(model))?.pose,
-            None,
+            robust::robust_fit(model()?, points, &robust::RobustParams::for_box(model()?))?.pose,
         ),
-        Method::SizeAndPose => Fitted::from_robust_size(&size_fit::robust_size_fit(
+        Method::SizeAndPose => Ok(Fitted::from_robust_size(&size_fit::robust_size_fit(
             points,
             &size_fit::RobustSizeParams::default(),
-        )?),
+        )?)),
         Method::SizeAndPoseLeastSquares => {
             let fit = size_fit::fit_pose_and_size(points, &size_fit::SizeFitParams::default())?;
-            Fitted {
+            Ok(Fitted {
                 model: fit.model,
                 pose: fit.pose,
                 fits_size: true,
                 own_confidence: None,
-                inlier_corners: None,
-            }
+                inlier_corners: Some(inlier_corners(&fit.inliers, &fit.nearest_corners)),
+                residuals: Some(fit.residuals),
+            })
         }
-    })
+    }
+}
+
+/// One fit as every caller runs it: [`fit_method`], then, given the frame's depth image
+/// (`depth`), its mirror tie settled ([`Fitted::resolve_mirror`]), both timed.
+#[derive(Debug, Clone)]
+pub struct FitRun {
+    pub method: Method,
+    pub fitted: Result<Fitted, GeometryError>,
+    /// Wall time of the fit and its mirror check, microseconds.
+    pub fit_time_us: f64,
+}
+
+impl FitRun {
+    /// Runs `method` on `points` (with NMS `scores`, best first); `known_box` as [`fit_method`].
+    pub fn new(
+        method: Method,
+        known_box: Option<&BoxModel>,
+        points: &[Point3<f64>],
+        scores: &[f64],
+        depth: Option<&DepthView>,
+    ) -> Self {
+        let start = Instant::now();
+        let fitted = fit_method(method, known_box, points, scores).map(|mut fitted| {
+            if let Some(view) = depth {
+                fitted.resolve_mirror(points, view);
+            }
+            fitted
+        });
+        Self {
+            method,
+            fitted,
+            fit_time_us: start.elapsed().as_secs_f64() * 1e6,
+        }
+    }
 }
 
 /// A pose as the dataset stores it: a unit quaternion (w, x, y, z) and a translation in metres.
@@ -334,14 +413,9 @@ impl From<Result<Scores, GeometryError>> for FitOutcome {
 }
 
 /// Runs every [`Method`] on `points` (with NMS `scores`, best first) and scores each against the
-/// true pose of `model`; a fit that fails gives its error instead of scores. With the frame's
-/// depth image (`depth`), the noise-adaptive fits settle mirror ties with it
-/// ([`Fitted::resolve_mirror`], counted in the fit's time).
-///
-/// The size-known fits are scored with the true model. The size-and-pose fits are scored as the
-/// box they fitted: their MSSD compares their own corners with the true ones and their ADD-S their
-/// own surface points with the true box's ([`metrics::add_s_between`]), so a wrong size counts,
-/// and their rotation is taken in the axis labels that best match the true corners.
+/// true pose of `model` ([`FitRun::score`]). With the frame's depth image (`depth`), the
+/// noise-adaptive fits settle mirror ties with it ([`Fitted::resolve_mirror`], counted in the
+/// fit's time).
 pub fn fit_and_score(
     model: &BoxModel,
     truth: &Isometry3<f64>,
@@ -349,84 +423,82 @@ pub fn fit_and_score(
     scores: &[f64],
     depth: Option<&DepthView>,
 ) -> Vec<(Method, FitOutcome)> {
-    fit_and_score_methods(&Method::ALL, model, truth, points, scores, depth)
-}
-
-fn fit_and_score_methods(
-    methods: &[Method],
-    model: &BoxModel,
-    truth: &Isometry3<f64>,
-    points: &[Point3<f64>],
-    scores: &[f64],
-    depth: Option<&DepthView>,
-) -> Vec<(Method, FitOutcome)> {
-    let truth_corners: Vec<Point3<f64>> = model.corners().iter().map(|c| truth * c).collect();
-    let score = |fitted: &Fitted, fit_time_us: f64| -> Result<Scores, GeometryError> {
-        let confidence = fitted.confidence(points)?;
-        let (mssd_m, add_s_m, rotation_error_deg) = if fitted.fits_size {
-            let (relabelled, _, mssd_m) =
-                closest_labelling(&fitted.model, &fitted.pose, &truth_corners);
-            let add_s_m = metrics::add_s_between(&fitted.model, &fitted.pose, model, truth)?;
-            (
-                mssd_m,
-                add_s_m,
-                metrics::rotation_error_deg(model, &relabelled, truth)?,
-            )
-        } else {
-            (
-                metrics::mssd(model, &fitted.pose, truth)?,
-                metrics::add_s(model, &fitted.pose, truth)?,
-                metrics::rotation_error_deg(model, &fitted.pose, truth)?,
-            )
-        };
-        Ok(Scores {
-            paper_error: metrics::paper_error(&fitted.model, &fitted.pose, &truth_corners)?,
-            mssd_m,
-            cube_mssd_m: metrics::cube_mssd(&fitted.model, &fitted.pose, model, truth)?,
-            iou_3d: metrics::iou_3d(&fitted.model, &fitted.pose, model, truth)?,
-            add_s_m,
-            rotation_error_deg,
-            translation_error_m: metrics::translation_error(&fitted.pose, truth)?,
-            fit_time_us,
-            confidence: confidence.confidence,
-            margin_nats: confidence.margin_nats,
-            noise_scale_m: confidence.noise_scale_m,
-            inliers: confidence.inliers,
-            mirror_ambiguous: confidence.mirror_ambiguous,
-            fitted_corners: std::array::from_fn(|i| {
-                let c = fitted.pose * fitted.model.corners()[i];
-                [c.x, c.y, c.z]
-            }),
-        })
-    };
-    methods
+    Method::ALL
         .iter()
         .map(|&method| {
-            let start = Instant::now();
-            let fitted = fit_method(method, model, points, scores).map(|mut fitted| {
-                if let Some(view) = depth {
-                    fitted.resolve_mirror(points, view);
-                }
-                fitted
-            });
-            let fit_time_us = start.elapsed().as_secs_f64() * 1e6;
-            (method, fitted.and_then(|f| score(&f, fit_time_us)).into())
+            let run = FitRun::new(method, Some(model), points, scores, depth);
+            (method, run.score(model, truth, points))
         })
         .collect()
 }
 
-/// [`fit_and_score`] for one method only (the counterexample search runs the fit under test).
-pub fn fit_and_score_one(
-    method: Method,
+impl FitRun {
+    /// The fit's scores against the true pose of the true box `model`, from the `points` it
+    /// fitted; a fit that failed gives its error instead.
+    ///
+    /// The size-known fits are scored with the true model. The size-and-pose fits are scored as
+    /// the box they fitted: their MSSD compares their own corners with the true ones and their
+    /// ADD-S their own surface points with the true box's ([`metrics::add_s_between`]), so a wrong
+    /// size counts, and their rotation is taken in the axis labels that best match the true
+    /// corners.
+    pub fn score(
+        &self,
+        model: &BoxModel,
+        truth: &Isometry3<f64>,
+        points: &[Point3<f64>],
+    ) -> FitOutcome {
+        let fitted = match &self.fitted {
+            Ok(fitted) => fitted,
+            Err(e) => return FitOutcome::Failed(e.to_string()),
+        };
+        score_fitted(fitted, self.fit_time_us, model, truth, points).into()
+    }
+}
+
+fn score_fitted(
+    fitted: &Fitted,
+    fit_time_us: f64,
     model: &BoxModel,
     truth: &Isometry3<f64>,
     points: &[Point3<f64>],
-    scores: &[f64],
-    depth: Option<&DepthView>,
-) -> FitOutcome {
-    fit_and_score_methods(&[method], model, truth, points, scores, depth)
-        .remove(0)
-        .1
+) -> Result<Scores, GeometryError> {
+    let truth_corners: Vec<Point3<f64>> = model.corners().iter().map(|c| truth * c).collect();
+    let confidence = fitted.confidence(points)?;
+    let (mssd_m, add_s_m, rotation_error_deg) = if fitted.fits_size {
+        let (relabelled, _, mssd_m) =
+            closest_labelling(&fitted.model, &fitted.pose, &truth_corners);
+        let add_s_m = metrics::add_s_between(&fitted.model, &fitted.pose, model, truth)?;
+        (
+            mssd_m,
+            add_s_m,
+            metrics::rotation_error_deg(model, &relabelled, truth)?,
+        )
+    } else {
+        (
+            metrics::mssd(model, &fitted.pose, truth)?,
+            metrics::add_s(model, &fitted.pose, truth)?,
+            metrics::rotation_error_deg(model, &fitted.pose, truth)?,
+        )
+    };
+    Ok(Scores {
+        paper_error: metrics::paper_error(&fitted.model, &fitted.pose, &truth_corners)?,
+        mssd_m,
+        cube_mssd_m: metrics::cube_mssd(&fitted.model, &fitted.pose, model, truth)?,
+        iou_3d: metrics::iou_3d(&fitted.model, &fitted.pose, model, truth)?,
+        add_s_m,
+        rotation_error_deg,
+        translation_error_m: metrics::translation_error(&fitted.pose, truth)?,
+        fit_time_us,
+        confidence: confidence.confidence,
+        margin_nats: confidence.margin_nats,
+        noise_scale_m: confidence.noise_scale_m,
+        inliers: confidence.inliers,
+        mirror_ambiguous: confidence.mirror_ambiguous,
+        fitted_corners: std::array::from_fn(|i| {
+            let c = fitted.pose * fitted.model.corners()[i];
+            [c.x, c.y, c.z]
+        }),
+    })
 }
 
 /// A box fitted without knowing its size has no preferred axis labels: the size fit may call the

@@ -28,7 +28,7 @@ fn outcomes(method: Method, cases: &[Case]) -> Vec<(bool, f64)> {
     cases
         .iter()
         .map(
-            |c| match fit_method(method, &c.model, &c.points, &c.scores) {
+            |c| match fit_method(method, Some(&c.model), &c.points, &c.scores) {
                 Ok(fit) => (
                     !(fit.mssd(&c.model, &c.truth)
                         <= WRONG_FRACTION_OF_DIAMETER * c.model.diameter()),

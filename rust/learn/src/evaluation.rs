@@ -4,16 +4,14 @@
 
 use boxpose_data::{Frame, Instance};
 use boxpose_geometry::BoxModel;
-use boxpose_geometry::depth::DepthView;
-use boxpose_geometry::heatmap::VoxelGrid;
 use boxpose_geometry::metrics;
 use boxpose_geometry::pipeline::{self, FitOutcome, Method, Scores};
 use nalgebra::{Isometry3, Point3, Vector3};
 
 use crate::LearnError;
 use crate::config::NetworkConfig;
-use crate::data::{self, Sample};
-use crate::inference::{self, CropRequest, KeypointModel};
+use crate::data;
+use crate::inference::{self, BoxQuery, CropRequest, KeypointModel, Perception};
 use crate::segmentation::{self, Detection, SegmenterModel};
 
 /// A true corner counts as found when a back-projected peak lies within this distance (metres).
@@ -41,24 +39,22 @@ pub fn true_pose(instance: &Instance) -> Isometry3<f64> {
     )
 }
 
-/// Scores one heatmap (from the crop `grid`) against its instance's truth and `target`; with the
-/// frame's `depth`, the fits settle mirror ties with it.
-pub(crate) fn evaluate_instance(
-    config: &NetworkConfig,
+/// Scores one instance's perception (its heatmap and every fit of [`Method::ALL`]) against the
+/// instance's truth and the crop's `target` heatmap.
+pub(crate) fn evaluate_perception(
     instance: &Instance,
-    heatmap: &[f32],
+    perception: &Perception,
     target: &[f32],
-    grid: &VoxelGrid,
-    depth: Option<&DepthView>,
 ) -> Result<InstanceEval, LearnError> {
     let model = BoxModel::new(Vector3::from(instance.size))?;
-    let heatmap_mse = heatmap
+    let heatmap_mse = perception
+        .heatmap
         .iter()
         .zip(target)
         .map(|(p, t)| ((p - t) as f64).powi(2))
         .sum::<f64>()
-        / heatmap.len() as f64;
-    let (peaks, points) = inference::decode(config, heatmap, grid)?;
+        / perception.heatmap.len() as f64;
+    let points = &perception.points;
     let corners_found = instance
         .corners_camera
         .iter()
@@ -68,8 +64,12 @@ pub(crate) fn evaluate_instance(
                 .any(|p| (p - Point3::from(**c)).norm() < CORNER_RECALL_RADIUS_M)
         })
         .count();
-    let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
-    let fits = pipeline::fit_and_score(&model, &true_pose(instance), &points, &scores, depth);
+    let truth = true_pose(instance);
+    let fits = perception
+        .fits
+        .iter()
+        .map(|run| (run.method, run.score(&model, &truth, points)))
+        .collect();
     Ok(InstanceEval {
         size_m: instance.size,
         diameter_m: model.diameter(),
@@ -297,39 +297,41 @@ pub enum CropSource<'a> {
 }
 
 /// The crops of some instances of a frame, and the segmenter's detections when it ran.
-pub struct FrameSamples {
-    /// Per instance asked for, its crop and target; None for a box the segmenter did not find.
-    pub samples: Vec<Option<Sample>>,
+pub struct FrameCrops {
+    /// Per instance asked for, its crop; None for a box the segmenter did not find.
+    pub crops: Vec<Option<CropRequest>>,
     pub detections: Option<Vec<Detection>>,
 }
 
-/// The crops of `instances` (of `frame`) for the keypoint network, with their targets.
-pub fn instance_samples(
+/// The crops of `instances` (of `frame`) for the keypoint network, from `source`.
+pub fn instance_crops(
     config: &NetworkConfig,
     frame: &Frame,
     instances: &[&Instance],
-    crops: CropSource,
-) -> Result<FrameSamples, LearnError> {
-    let with_frame = |e: LearnError| {
-        LearnError::Data(format!(
-            "scene {} frame {}: {e}",
-            frame.scene_id, frame.frame_id
-        ))
-    };
-    let CropSource::Segmenter(segmenter) = crops else {
-        let samples = instances
+    source: CropSource,
+) -> Result<FrameCrops, LearnError> {
+    let CropSource::Segmenter(segmenter) = source else {
+        let crops = instances
             .iter()
-            .map(|instance| data::instance_sample(config, frame, instance, None).map(Some))
-            .collect::<Result<_, _>>()
-            .map_err(with_frame)?;
-        return Ok(FrameSamples {
-            samples,
+            .map(|instance| {
+                CropRequest::of_instance(frame, config, instance)
+                    .map(Some)
+                    .ok_or_else(|| {
+                        LearnError::Data(format!(
+                            "scene {} frame {} object {}: no visible pixel with a depth to crop",
+                            frame.scene_id, frame.frame_id, instance.object_id
+                        ))
+                    })
+            })
+            .collect::<Result<_, _>>()?;
+        return Ok(FrameCrops {
+            crops,
             detections: None,
         });
     };
     let detections = segmenter.segment(&[frame])?.remove(0);
     let found = segmentation::match_detections(frame, &detections, 0.5);
-    let samples = instances
+    let crops = instances
         .iter()
         .map(|instance| {
             let index = frame
@@ -342,29 +344,14 @@ pub fn instance_samples(
                         instance.object_id
                     ))
                 })?;
-            let Some(detection) = found[index].map(|d| &detections[d]) else {
-                return Ok(None);
-            };
-            let Some(crop) =
+            Ok(found[index].and_then(|d| {
+                let detection = &detections[d];
                 CropRequest::around(frame, config, detection.bbox, |i| detection.mask[i])
-            else {
-                return Ok(None);
-            };
-            data::sample_at(
-                config,
-                frame,
-                &crop.window,
-                crop.z_ref,
-                &instance.corners_camera,
-                None,
-                None,
-            )
-            .map(Some)
+            }))
         })
-        .collect::<Result<_, LearnError>>()
-        .map_err(with_frame)?;
-    Ok(FrameSamples {
-        samples,
+        .collect::<Result<_, LearnError>>()?;
+    Ok(FrameCrops {
+        crops,
         detections: Some(detections),
     })
 }
@@ -376,7 +363,9 @@ pub struct FrameEvaluation {
 }
 
 /// Evaluates the keypoint network on `instances` of `frame`, on crops from `crops` (a box the
-/// segmenter missed scores as missed), `batch_size` crops per forward pass.
+/// segmenter missed scores as missed), `batch_size` crops per forward pass: every fit of
+/// [`Method::ALL`], perceived by [`inference::perceive`] (mirror ties settled with the frame's
+/// depth image).
 pub fn evaluate_frame(
     model: &KeypointModel,
     frame: &Frame,
@@ -384,26 +373,39 @@ pub fn evaluate_frame(
     crops: CropSource,
     batch_size: usize,
 ) -> Result<FrameEvaluation, LearnError> {
-    let FrameSamples {
-        samples,
-        detections,
-    } = instance_samples(&model.config, frame, instances, crops)?;
-    let inputs: Vec<Vec<f32>> = samples.iter().flatten().map(|s| s.input.clone()).collect();
-    let mut heatmaps = model.heatmaps(&inputs, batch_size)?.into_iter();
+    let FrameCrops { crops, detections } = instance_crops(&model.config, frame, instances, crops)?;
+    let queries = instances
+        .iter()
+        .zip(&crops)
+        .filter_map(|(instance, crop)| {
+            let crop = (*crop)?;
+            Some(
+                BoxModel::new(Vector3::from(instance.size)).map(|known| BoxQuery {
+                    crop,
+                    known_box: Some(known),
+                }),
+            )
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut perceptions =
+        inference::perceive(model, frame, &queries, &Method::ALL, batch_size)?.into_iter();
     let evals = instances
         .iter()
-        .zip(&samples)
-        .map(|(instance, sample)| match sample {
-            Some(sample) => {
-                let heatmap = heatmaps.next().expect("one heatmap per found instance");
-                evaluate_instance(
-                    &model.config,
-                    instance,
-                    &heatmap,
-                    &sample.target,
-                    &sample.grid,
-                    Some(&data::depth_view(frame)),
-                )
+        .zip(&crops)
+        .map(|(instance, crop)| match crop {
+            Some(_) => {
+                let perception = perceptions
+                    .next()
+                    .expect("one perception per found instance");
+                let target =
+                    data::target_heatmap(&model.config, &perception.grid, &instance.corners_camera)
+                        .map_err(|e| {
+                            LearnError::Data(format!(
+                                "scene {} frame {}: a box's target heatmap: {e}",
+                                frame.scene_id, frame.frame_id
+                            ))
+                        })?;
+                evaluate_perception(instance, &perception, &target)
             }
             None => missed_instance(instance),
         })

@@ -1,13 +1,14 @@
 //! From a frame and a box's crop to its pose (paper steps 4–6): the network's heatmap, NMS
-//! peaks, back-projection, and a pose-and-size fit. A trained model is a folder holding
+//! peaks, back-projection, and the pose fits with their mirror check ([`perceive`]). A trained model is a folder holding
 //! `network.toml` (what the network sees) and `model.bpk` (burn's burnpack weights).
 
 use std::path::Path;
 
-use boxpose_data::Frame;
+use boxpose_data::{Frame, Instance};
+use boxpose_geometry::depth::DepthView;
 use boxpose_geometry::heatmap::{self, NmsParams, Peak, VoxelGrid};
-use boxpose_geometry::size_fit::{self, SizedBoxFit};
-use boxpose_geometry::{GeometryError, pipeline};
+use boxpose_geometry::pipeline::{FitRun, Method};
+use boxpose_geometry::{BoxModel, GeometryError};
 use burn::prelude::*;
 use nalgebra::Point3;
 
@@ -103,16 +104,38 @@ impl CropRequest {
         let window = CropWindow::around(bbox, config.crop_margin);
         data::reference_depth(frame, &window, belongs).map(|z_ref| Self { window, z_ref })
     }
+
+    /// The ground-truth crop of an instance, as the network was trained on it: around its visible
+    /// bounding box, at the median depth of its own mask; `None` when it has no visible pixel or
+    /// its window no depth.
+    pub fn of_instance(frame: &Frame, config: &NetworkConfig, instance: &Instance) -> Option<Self> {
+        let label = instance.mask_label();
+        Self::around(frame, config, instance.visible_bbox?, |i| {
+            frame.instance_mask[i] == label
+        })
+    }
 }
 
-/// What the pipeline recovers for one box.
+/// One box to perceive: its crop, and its true size when known (every fit but the two
+/// size-and-pose fits needs it: [`boxpose_geometry::pipeline::fit_method`]).
+#[derive(Debug, Clone, Copy)]
+pub struct BoxQuery {
+    pub crop: CropRequest,
+    pub known_box: Option<BoxModel>,
+}
+
+/// What the pipeline recovers for one box's crop.
 #[derive(Debug, Clone)]
-pub struct BoxPrediction {
+pub struct Perception {
+    /// The network's heatmap `[D·H·W]` and the voxel grid of the crop it lives on.
+    pub heatmap: Vec<f32>,
+    pub grid: VoxelGrid,
     /// NMS peaks (best first) and their back-projections, camera frame, metres.
     pub peaks: Vec<Peak>,
     pub points: Vec<Point3<f64>>,
-    /// The pose-and-size fit (pose, size, inliers, residuals), or why it failed.
-    pub fit: Result<SizedBoxFit, String>,
+    /// Each fit asked for, in the order asked, with its mirror tie settled when a depth image
+    /// was given.
+    pub fits: Vec<FitRun>,
 }
 
 /// NMS on one heatmap, and the peaks back-projected through the crop's voxel grid. A heatmap
@@ -139,34 +162,52 @@ pub fn decode(
     Ok((peaks, points))
 }
 
-/// Mirror ties of the size fit settled with the frame's depth image, as every fit does in
-/// evaluation ([`pipeline::Fitted::resolve_mirror`]).
-fn settle_mirror_tie(
-    mut fit: size_fit::RobustSizedFit,
-    points: &[Point3<f64>],
-    frame: &Frame,
-) -> size_fit::RobustSizedFit {
-    let mut fitted = pipeline::Fitted::from_robust_size(&fit);
-    fitted.resolve_mirror(points, &data::depth_view(frame));
-    fit.pose = fitted.pose;
-    fit.confidence = fitted.own_confidence.unwrap_or(fit.confidence);
-    fit
+/// Paper steps 5–6 on one box's heatmap: its NMS peaks, back-projected through the crop's `grid`,
+/// and each fit of `methods` on them ([`FitRun`]: with the frame's `depth` image, mirror ties are
+/// settled with it). Training validation calls this directly, without depth (it keeps no frames);
+/// everything else goes through [`perceive`].
+pub fn perceive_heatmap(
+    config: &NetworkConfig,
+    heatmap: Vec<f32>,
+    grid: VoxelGrid,
+    known_box: Option<&BoxModel>,
+    methods: &[Method],
+    depth: Option<&DepthView>,
+) -> Result<Perception, LearnError> {
+    let (peaks, points) = decode(config, &heatmap, &grid)?;
+    let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
+    let fits = methods
+        .iter()
+        .map(|&method| FitRun::new(method, known_box, &points, &scores, depth))
+        .collect();
+    Ok(Perception {
+        heatmap,
+        grid,
+        peaks,
+        points,
+        fits,
+    })
 }
 
-/// Runs the whole pipeline on crops of one frame.
-pub fn predict(
+/// The whole pipeline (paper steps 4–6) on boxes of one frame: each crop through the network
+/// (`batch_size` crops per forward pass), its heatmap's peaks, and each fit of `methods`, mirror
+/// ties settled with the frame's depth image. `boxpose predict`, `boxpose eval` and the
+/// counterexample search all perceive through this one function, so they report the same pose
+/// for the same crop.
+pub fn perceive(
     model: &KeypointModel,
     frame: &Frame,
-    crops: &[CropRequest],
+    boxes: &[BoxQuery],
+    methods: &[Method],
     batch_size: usize,
-) -> Result<Vec<BoxPrediction>, LearnError> {
-    let inputs: Vec<Vec<f32>> = crops
+) -> Result<Vec<Perception>, LearnError> {
+    let inputs: Vec<Vec<f32>> = boxes
         .iter()
-        .map(|c| {
+        .map(|b| {
             data::crop_input(
                 frame,
-                &c.window,
-                c.z_ref,
+                &b.crop.window,
+                b.crop.z_ref,
                 model.config.input_size,
                 None,
                 None,
@@ -174,38 +215,25 @@ pub fn predict(
         })
         .collect();
     let heatmaps = model.heatmaps(&inputs, batch_size)?;
-    crops
+    let depth = data::depth_view(frame);
+    boxes
         .iter()
-        .zip(&heatmaps)
-        .map(|(crop, heatmap)| {
-            let grid = data::voxel_grid(&model.config, &frame.intrinsics, &crop.window, crop.z_ref);
-            let (peaks, points) = decode(&model.config, heatmap, &grid)?;
-            // The noise-adaptive pose-and-size fit (survives outlier peaks); `SizedBoxFit::cost` is
-            // its plain sum of squared residuals, as `fit_pose_and_size`'s default would give.
-            let fit = size_fit::robust_size_fit(&points, &size_fit::RobustSizeParams::default())
-                .map(|f| settle_mirror_tie(f, &points, frame))
-                .map(|f| {
-                    let inlier_squares: Vec<f64> = f
-                        .residuals
-                        .iter()
-                        .zip(&f.inliers)
-                        .filter(|(_, i)| **i)
-                        .map(|(r, _)| r * r)
-                        .collect();
-                    SizedBoxFit {
-                        inlier_rms: (inlier_squares.iter().sum::<f64>()
-                            / inlier_squares.len().max(1) as f64)
-                            .sqrt(),
-                        cost: f.residuals.iter().map(|r| r * r).sum(),
-                        model: f.model,
-                        pose: f.pose,
-                        nearest_corners: f.nearest_corners,
-                        residuals: f.residuals,
-                        inliers: f.inliers,
-                    }
-                })
-                .map_err(|e| e.to_string());
-            Ok(BoxPrediction { peaks, points, fit })
+        .zip(heatmaps)
+        .map(|(b, heatmap)| {
+            let grid = data::voxel_grid(
+                &model.config,
+                &frame.intrinsics,
+                &b.crop.window,
+                b.crop.z_ref,
+            );
+            perceive_heatmap(
+                &model.config,
+                heatmap,
+                grid,
+                b.known_box.as_ref(),
+                methods,
+                Some(&depth),
+            )
         })
         .collect()
 }

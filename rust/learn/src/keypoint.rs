@@ -3,7 +3,10 @@
 
 use std::path::Path;
 
+use boxpose_geometry::BoxModel;
+use boxpose_geometry::pipeline::Method;
 use burn::prelude::*;
+use nalgebra::Vector3;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
@@ -11,7 +14,7 @@ use crate::LearnError;
 use crate::config::{NetworkConfig, TrainConfig};
 use crate::data::{self, InstanceSet};
 use crate::evaluation::{self, InstanceEval};
-use crate::inference::{KeypointModel, NETWORK_FILE};
+use crate::inference::{self, KeypointModel, NETWORK_FILE};
 use crate::loader::ExampleSource;
 use crate::model::{KeypointNet, ResNetDeconv};
 use crate::model_dir;
@@ -61,18 +64,21 @@ impl KeypointTask {
         let heatmaps = model.heatmaps(&inputs, config.optimizer.batch_size)?;
         picks
             .par_iter()
-            .zip(&samples)
-            .zip(&heatmaps)
+            .zip(samples)
+            .zip(heatmaps)
             .map(|((&pick, sample), heatmap)| {
-                evaluation::evaluate_instance(
+                let instance = set.instance(pick);
+                let known = BoxModel::new(Vector3::from(instance.size))?;
+                let perception = inference::perceive_heatmap(
                     &config.network,
-                    set.instance(pick),
                     heatmap,
-                    &sample.target,
-                    &sample.grid,
+                    sample.grid,
+                    Some(&known),
+                    &Method::ALL,
                     // validation keeps no frames in memory: the fits run on the peaks alone
                     None,
-                )
+                )?;
+                evaluation::evaluate_perception(instance, &perception, &sample.target)
             })
             .collect()
     }

@@ -8,10 +8,10 @@ use arrow::record_batch::RecordBatch;
 use boxpose_data::{Frame, Instance, Object, Scene};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
-use boxpose_geometry::pipeline::{self, FitOutcome, Method, Scores};
+use boxpose_geometry::pipeline::{FitOutcome, Method, Scores};
 use boxpose_learn::data;
 use boxpose_learn::evaluation::{self, CropSource};
-use boxpose_learn::inference::{self, KeypointModel};
+use boxpose_learn::inference::{self, BoxQuery, KeypointModel};
 use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_physics::RecipePhysics;
 use boxpose_render::{RenderRequest, Renderer};
@@ -385,6 +385,8 @@ impl SystemUnderTest {
         }
     }
 
+    /// The target through [`inference::perceive`], as `boxpose eval` and `boxpose predict` see
+    /// it, with the fit under test scored against its truth.
     fn perceive(
         &self,
         frame: &Frame,
@@ -392,35 +394,28 @@ impl SystemUnderTest {
         seconds: &mut StageSeconds,
     ) -> Result<(Perceived, Vec<[f64; 3]>)> {
         let start = Instant::now();
-        let config = &self.model.config;
         let crops = match &self.segmenter {
             Some(segmenter) if self.crops == Crops::Predicted => CropSource::Segmenter(segmenter),
             _ => CropSource::GroundTruth,
         };
-        let mut crop = evaluation::instance_samples(config, frame, &[instance], crops)?;
-        let Some(sample) = crop.samples.remove(0) else {
+        let found = evaluation::instance_crops(&self.model.config, frame, &[instance], crops)?;
+        let Some(crop) = found.crops[0] else {
             seconds.inference = start.elapsed().as_secs_f64();
             return Ok((Perceived::NotDetected, Vec::new()));
         };
-        let heatmap = self
-            .model
-            .heatmaps(std::slice::from_ref(&sample.input), 1)?
-            .remove(0);
-        let (peaks, points) = inference::decode(config, &heatmap, &sample.grid)?;
-        seconds.inference = start.elapsed().as_secs_f64();
+        let model = BoxModel::new(Vector3::from(instance.size))?;
+        let query = BoxQuery {
+            crop,
+            known_box: Some(model),
+        };
+        let perception =
+            inference::perceive(&self.model, frame, &[query], &[self.method], 1)?.remove(0);
+        let fit = &perception.fits[0];
+        seconds.inference = start.elapsed().as_secs_f64() - fit.fit_time_us / 1e6;
 
         let start = Instant::now();
-        let model = BoxModel::new(Vector3::from(instance.size))?;
-        let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
-        let outcome = pipeline::fit_and_score_one(
-            self.method,
-            &model,
-            &evaluation::true_pose(instance),
-            &points,
-            &scores,
-            Some(&boxpose_learn::data::depth_view(frame)),
-        );
-        seconds.fit = start.elapsed().as_secs_f64();
+        let outcome = fit.score(&model, &evaluation::true_pose(instance), &perception.points);
+        seconds.fit = fit.fit_time_us / 1e6 + start.elapsed().as_secs_f64();
         let perceived = match outcome {
             FitOutcome::Scored(s) => match Metrics::of(&s, instance.size) {
                 m if m.is_finite() => Perceived::Fitted(m),
@@ -433,7 +428,8 @@ impl SystemUnderTest {
         };
         Ok((
             perceived,
-            points
+            perception
+                .points
                 .iter()
                 .map(|p: &Point3<f64>| [p.x, p.y, p.z])
                 .collect(),
