@@ -433,6 +433,11 @@ def test_clutter_on_the_segmenters_crops(spaces, boxpose_bin, tmp_path):
             lambda t: t.replace("size_m = { x = [0.10, 0.20]", "size_m = { x = [-0.10, 0.20]"),
             "target.size_m.x",
         ),
+        # a value of the wrong type says what a parameter may be, not serde's enum variants
+        (
+            lambda t: t.replace("distance_m = [0.45, 0.55]", 'distance_m = "far"'),
+            "[min, max] (uniform) or { normal = [mean, std], within = [min, max] }",
+        ),
     ],
 )
 def test_a_bad_search_space_is_one_clear_error_before_any_work(
@@ -444,6 +449,26 @@ def test_a_bad_search_space_is_one_clear_error_before_any_work(
     r = search(boxpose_bin, bad, "--out", out, check=False)
     assert r.returncode != 0 and key in r.stderr, r.stderr
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "flag, value",
+    [("--ce-lambda", -0.5), ("--ce-rho", 1.5), ("--ce-samples-per-iteration", 1)],
+)
+def test_a_bad_cross_entropy_setting_names_its_flag(flag, value, spaces, boxpose_bin, tmp_path):
+    out = tmp_path / "run"
+    r = search(
+        boxpose_bin,
+        spaces["single"],
+        "--out",
+        out,
+        "--sampler",
+        "ce",
+        f"{flag}={value}",
+        check=False,
+    )
+    assert r.returncode != 0 and f"{flag}:" in r.stderr, r.stderr
+    assert "ce config" not in r.stderr and not out.exists()
 
 
 def test_cross_entropy_tilts_only_the_named_parameters(spaces, boxpose_bin, tmp_path):

@@ -28,7 +28,7 @@ use arrow::record_batch::RecordBatch;
 use boxpose_data::schema::{self, SEARCH_SAMPLES, SEARCH_TIMINGS, Table};
 use boxpose_data::{Object, Scene};
 use boxpose_search_stats::{
-    CeConfig, CeStep, ImportanceEstimate, Proposal, WeightedSample, ce_step, log_nominal,
+    CeConfig, CeError, CeStep, ImportanceEstimate, Proposal, WeightedSample, ce_step, log_nominal,
     sample_rng,
 };
 use rand::Rng;
@@ -116,8 +116,12 @@ impl RunRecord {
         if settings.sampler == Sampler::Ce {
             let mut ce = settings.ce.clone();
             ce.final_samples = settings.samples;
-            ce.validate()
-                .map_err(|e| SearchError::Sample(e.to_string()))?;
+            ce.validate().map_err(|e| match e {
+                CeError::Config { key, message } => {
+                    SearchError::Sample(format!("{}: {message}", ce_flag(key)))
+                }
+                other => SearchError::Sample(other.to_string()),
+            })?;
         }
         let names: Vec<&str> = space.dimensions.iter().map(|d| d.name.as_str()).collect();
         for prefix in &settings.ce_tilt {
@@ -137,6 +141,15 @@ impl RunRecord {
             strata: space.strata(),
             pile: space.pile.clone(),
         })
+    }
+}
+
+/// The `boxpose search` flag that sets a cross-entropy setting, for errors in the user's terms.
+fn ce_flag(key: &str) -> String {
+    match key {
+        "final_samples" => "--samples".to_string(),
+        "defensive_lambda" => "--ce-lambda".to_string(),
+        other => format!("--ce-{}", other.replace('_', "-")),
     }
 }
 

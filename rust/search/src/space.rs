@@ -29,7 +29,10 @@ pub struct TruncatedNormal {
 
 /// A bounded scalar parameter and its nominal distribution.
 #[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
-#[serde(untagged)]
+#[serde(
+    untagged,
+    expecting = "[min, max] (uniform) or { normal = [mean, std], within = [min, max] } (a truncated normal), numbers"
+)]
 pub enum Distribution {
     /// `[min, max]`: uniform.
     Uniform([f64; 2]),
