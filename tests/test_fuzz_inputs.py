@@ -164,6 +164,98 @@ def test_the_rust_reader_refuses_a_key_that_is_not_a_recipe_key(
     assert not rust_accepts(boxpose_bin, scenes_dataset, text)
 
 
+# The search's own reader of a base recipe's [materials] (`boxpose_search::scene`) and
+# `boxpose_data::recipe::tape_along` are Rust; the search space lets any base recipe in.
+SEARCH_SPACE = """
+name = "fuzz"
+recipe = "{recipe}"
+
+[target]
+size_m = {{ x = [0.10, 0.20], y = [0.08, 0.16], z = [0.06, 0.12] }}
+orientation = "so3"
+x_m = [-0.05, 0.05]
+y_m = [-0.05, 0.05]
+drop_height_m = [0.02, 0.08]
+
+[camera]
+distance_m = [0.45, 0.55]
+elevation_deg = [40.0, 65.0]
+azimuth_deg = [0.0, 360.0]
+hfov_deg = [45.0, 55.0]
+
+[lighting]
+sun_elevation_deg = [30.0, 80.0]
+sun_azimuth_deg = [0.0, 360.0]
+sun_strength = [1.0, 4.0]
+world_strength = [0.2, 0.8]
+"""
+
+
+@pytest.fixture(scope="module")
+def search_space(tmp_path_factory) -> Path:
+    """A search space whose base recipe is `recipe.toml` beside it (each example rewrites it)."""
+    root = tmp_path_factory.mktemp("space")
+    (root / "space.toml").write_text(SEARCH_SPACE.format(recipe=root / "recipe.toml"))
+    return root / "space.toml"
+
+
+def rust_search_accepts(boxpose_bin: Path, space: Path, text: str) -> bool:
+    """Whether `boxpose search` accepts a base recipe: it reads the space and its recipe first,
+    so a missing --model stops an accepted one (before any run folder or Blender); a refused one
+    must be refused for its materials.tape_along, naming the key and the accepted values."""
+    space.with_name("recipe.toml").write_text(text)
+    missing = space.with_name("no-model")
+    r = subprocess.run(
+        [
+            str(boxpose_bin),
+            "search",
+            str(space),
+            "--out",
+            str(space.with_name("run")),
+            "--model",
+            str(missing),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 1 and r.stderr.startswith("error: "), r.stderr
+    if f"--model {missing}" in r.stderr:
+        return True
+    assert "materials.tape_along" in r.stderr and '"long" or "random"' in r.stderr, r.stderr
+    return False
+
+
+TAPE_ALONG_VALUES = st.one_of(
+    st.sampled_from(['"long"', '"random"', '"Long"', '"long "', '"short"', '""']), toml_values
+)
+
+
+@FUZZ
+@given(value=TAPE_ALONG_VALUES)
+def test_the_python_and_rust_readers_accept_and_refuse_the_same_tape_along(
+    search_space, boxpose_bin, value
+):
+    """materials.tape_along is read by the Drake and the Blender stages (Python) and by the
+    search (Rust) with one rule: "long" or "random", "random" when absent; they must agree on
+    every value, and a refusal names the key and the accepted values."""
+    text = TINY_TEXT.replace("[materials]\n", f"[materials]\ntape_along = {value}\n")
+    assert text != TINY_TEXT
+    drake, blender = read_both(text)
+    assert drake == blender == (value in ('"long"', '"random"')), text
+    assert rust_search_accepts(boxpose_bin, search_space, text) == drake, text
+    if not drake:
+        for read in (lambda: Recipe.from_toml(text, "fuzz"), lambda: parse_render_recipe(text)):
+            with pytest.raises(RecipeError, match=r"materials\.tape_along.*\"long\" or \"random\""):
+                read()
+
+
+def test_a_recipe_without_tape_along_is_accepted_by_every_reader(search_space, boxpose_bin):
+    assert "tape_along" not in TINY_TEXT
+    assert read_both(TINY_TEXT) == (True, True)
+    assert rust_search_accepts(boxpose_bin, search_space, TINY_TEXT)
+
+
 # --- the Python module ----------------------------------------------------------------------
 
 float_arrays = hnp.arrays(

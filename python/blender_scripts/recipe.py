@@ -20,6 +20,7 @@ from drake_scenes.recipe import (
     RecipeError,
     SupportSpec,
     read_support,
+    read_tape_along,
     support_problems,
 )
 
@@ -149,6 +150,7 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         roughness=p("materials.roughness"),
         tape_probability=g("materials.tape_probability", float),
         label_probability=g("materials.label_probability", float),
+        tape_along=read_tape_along(data, source),
     )
     optional = {
         k: g(f"render.{k}", kind)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from boxpose_io.recipe_keys import unknown_keys_problem
-from boxpose_io.schema import MAX_SETTLE_STEPS, SUPPORT_KINDS
+from boxpose_io.schema import MAX_SETTLE_STEPS, SUPPORT_KINDS, TAPE_ALONG, TAPE_ALONG_DEFAULT
 
 
 class RecipeError(ValueError):
@@ -58,6 +58,10 @@ class MaterialsSpec:
     roughness: tuple[float, float]
     tape_probability: float
     label_probability: float
+    # Which side of the top face the tape and the label's long axis follow: "long" or "random"
+    # (rust/data/src/recipe.rs, TAPE_ALONG). The Blender stage applies it; read here so that both
+    # stages accept and refuse the same recipes.
+    tape_along: str
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,7 @@ class Recipe:
                 roughness=reader.pair("materials.roughness", float),
                 tape_probability=reader.get("materials.tape_probability", float),
                 label_probability=reader.get("materials.label_probability", float),
+                tape_along=read_tape_along(data, source),
             ),
             toml_text=text,
             source=source,
@@ -181,6 +186,24 @@ def read_support(data: dict, source: str) -> SupportSpec:
         half_extent_m=reader.pair("support.half_extent_m", float),
         wall_height_m=reader.get("support.wall_height_m", float),
     )
+
+
+def read_tape_along(data: dict, source: str) -> str:
+    """`materials.tape_along` of parsed recipe TOML: "long" or "random", "random" when absent (the
+    datasets written before the key existed, and the networks trained on them, stay as they are).
+    The Blender stage reads it with this too; the Rust readers apply the same rule
+    (`boxpose_data::recipe::tape_along`)."""
+    materials = data.get("materials")
+    if not isinstance(materials, dict) or "tape_along" not in materials:
+        return TAPE_ALONG_DEFAULT
+    value = materials["tape_along"]
+    if not isinstance(value, str) or value not in TAPE_ALONG:
+        raise RecipeError(
+            f'recipe {source}: key \'materials.tape_along\' must be "long" or "random", got '
+            f'{value!r} ("long" ties the tape and the label to the top face\'s longer side, for '
+            'new recipes; "random", the default, draws them as the existing datasets do)'
+        )
+    return value
 
 
 def support_problems(s: SupportSpec) -> list[str]:

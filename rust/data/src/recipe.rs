@@ -36,6 +36,7 @@ pub const RECIPE_KEYS: &[&str] = &[
     "materials.roughness",
     "materials.tape_probability",
     "materials.label_probability",
+    "materials.tape_along",
     // Blender: cameras, lights, render settings
     "camera.frames_per_scene",
     "camera.width",
@@ -63,6 +64,40 @@ pub const RECIPE_KEYS: &[&str] = &[
 
 /// The values of `support.kind` (and of the `scenes.support` column): see [`crate::support`].
 pub const SUPPORT_KINDS: [&str; 3] = ["floor", "bin", "pallet"];
+
+/// The values of `materials.tape_along`: which side of a box's top (+z) face its tape strip and
+/// its label's long (u) axis follow. `"long"`: the longer side (x when dx ≥ dy), as on a regular
+/// slotted carton, so the texture tells the two sides of a nearly square top apart and a keypoint
+/// network can learn the quarter turn. `"random"`: either side at random (the default, and what
+/// every dataset written before the key existed holds). Both draw the same random numbers, so only
+/// those two choices differ. The Blender stage applies it (`blender_scripts.sampling`).
+pub const TAPE_ALONG: [&str; 2] = ["long", "random"];
+
+/// `materials.tape_along` when a recipe does not give it: the datasets (and the networks trained
+/// on them) that predate the key must render as they did.
+pub const TAPE_ALONG_DEFAULT: &str = "random";
+
+/// A recipe's `materials.tape_along` (one of [`TAPE_ALONG`], [`TAPE_ALONG_DEFAULT`] when absent),
+/// or the message that refuses it; the Python readers apply the same rule
+/// (`drake_scenes.recipe.read_tape_along`).
+pub fn tape_along(recipe: &toml::Table) -> Result<&'static str, String> {
+    let Some(value) = recipe.get("materials").and_then(|m| m.get("tape_along")) else {
+        return Ok(TAPE_ALONG_DEFAULT);
+    };
+    value
+        .as_str()
+        .and_then(|v| TAPE_ALONG.iter().find(|&&accepted| accepted == v).copied())
+        .ok_or_else(|| {
+            // as JSON: the TOML writer is not compiled in, and a string, number, boolean or
+            // list reads the same either way
+            let written = serde_json::to_string(value).unwrap_or_else(|_| format!("{value:?}"));
+            format!(
+                "key 'materials.tape_along' must be \"long\" or \"random\", got {written} \
+                 (\"long\" ties the tape and the label to the top face's longer side, for new \
+                 recipes; \"random\", the default, draws them as the existing datasets do)"
+            )
+        })
+}
 
 /// Most simulation steps a settle may take (`settle.max_time_s / settle.time_step_s`): a
 /// resource bound, so that a recipe cannot ask for a simulation of years (hours at most).
@@ -97,6 +132,8 @@ pub fn to_json() -> serde_json::Value {
     serde_json::json!({
         "keys": RECIPE_KEYS,
         "support_kinds": SUPPORT_KINDS,
+        "tape_along": TAPE_ALONG,
+        "tape_along_default": TAPE_ALONG_DEFAULT,
         "max_settle_steps": MAX_SETTLE_STEPS,
     })
 }
@@ -115,5 +152,22 @@ mod tests {
             unknown_keys(&recipe),
             ["colour", "extra", "settle.max_tiem_s"]
         );
+    }
+
+    #[test]
+    fn tape_along_defaults_to_random_and_refuses_other_values_naming_the_key() {
+        let read = |text: &str| tape_along(&toml::from_str(text).unwrap());
+        assert_eq!(read("[materials]\nroughness = [0.5, 0.9]\n"), Ok("random"));
+        assert_eq!(read("[materials]\ntape_along = 'long'\n"), Ok("long"));
+        assert_eq!(read("[materials]\ntape_along = 'random'\n"), Ok("random"));
+        for bad in ["\"Long\"", "\"short\"", "1", "true", "[\"long\"]"] {
+            let problem = read(&format!("[materials]\ntape_along = {bad}\n")).unwrap_err();
+            assert!(
+                problem.contains("materials.tape_along")
+                    && problem.contains("\"long\" or \"random\"")
+                    && problem.contains(&format!("got {bad}")),
+                "{problem}"
+            );
+        }
     }
 }

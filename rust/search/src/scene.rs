@@ -74,6 +74,12 @@ impl Nuisance {
                 }),
             }
         };
+        // The appearance is drawn by the Blender stage from the scene's recipe, which keeps the
+        // base recipe's [materials]; a value it would refuse is refused here, before any work.
+        boxpose_data::recipe::tape_along(recipe).map_err(|problem| SearchError::Space {
+            key: "recipe".into(),
+            problem,
+        })?;
         Ok(Self {
             rng: ChaCha12Rng::seed_from_u64(seed as u64),
             density: pair("boxes", "density_kg_m3")?,
@@ -325,4 +331,43 @@ pub fn settle(sampled: &mut SampledScene, physics: &RecipePhysics) -> Result<Set
     scene.min_signed_distance_m = c.min_signed_distance_m;
     scene.stable = outcome.stable;
     Ok(outcome)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const RECIPE: &str = include_str!("../../../datasets/recipes/single_box.toml");
+    const SINGLE: &str = include_str!("../../../configs/search/single_box.toml");
+
+    fn with_tape_along(value: &str) -> String {
+        let recipe = RECIPE.replace(
+            "[materials]\n",
+            &format!("[materials]\ntape_along = {value}\n"),
+        );
+        assert_ne!(recipe, RECIPE);
+        recipe
+    }
+
+    #[test]
+    fn a_sampled_scene_carries_tape_along_to_the_renderer() {
+        // the Blender stage draws the boxes' look from the scene row's recipe: the option must
+        // survive the pinning of the camera and the lights
+        let space = SearchSpace::from_texts(SINGLE, &with_tape_along("\"long\""), None).unwrap();
+        let parameters = space.parameters(&vec![0.3; space.dim()], 0).unwrap();
+        let sampled = build(&space, &parameters, 0, 7).unwrap();
+        let recipe: toml::Table = sampled.scene.recipe_toml.parse().unwrap();
+        assert_eq!(boxpose_data::recipe::tape_along(&recipe), Ok("long"));
+    }
+
+    #[test]
+    fn a_base_recipe_with_another_tape_along_is_refused_naming_the_key() {
+        let message = SearchSpace::from_texts(SINGLE, &with_tape_along("\"short\""), None)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            message.contains("materials.tape_along") && message.contains("\"long\" or \"random\""),
+            "{message}"
+        );
+    }
 }
