@@ -60,18 +60,27 @@ def tiny_recipe(width: int, height: int, frames: int) -> str:
 
 
 def render_synthetic_dataset(
-    root: Path, width: int, height: int, *, shared_size_in_scene_0: bool = False
+    root: Path,
+    width: int,
+    height: int,
+    *,
+    shared_size_in_scene_0: bool = False,
+    tape_along: str | None = None,
 ) -> Path:
     """Two synthetic scenes (2 boxes spread out, 3 boxes stacked), two views each, rendered by the
     Python worker into the dataset folder `root`. With `shared_size_in_scene_0`, scene 0's two
-    boxes get one square-based size (one BOP obj_id with 7 discrete symmetries)."""
+    boxes get one square-based size (one BOP obj_id with 7 discrete symmetries); `tape_along`
+    sets the recipe's materials.tape_along (absent by default, as in the shipped recipes)."""
     import boxpose_io
     from blender_scripts.synthetic import synthetic_scene
 
-    rows = [
-        synthetic_scene(
-            k, tiny_recipe(width, height, 2), 2 + k, seed=40 + k, stack=k == 1, spread_m=0.1
+    recipe_toml = tiny_recipe(width, height, 2)
+    if tape_along is not None:
+        recipe_toml = recipe_toml.replace(
+            "[materials]\n", f'[materials]\ntape_along = "{tape_along}"\n'
         )
+    rows = [
+        synthetic_scene(k, recipe_toml, 2 + k, seed=40 + k, stack=k == 1, spread_m=0.1)
         for k in range(2)
     ]
     if shared_size_in_scene_0:

@@ -122,10 +122,11 @@ def test_quaternion_round_trip():
         assert np.allclose(geo.matrix_to_quat(geo.quat_to_matrix(q)), q, atol=1e-12)
 
 
-def test_label_corners_lie_on_the_top_face():
+@pytest.mark.parametrize("tape_along", ["random", "long"])
+def test_label_corners_lie_on_the_top_face(tape_along):
     for seed in range(40):
         size = (0.12, 0.07, 0.05)
-        look = sampling.draw_appearance(seed, size, True, True)
+        look = sampling.draw_appearance(seed, size, True, True, tape_along=tape_along)
         corners = look.label.corners_box(size)
         assert np.allclose(corners[:, 2], 0.025)
         assert np.all(np.abs(corners[:, 0]) <= 0.06 + 1e-12) and np.all(
@@ -134,7 +135,160 @@ def test_label_corners_lie_on_the_top_face():
         # corner order: bit0 → +u, bit1 → +v, counter-clockwise seen from +z: 0 → 1 → 3 → 2
         e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
         assert np.cross(e1, e2)[2] > 0
-        assert look == sampling.draw_appearance(seed, size, True, True)
+        assert look == sampling.draw_appearance(seed, size, True, True, tape_along=tape_along)
+
+
+# Draws of the code before materials.tape_along existed (commit f2a5592): "random" must reproduce
+# them bit for bit, so that the existing datasets (and the networks trained on them) stay valid.
+# (texture_seed, size, has_tape, has_label) → (tape axis, tape offset, label rotated, label centre,
+# label half extents, label pattern seed, noise offset).
+DRAWS_BEFORE_TAPE_ALONG = [
+    (
+        (7, (0.2, 0.15, 0.1), True, True),
+        (
+            1,
+            0.0022854576604671266,
+            True,
+            (0.04069490543305419, -0.010722421656468917),
+            (0.04112866717800611, 0.044189619990123025),
+            37.347295375288134,
+            (6.715229267629823, -69.05126609063458, -68.6304338160424),
+        ),
+    ),
+    (
+        (12345, (0.1, 0.3, 0.08), True, True),
+        (
+            0,
+            0.023096157531984,
+            True,
+            (-0.016939675947478267, -0.04685433977855916),
+            (0.071344354302455, 0.015761707818434948),
+            627.1581694847655,
+            (34.73345478602752, 64.32464676586758, 98.08012014996251),
+        ),
+    ),
+    (
+        (2**40 + 3, (0.12, 0.12, 0.05), True, True),
+        (
+            0,
+            0.0038471800713267795,
+            True,
+            (-0.005185020700246138, -0.016149663273691106),
+            (0.025202008723835607, 0.01801465452700471),
+            760.6887592938886,
+            (0.9070522181090439, -18.95878996153499, 72.27623289817936),
+        ),
+    ),
+    (
+        (5, (0.1, 0.2, 0.1), False, True),
+        (
+            None,
+            None,
+            True,
+            (-0.004255173282869327, -0.009774836274913457),
+            (0.04482456897586428, 0.020382750402405565),
+            803.7556034641852,
+            (57.16042602255803, 1.5598025393834831, -44.62790440663469),
+        ),
+    ),
+    (
+        (6, (0.25, 0.2, 0.1), True, False),
+        (
+            1,
+            -0.000743611080430644,
+            None,
+            None,
+            None,
+            None,
+            (76.78047765108931, 48.25725372139948, 63.54654141148407),
+        ),
+    ),
+]
+
+
+def appearance_facts(look: sampling.BoxAppearance) -> tuple:
+    tape, label = look.tape, look.label
+    return (
+        tape and tape.axis,
+        tape and tape.offset_m,
+        label and label.rotated,
+        label and label.centre_m,
+        label and label.half_m,
+        label and label.pattern_seed,
+        look.noise_offset,
+    )
+
+
+@pytest.mark.parametrize("row, before", DRAWS_BEFORE_TAPE_ALONG)
+def test_tape_along_random_draws_what_the_code_before_it_drew(row, before):
+    seed, size, has_tape, has_label = row
+    look = sampling.draw_appearance(seed, size, has_tape, has_label, tape_along="random")
+    assert appearance_facts(look) == before
+
+
+def long_side_unit(size) -> np.ndarray:
+    """The unit vector, in the box frame, of the longer side of the +z face (x on a tie)."""
+    return np.array([1.0, 0.0]) if size[0] >= size[1] else np.array([0.0, 1.0])
+
+
+def label_u_in_box(instance: dict) -> np.ndarray:
+    """The label's u axis in the box frame's (x, y), from an instances row's ground truth."""
+    camera_box = geo.pose_matrix(
+        instance["camera_box_quat_wxyz"], instance["camera_box_translation_m"]
+    )
+    corners = np.reshape(instance["label_keypoints_camera_m"], (4, 3))
+    corners_box = geo.transform(np.linalg.inv(camera_box), corners)
+    u = corners_box[1, :2] - corners_box[0, :2]  # corner 1 differs from corner 0 in +u only
+    return u / np.linalg.norm(u)
+
+
+@pytest.mark.parametrize(
+    "size", [(0.20, 0.15, 0.1), (0.15, 0.20, 0.1), (0.12, 0.121, 0.05), (0.12, 0.12, 0.05)]
+)
+def test_tape_along_long_follows_the_longer_side_of_the_top_face(size):
+    """Boxes longer along x, longer along y, nearly square and square: the tape runs along the
+    longer side and the label's u axis (its long axis) lies along it; every other draw is the one
+    "random" makes (the stream stays aligned)."""
+    long_axis = int(size[1] > size[0])
+    flipped = 0
+    for seed in range(30):
+        look = sampling.draw_appearance(seed, size, True, True, tape_along="long")
+        random = sampling.draw_appearance(seed, size, True, True, tape_along="random")
+        assert look.tape.axis == long_axis
+        corners = look.label.corners_box(size)[:, :2]
+        u = corners[1] - corners[0]  # corner 1 differs from corner 0 in +u only
+        assert np.allclose(u / np.linalg.norm(u), long_side_unit(size))
+        # the label stays on the face, with its margin
+        assert np.all(np.abs(corners) <= 0.5 * np.array(size[:2]) + 1e-12)
+        same = ("noise_offset", "noise_scale", "fibre_scale", "color_variation")
+        assert all(getattr(look, k) == getattr(random, k) for k in same)
+        assert look.tape.color == random.tape.color and look.tape.width_m <= 0.048
+        assert look.label.pattern_seed == random.label.pattern_seed
+        flipped += random.tape.axis != long_axis
+    assert 0 < flipped < 30  # "random" takes the other side on some boxes, so this test bites
+
+
+def test_tape_along_of_another_value_is_refused():
+    with pytest.raises(ValueError, match="tape_along"):
+        sampling.draw_appearance(1, (0.1, 0.2, 0.1), True, True, tape_along="short")
+
+
+@pytest.mark.parametrize("value", ['"short"', '"Long"', '""', "1", "true", '["long"]'])
+def test_both_stages_refuse_another_tape_along_naming_the_key_and_values(value):
+    text = recipe_text().replace("[materials]\n", f"[materials]\ntape_along = {value}\n")
+    for read in (Recipe.from_toml, parse_render_recipe):
+        with pytest.raises(RecipeError, match=r"materials\.tape_along.*\"long\" or \"random\""):
+            read(text, "bad")
+
+
+@pytest.mark.parametrize("value, means", [(None, "random"), ("random", "random"), ("long", "long")])
+def test_both_stages_read_tape_along_random_when_absent(value, means):
+    text = recipe_text()
+    assert "tape_along" not in text  # no shipped recipe sets it: their data must not change
+    if value is not None:
+        text = text.replace("[materials]\n", f'[materials]\ntape_along = "{value}"\n')
+    assert Recipe.from_toml(text).materials.tape_along == means
+    assert parse_render_recipe(text).materials.tape_along == means
 
 
 def test_render_seed_is_deterministic_and_per_frame():
@@ -513,6 +667,39 @@ def test_sensor_depth_channel(session, clutter):
     assert not (valid & (depth == 0)).any()
     assert np.median(np.abs(noisy[valid] - depth[valid])) < 0.01
     assert json.loads(frame["render_settings"])["sensor_depth"]["model"] == "structured_light"
+
+
+def test_tape_along_long_reaches_the_render(session):
+    """One scene, every box taped and labelled, rendered with "random" and with "long": "long"
+    moves the tape and labels (the pixels change where "random" drew the short side) and nothing
+    else (same depth and masks), and the label keypoints of the ground truth follow the longer
+    side of each box's top face."""
+    text = (
+        recipe_text("tiny", 48, 48)
+        .replace("tape_probability = 0.7", "tape_probability = 1.0")
+        .replace("label_probability = 0.6", "label_probability = 1.0")
+    )
+    scene, objects = synthetic_scene(3, text, 3, seed=11, spread_m=0.08)
+    long_text = text.replace("[materials]\n", '[materials]\ntape_along = "long"\n')
+    renders = {}
+    for tape_along, recipe_toml in (("random", text), ("long", long_text)):
+        session.load({**scene, "recipe_toml": recipe_toml}, objects)
+        renders[tape_along] = session.render(0)
+    random_looks = [
+        sampling.draw_appearance(o["texture_seed"], o["size_m"], True, True, tape_along="random")
+        for o in objects
+    ]
+    assert any(
+        look.tape.axis != int(o["size_m"][1] > o["size_m"][0])
+        for look, o in zip(random_looks, objects, strict=True)
+    ), "every box drew its long side at random: choose another seed"
+    (random_frame, _), (long_frame, long_instances) = renders["random"], renders["long"]
+    rgb_random, depth_random, mask_random = decode(random_frame)
+    rgb_long, depth_long, mask_long = decode(long_frame)
+    assert np.array_equal(depth_random, depth_long) and np.array_equal(mask_random, mask_long)
+    assert np.abs(rgb_long.astype(int) - rgb_random.astype(int)).max() > 20
+    for instance in long_instances:
+        assert np.allclose(label_u_in_box(instance), long_side_unit(instance["size_m"]))
 
 
 @pytest.mark.parametrize("support", ["bin", "pallet"])

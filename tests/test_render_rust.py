@@ -94,6 +94,40 @@ def test_rust_rerender_reproduces_the_dataset(dataset, boxpose_bin, tmp_path):
                 assert a == b, col
 
 
+def test_tape_along_long_from_the_dataset_stage_to_the_rust_render(boxpose_bin, tmp_path):
+    """A recipe with materials.tape_along = "long", end to end at 48²: the dataset worker's label
+    keypoints follow each box's longer top side, and `boxpose render` (the embedded Blender the
+    search uses too, which knows the option from the scene's recipe_toml) re-renders the frame
+    with the same look and ground truth."""
+    from blender_scripts import sampling
+    from test_render_blender import label_u_in_box, long_side_unit
+
+    dataset = render_synthetic_dataset(tmp_path / "ds", 48, 48, tape_along="long")
+    want = pd.read_parquet(dataset / "instances").query("scene_id == 1 and frame_id == 0")
+    labelled = [row for _, row in want.iterrows() if row.label_keypoints_camera_m is not None]
+    assert labelled, "no box of scene 1 drew a label: choose another seed"
+    for row in labelled:
+        assert np.allclose(label_u_in_box(row), long_side_unit(row.size_m))
+    objects = pd.read_parquet(dataset / "objects").query("scene_id == 1 and has_label")
+    assert any(
+        sampling.draw_appearance(
+            o.texture_seed, o.size_m, o.has_tape, True, tape_along="random"
+        ).label.rotated
+        != (o.size_m[1] > o.size_m[0])
+        for o in objects.itertuples()
+    ), '"random" draws every label along the longer side here: choose another seed'
+
+    out = tmp_path / "out"
+    r = boxpose(boxpose_bin, "render", dataset, "--scene", 1, "--frame", 0, "--out", out)
+    assert r.returncode == 0, r.stderr
+    got = pd.read_parquet(out / "instances").sort_values("object_id")
+    for a, b in zip(got.label_keypoints_camera_m, want.label_keypoints_camera_m, strict=True):
+        assert (a is None and b is None) or np.array_equal(a, b)
+    want_rgb = pd.read_parquet(dataset / "frames").query("scene_id == 1 and frame_id == 0")
+    got_rgb = pd.read_parquet(out / "frames")
+    assert np.abs(rgb(got_rgb.rgb_png.iloc[0]) - rgb(want_rgb.rgb_png.iloc[0])).mean() < 2.0
+
+
 def test_rust_output_is_a_valid_dataset(dataset, boxpose_bin, tmp_path):
     out = tmp_path / "out"
     r = boxpose(boxpose_bin, "render", dataset, "--scene", 0, "--out", out)

@@ -17,6 +17,7 @@ import numpy as np
 
 from blender_scripts.geometry import LABEL_CORNER_SIGNS, Camera, look_at
 from blender_scripts.recipe import CameraSpec, LightingSpec
+from boxpose_io.schema import TAPE_ALONG
 
 _RENDER_TAG = 0x52454E44  # "REND"
 _SUPPORT_TAG = 0x53555050  # "SUPP"
@@ -170,11 +171,22 @@ class BoxAppearance:
         return asdict(self)
 
 
-def draw_appearance(texture_seed: int, size, has_tape: bool, has_label: bool) -> BoxAppearance:
+def draw_appearance(
+    texture_seed: int, size, has_tape: bool, has_label: bool, *, tape_along: str
+) -> BoxAppearance:
     """The box's procedural look, a pure function of its objects row (texture_seed, size,
-    has_tape, has_label)."""
+    has_tape, has_label) and its recipe's `materials.tape_along`.
+
+    tape_along "random": the tape's axis and the label's turn are drawn. "long": both follow the
+    longer side of the +z face (x when dx >= dy), as on a regular slotted carton, so the texture
+    says which side is longer. The draws are made either way, so the stream stays aligned: "random"
+    is the look of every dataset written before the key existed, and "long" changes only those two
+    choices (and what follows from them: the strip's offset and the label's extents)."""
+    if tape_along not in TAPE_ALONG:
+        raise ValueError(f"tape_along must be one of {TAPE_ALONG}, got {tape_along!r}")
     rng = np.random.default_rng(derive_seed(texture_seed))
     dx, dy, dz = (float(s) for s in size)
+    long_axis = 0 if dx >= dy else 1
     noise_offset = tuple(float(v) for v in rng.uniform(-100.0, 100.0, 3))
     noise_scale = _uniform(rng, (6.0, 14.0))
     fibre_scale = _uniform(rng, (150.0, 300.0))
@@ -182,6 +194,8 @@ def draw_appearance(texture_seed: int, size, has_tape: bool, has_label: bool) ->
     tape = None
     if has_tape:
         axis = int(rng.integers(0, 2))
+        if tape_along == "long":
+            axis = long_axis
         across = dy if axis == 0 else dx  # extent perpendicular to the strip, on the +z face
         width = min(0.048, 0.35 * across)
         offset = _uniform(rng, (-0.1, 0.1)) * (across - width)
@@ -192,6 +206,8 @@ def draw_appearance(texture_seed: int, size, has_tape: bool, has_label: bool) ->
     label = None
     if has_label:
         rotated = bool(rng.integers(0, 2))
+        if tape_along == "long":
+            rotated = long_axis == 1  # u = box y when y is the longer side
         eu, ev = (dy, dx) if rotated else (dx, dy)  # face extent along the label's u and v axes
         hu = 0.5 * min(_uniform(rng, (0.35, 0.6)) * eu, 0.15)
         hv = 0.5 * min(_uniform(rng, (0.3, 0.55)) * ev, 0.10)

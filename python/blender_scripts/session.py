@@ -114,7 +114,11 @@ class Session:
         }
         self.appearances = {
             int(o["object_id"]): sampling.draw_appearance(
-                o["texture_seed"], o["size_m"], bool(o["has_tape"]), bool(o["has_label"])
+                o["texture_seed"],
+                o["size_m"],
+                bool(o["has_tape"]),
+                bool(o["has_label"]),
+                tape_along=self.recipe.materials.tape_along,
             )
             for o in objects
         }
