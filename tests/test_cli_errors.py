@@ -81,3 +81,18 @@ def test_eval_geometry_out_is_a_file_path(tmp_path, boxpose_bin):
     (line,) = result.stderr.strip().splitlines()
     assert f"--out {tmp_path} is a folder" in line and "eval_geometry.parquet" in line, line
     assert "Is a directory" not in line
+
+
+def test_a_shipped_default_missing_outside_the_repository_says_where_to_run(tmp_path, boxpose_bin):
+    """The defaults are relative to the repository root: from elsewhere, the error says so."""
+    result = subprocess.run(
+        [str(boxpose_bin), "search", "single_box", "--out", str(tmp_path / "run")],
+        capture_output=True,
+        text=True,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 1
+    error, hint = result.stderr.strip().splitlines()
+    assert error.startswith("error: ") and "configs/search/single_box.toml" in error
+    assert hint.startswith("hint: ") and "repository root" in hint and "--model" in hint
+    assert not (tmp_path / "run").exists()
