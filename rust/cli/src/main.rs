@@ -110,8 +110,8 @@ fn outside_the_repository_hint(error: &anyhow::Error) -> Option<&'static str> {
                 || message.contains(&format!(" {prefix}"))
                 || message.contains(&format!(": {prefix}"))
         });
-    let at_the_root = std::path::Path::new("configs/search").is_dir()
-        && std::path::Path::new("models").is_dir();
+    let at_the_root =
+        std::path::Path::new("configs/search").is_dir() && std::path::Path::new("models").is_dir();
     (missing_shipped_file && !at_the_root).then_some(
         "hint: the default models, recipes and search spaces are paths relative to the boxpose \
          repository root; run from there, or pass --model, --segmenter, --recipes and a search \
