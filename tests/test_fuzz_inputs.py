@@ -256,6 +256,35 @@ def test_a_recipe_without_tape_along_is_accepted_by_every_reader(search_space, b
     assert rust_search_accepts(boxpose_bin, search_space, TINY_TEXT)
 
 
+@pytest.mark.parametrize("key", ["tape_probability", "label_probability"])
+@pytest.mark.parametrize("value", [-0.1, 0.0, 0.5, 1.0, 1.7])
+def test_the_python_and_rust_readers_agree_on_the_material_probabilities(
+    search_space, boxpose_bin, key, value
+):
+    """A probability outside [0, 1] was generated from by `make scenes` and refused by the
+    search: every reader now refuses it, naming the key."""
+    text, count = re.subn(rf"(?m)^{key} = .*$", f"{key} = {value}", TINY_TEXT)
+    assert count == 1
+    valid = 0.0 <= value <= 1.0
+    assert read_both(text) == (valid, valid)
+    space = search_space
+    space.with_name("recipe.toml").write_text(text)
+    missing = space.with_name("no-model")
+    r = subprocess.run(
+        [str(boxpose_bin), "search", str(space), "--out", str(space.with_name("run"))]
+        + ["--model", str(missing)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert (f"--model {missing}" in r.stderr) == valid, r.stderr
+    if not valid:
+        assert f"materials.{key}" in r.stderr, r.stderr
+        for read in (lambda: Recipe.from_toml(text, "fuzz"), lambda: parse_render_recipe(text)):
+            with pytest.raises(RecipeError, match=rf"materials\.{key} must be a probability"):
+                read()
+
+
 # --- the Python module ----------------------------------------------------------------------
 
 float_arrays = hnp.arrays(

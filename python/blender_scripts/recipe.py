@@ -19,6 +19,7 @@ from drake_scenes.recipe import (
     MaterialsSpec,
     RecipeError,
     SupportSpec,
+    materials_problems,
     read_support,
     read_tape_along,
     support_problems,
@@ -165,7 +166,7 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
     )
     # Read and checked exactly as the scene stage does: half_extent_m is (x, y), not a range.
     support = read_support(data, source)
-    problems = support_problems(support)
+    problems = support_problems(support) + materials_problems(materials)
     if camera.frames_per_scene < 1 or camera.width < 1 or camera.height < 1:
         problems.append("camera.frames_per_scene, width and height must be >= 1")
     if not (0 < camera.hfov_deg[0] and camera.hfov_deg[1] < 180):

@@ -155,6 +155,7 @@ class Recipe:
             if not 0 < lo <= hi:
                 problems.append(f"{key} must be a positive range [min, max]")
         problems += support_problems(s)
+        problems += materials_problems(self.materials)
         if (
             not 0 <= d.height_m[0] <= d.height_m[1]
             or d.min_separation_m <= 0
@@ -204,6 +205,19 @@ def read_tape_along(data: dict, source: str) -> str:
             'new recipes; "random", the default, draws them as the existing datasets do)'
         )
     return value
+
+
+def materials_problems(m: MaterialsSpec) -> list[str]:
+    """What is wrong with a [materials] section (empty when nothing is): the tape and label
+    probabilities must be probabilities, as the search's Rust reader requires."""
+    return [
+        f"materials.{key} must be a probability in [0, 1], got {value}"
+        for key, value in (
+            ("tape_probability", m.tape_probability),
+            ("label_probability", m.label_probability),
+        )
+        if not 0.0 <= value <= 1.0
+    ]
 
 
 def support_problems(s: SupportSpec) -> list[str]:
