@@ -868,3 +868,20 @@ def test_a_run_without_a_terminal_still_reports_its_progress(spaces, boxpose_bin
     )
     line = next(x for x in r.stderr.splitlines() if x.startswith("mc 0: 2/2 samples"))
     assert "failures" in line and "p̂" in line and "ETA" in line
+
+
+def test_an_unknown_space_or_recipe_name_lists_the_known_ones(spaces, boxpose_bin, tmp_path):
+    r = search(boxpose_bin, "no_such_space", "--out", tmp_path / "a", check=False)
+    assert r.returncode != 0 and "the known search spaces in configs/search: " in r.stderr
+    assert "single_box" in r.stderr and "clutter" in r.stderr, r.stderr
+    space = tmp_path / "space.toml"
+    space.write_text(
+        spaces["single"]
+        .read_text()
+        .replace(
+            f'recipe = "{spaces["single"].with_name("floor.toml")}"', 'recipe = "no_such_recipe"'
+        )
+    )
+    r = search(boxpose_bin, space, "--out", tmp_path / "b", check=False)
+    assert r.returncode != 0 and "the known recipes in datasets/recipes: " in r.stderr, r.stderr
+    assert "single_box" in r.stderr and not (tmp_path / "b").exists()

@@ -244,7 +244,7 @@ impl RecipePhysics {
         let unknown = boxpose_data::recipe::unknown_keys(&table);
         if !unknown.is_empty() {
             return Err(PhysicsError::Recipe(format!(
-                "unknown keys {unknown:?} (misspelt? the keys are listed in rust/data/src/recipe.rs)"
+                "unknown keys {unknown:?} (misspelt? `boxpose schema` lists every recipe key, under \"recipe\")"
             )));
         }
         let recipe: Self = toml::Value::Table(table)

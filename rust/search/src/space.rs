@@ -336,6 +336,31 @@ impl Parameters {
     }
 }
 
+/// "; the known WHAT: a, b, c" — the `*.toml` names in `dir`, for an error about a name that is
+/// not one of them; empty when `dir` cannot be listed.
+fn known_names(dir: &Path, what: &str) -> String {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return String::new();
+    };
+    let mut names: Vec<String> = entries
+        .filter_map(|entry| {
+            let path = entry.ok()?.path();
+            let stem = path.file_stem()?.to_string_lossy().into_owned();
+            (path.extension()? == "toml").then_some(stem)
+        })
+        .collect();
+    names.sort();
+    if names.is_empty() {
+        String::new()
+    } else {
+        format!(
+            "; the known {what} in {}: {}",
+            dir.display(),
+            names.join(", ")
+        )
+    }
+}
+
 impl SearchSpace {
     /// Reads and validates a search space: a TOML path, or a name in `configs/search/`.
     pub fn load(name_or_path: &str, recipes_dir: &Path) -> Result<Self> {
@@ -347,7 +372,10 @@ impl SearchSpace {
         };
         let text = std::fs::read_to_string(&path).map_err(|e| SearchError::Io {
             path: path.clone(),
-            message: e.to_string(),
+            message: format!(
+                "{e}{}",
+                known_names(Path::new("configs/search"), "search spaces")
+            ),
         })?;
         Self::parse(&text, &path.display().to_string(), recipes_dir)
     }
@@ -369,7 +397,11 @@ impl SearchSpace {
         let recipe_toml =
             std::fs::read_to_string(&recipe_path).map_err(|e| SearchError::Space {
                 key: "recipe".into(),
-                problem: format!("{}: {e}", recipe_path.display()),
+                problem: format!(
+                    "{}: {e}{}",
+                    recipe_path.display(),
+                    known_names(recipes_dir, "recipes")
+                ),
             })?;
         // with [neighbours] beside it, from_parts refuses the space before any dataset is read
         let pile = match (&file.pile, &file.neighbours) {
