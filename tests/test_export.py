@@ -1,6 +1,6 @@
 """`boxpose export bop|coco`: the exported files read back in Python and checked, field by field,
 against the Parquet rows they came from (poses in mm, K, depth, masks, pixel counts, visibility,
-models and their symmetries; COCO RLE masks, boxes and areas)."""
+models and their symmetries; COCO RLE masks, boxes and areas, and the corners as COCO keypoints)."""
 
 import io
 import json
@@ -13,6 +13,8 @@ from pathlib import Path
 import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
 import numpy as np
 import pandas as pd
+import pyarrow as pa
+import pyarrow.parquet as pq
 import pytest
 from PIL import Image
 
@@ -52,6 +54,14 @@ def bop(dataset, boxpose_bin, tmp_path_factory) -> Path:
 def coco(dataset, boxpose_bin, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("coco") / "boxpose_coco"
     r = boxpose(boxpose_bin, "export", "coco", dataset, out)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+@pytest.fixture(scope="module")
+def coco_keypoints(dataset, boxpose_bin, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("coco_keypoints") / "boxpose_coco"
+    r = boxpose(boxpose_bin, "export", "coco", dataset, out, "--keypoints")
     assert r.returncode == 0, r.stderr
     return out
 
@@ -352,6 +362,146 @@ def test_coco_evaluates_to_ap_1_with_pycocotools(coco):
         e.accumulate()
         e.summarize()
         assert e.stats[0] == pytest.approx(1.0), iou
+
+
+# The dataset's 4-state corner visibility (0 visible, 1 occluded by another object, 2 self-occluded,
+# 3 outside the image) as COCO's flag (2 visible, 1 labelled but hidden, 0 not labelled): the
+# mapping docs/export.md states.
+COCO_VISIBILITY = {0: 2, 1: 1, 2: 1, 3: 0}
+
+# Per-corner OKS sigmas for pycocotools' keypoint evaluation, as docs/export.md states and argues.
+CORNER_SIGMAS = np.full(8, 0.05)
+
+
+def expected_keypoints(instance) -> list[float]:
+    corners = np.reshape(instance.corners_px, (8, 2))
+    keypoints = []
+    for (x, y), state in zip(corners, instance.corner_visibility, strict=True):
+        v = COCO_VISIBILITY[int(state)]
+        keypoints += [x, y, v] if v > 0 else [0, 0, 0]
+    return keypoints
+
+
+def annotated_instance(doc: dict, annotation: dict, instances: pd.DataFrame):
+    image = next(im for im in doc["images"] if im["id"] == annotation["image_id"])
+    (row,) = instances[
+        (instances.scene_id == image["scene_id"])
+        & (instances.frame_id == image["frame_id"])
+        & (instances.object_id == annotation["object_id"])
+    ].itertuples()
+    return row
+
+
+def test_coco_keypoints_are_the_corners_with_coco_visibility(coco_keypoints, rows):
+    _, instances = rows
+    doc = load(coco_keypoints / "annotations.json")
+    states = Counter()
+    for a in doc["annotations"]:
+        i = annotated_instance(doc, a, instances)
+        assert a["keypoints"] == expected_keypoints(i)  # exact: the floats round-trip
+        assert a["num_keypoints"] == sum(COCO_VISIBILITY[int(s)] > 0 for s in i.corner_visibility)
+        states.update(int(s) for s in i.corner_visibility)
+    # the fixture holds visible, occluded and self-occluded corners (none outside the image: see
+    # the next test), so each hidden state's mapping is exercised
+    assert {0, 1, 2} <= set(states), states
+
+
+def test_coco_keypoints_outside_the_image_are_not_labelled(dataset, boxpose_bin, tmp_path):
+    """A corner outside the image has no position in it: COCO's (0, 0, 0), not counted in
+    num_keypoints. The fixture has none, so a copy of it marks two corners of a box as outside."""
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    (shard,) = (copy / "instances").glob("*.parquet")
+    table = pq.read_table(shard)
+    visibility = table.column("corner_visibility").to_pylist()
+    visible_pixels = table.column("visible_pixels").to_pylist()
+    target = visible_pixels.index(max(visible_pixels))  # a box surely annotated
+    visibility[target][0] = visibility[target][5] = 3
+    column = table.schema.get_field_index("corner_visibility")
+    field = table.schema.field(column)
+    pq.write_table(
+        table.set_column(column, field, pa.array(visibility, type=field.type)),
+        shard,
+        compression="zstd",
+    )
+    out = tmp_path / "coco"
+    r = boxpose(boxpose_bin, "export", "coco", copy, out, "--keypoints")
+    assert r.returncode == 0, r.stderr
+    doc = load(out / "annotations.json")
+    instances = pd.read_parquet(copy / "instances")
+    (moved,) = [
+        a
+        for a in doc["annotations"]
+        if annotated_instance(doc, a, instances).corner_visibility[0] == 3
+    ]
+    i = annotated_instance(doc, moved, instances)
+    assert moved["keypoints"][0:3] == moved["keypoints"][15:18] == [0, 0, 0]
+    assert moved["keypoints"] == expected_keypoints(i)
+    assert moved["num_keypoints"] == 8 - 2
+
+
+def test_coco_keypoint_category_names_corners_and_skeleton_joins_box_edges(coco_keypoints):
+    (category,) = load(coco_keypoints / "annotations.json")["categories"]
+    assert category["keypoints"] == [f"corner_{i}" for i in range(8)]
+    # corner order and sign patterns from the Python geometry, independent of the Rust code
+    signs = np.sign(geo.box_corners(np.ones(3)))
+    edges = {tuple(edge) for edge in category["skeleton"]}
+    assert len(category["skeleton"]) == len(edges) == 12
+    for a, b in edges:
+        assert 1 <= a < b <= 8  # 1-based, as COCO
+        assert (signs[a - 1] != signs[b - 1]).sum() == 1  # an edge: one sign apart
+    assert Counter(c for edge in edges for c in edge) == {c: 3 for c in range(1, 9)}
+
+
+def test_coco_without_keypoints_is_unchanged(coco, coco_keypoints):
+    """`--keypoints` only adds fields: without it the export is the one written before the option
+    existed (no keypoint field anywhere), and the two exports differ in nothing else."""
+    plain = load(coco / "annotations.json")
+    with_keypoints = load(coco_keypoints / "annotations.json")
+    assert "keypoints" not in plain["categories"][0] and "skeleton" not in plain["categories"][0]
+    assert not any("keypoints" in a or "num_keypoints" in a for a in plain["annotations"])
+    for a in with_keypoints["annotations"]:
+        del a["keypoints"], a["num_keypoints"]
+    del with_keypoints["categories"][0]["keypoints"], with_keypoints["categories"][0]["skeleton"]
+    assert with_keypoints == plain
+    images = sorted(p.name for p in (coco / "images").iterdir())
+    assert images == sorted(p.name for p in (coco_keypoints / "images").iterdir())
+    for name in images:
+        assert (coco / "images" / name).read_bytes() == (
+            coco_keypoints / "images" / name
+        ).read_bytes()
+
+
+def test_coco_keypoints_evaluate_to_ap_1_with_pycocotools(coco_keypoints):
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    gt = COCO(str(coco_keypoints / "annotations.json"))
+
+    def keypoint_ap(shift_px: float) -> float:
+        dets = []
+        for a in gt.dataset["annotations"]:
+            keypoints = np.reshape(a["keypoints"], (8, 3)).copy()
+            keypoints[:, 0] += shift_px
+            dets.append(
+                {
+                    "image_id": a["image_id"],
+                    "category_id": 1,
+                    "keypoints": keypoints.ravel().tolist(),
+                    "score": 1.0,
+                }
+            )
+        e = COCOeval(gt, gt.loadRes(dets), "keypoints")
+        e.params.kpt_oks_sigmas = CORNER_SIGMAS
+        e.evaluate()
+        e.accumulate()
+        e.summarize()
+        return e.stats[0]
+
+    assert keypoint_ap(0.0) == pytest.approx(1.0)
+    # the sigmas make the evaluation discriminate: a 2-pixel error on these small boxes (a few
+    # hundred visible pixels) costs most of the AP
+    assert keypoint_ap(2.0) < 0.5
 
 
 def test_exports_name_their_source_without_the_machines_absolute_path(bop, coco, dataset):

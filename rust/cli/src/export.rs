@@ -1,5 +1,6 @@
 //! `boxpose export bop|coco`: a dataset in the BOP scene-wise format that bop_toolkit reads, or
-//! as COCO instances (RLE masks) for segmentation tooling. See docs/export.md.
+//! as COCO instances (RLE masks, optionally the 8 corners as keypoints) for segmentation and
+//! keypoint tooling. See docs/export.md.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -8,7 +9,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, ensure};
 use boxpose_data::schema::FRAMES;
-use boxpose_data::{Dataset, Frame, Instance, Intrinsics, Pose};
+use boxpose_data::{Dataset, Frame, Instance, Intrinsics, Pose, Visibility};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{Value, json};
 
@@ -24,7 +25,8 @@ use serde_json::{Value, json};
         millimetres, as BOP expects.\n\n\
         `coco` writes annotations.json (one `box` category; per visible box a COCO RLE of its visible mask, \
         bbox, area, and the amodal silhouette as amodal_segmentation/amodal_bbox) and the images as PNG \
-        files under images/.\n\n\
+        files under images/; with --keypoints also the box's 8 corners as COCO keypoints (visibility \
+        0/1/2) and the category's corner names and 12-edge skeleton.\n\n\
         Visible masks come from the exact instance mask; amodal masks (BOP mask/, COCO amodal_*) are the \
         box's projected silhouette (its convex hull clipped to the near plane), the same silhouette the \
         dataset's visible_fraction is measured against. The output folder is written under OUT.partial \
@@ -32,7 +34,8 @@ use serde_json::{Value, json};
     after_help = "Examples:\n  \
         boxpose export bop datasets/generated/demo build/bop/boxpose_demo\n  \
         boxpose export bop datasets/generated/demo build/bop/boxpose_demo --split val --min-visib-fract 0.2\n  \
-        boxpose export coco datasets/generated/demo build/coco/demo\n\n\
+        boxpose export coco datasets/generated/demo build/coco/demo\n  \
+        boxpose export coco datasets/generated/demo build/coco/demo_keypoints --keypoints\n\n\
         See docs/export.md for every file, field and unit."
 )]
 pub struct Args {
@@ -69,6 +72,11 @@ pub struct CocoArgs {
     pub dataset: PathBuf,
     /// Output folder (annotations.json and images/); must not exist or be empty.
     pub out: PathBuf,
+    /// Also write the box's 8 corners per annotation as COCO `keypoints` (visibility 2 visible,
+    /// 1 occluded or self-occluded, 0 outside the image) with `num_keypoints`, and the corner
+    /// names and the 12-edge `skeleton` in the category.
+    #[arg(long)]
+    pub keypoints: bool,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
@@ -234,7 +242,7 @@ fn model_info(key: SizeKey) -> anyhow::Result<Value> {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Geometry: rotations and the amodal silhouette
+// Geometry: rotations, box edges and the amodal silhouette
 
 fn rotation(q: [f64; 4]) -> [[f64; 3]; 3] {
     let n = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
@@ -275,6 +283,17 @@ fn world_to_camera(world_camera: &Pose) -> ([[f64; 3]; 3], [f64; 3]) {
     (rt, t_w2c)
 }
 
+/// The box's 12 edges as pairs of corner indices (i, j), i < j, in increasing (i, axis) order: the
+/// corners of an edge differ in the sign along one axis, i.e. in one bit of the corner index
+/// (docs/dataset.md: bit 0 is x, bit 1 y, bit 2 z).
+fn box_edges() -> impl Iterator<Item = (usize, usize)> {
+    (0..8usize).flat_map(|i| {
+        (0..3)
+            .filter(move |bit| i >> bit & 1 == 0)
+            .map(move |bit| (i, i | 1 << bit))
+    })
+}
+
 /// Near plane of the silhouette, as in blender_scripts.geometry.silhouette_mask.
 const NEAR_M: f64 = 1e-3;
 
@@ -283,16 +302,11 @@ const NEAR_M: f64 = 1e-3;
 /// so the pixel counts agree with the ones visible_fraction was computed from.
 fn silhouette_hull(k: &Intrinsics, corners: &[[f64; 3]; 8]) -> Vec<[f64; 2]> {
     let mut verts: Vec<[f64; 3]> = corners.iter().filter(|p| p[2] >= NEAR_M).copied().collect();
-    for i in 0..8usize {
-        for bit in 0..3 {
-            if i >> bit & 1 == 1 {
-                continue;
-            }
-            let (a, b) = (corners[i], corners[i | 1 << bit]);
-            if (a[2] - NEAR_M) * (b[2] - NEAR_M) < 0.0 {
-                let s = (NEAR_M - a[2]) / (b[2] - a[2]);
-                verts.push(std::array::from_fn(|d| a[d] + s * (b[d] - a[d])));
-            }
+    for (i, j) in box_edges() {
+        let (a, b) = (corners[i], corners[j]);
+        if (a[2] - NEAR_M) * (b[2] - NEAR_M) < 0.0 {
+            let s = (NEAR_M - a[2]) / (b[2] - a[2]);
+            verts.push(std::array::from_fn(|d| a[d] + s * (b[d] - a[d])));
         }
     }
     if verts.len() < 3 {
@@ -771,6 +785,50 @@ fn rle(mask: &[bool], width: usize, height: usize) -> Value {
     json!({"size": [height, width], "counts": counts})
 }
 
+/// COCO's visibility flag of a corner. COCO labels a hidden joint with its position and v = 1, so
+/// corners hidden by another box or by the box's own faces (whose exact positions the dataset
+/// has) get 1; a corner outside the image (or behind the camera) has no position in it and is
+/// not labelled (0).
+fn coco_visibility(visibility: Visibility) -> u8 {
+    match visibility {
+        Visibility::Visible => 2,
+        Visibility::OccludedByOther | Visibility::SelfOccluded => 1,
+        Visibility::OutsideImage => 0,
+    }
+}
+
+/// An instance's corners as COCO `keypoints` [x1, y1, v1, …] in corner order, unlabelled ones as
+/// 0, 0, 0 (COCO's convention), and `num_keypoints`, the labelled ones. Pixel coordinates as in
+/// the dataset (the top-left pixel's centre at (0, 0)), COCO's keypoint convention too; the
+/// flags are integers, as in COCO's own files.
+fn coco_keypoints(instance: &Instance) -> (Vec<Value>, usize) {
+    let mut keypoints = Vec::with_capacity(3 * 8);
+    let mut labelled = 0;
+    for (&[x, y], &visibility) in instance.corners_px.iter().zip(&instance.visibility) {
+        let v = coco_visibility(visibility);
+        if v == 0 {
+            keypoints.extend([json!(0), json!(0), json!(0)]);
+        } else {
+            keypoints.extend([json!(x), json!(y), json!(v)]);
+            labelled += 1;
+        }
+    }
+    (keypoints, labelled)
+}
+
+/// The `box` category; with keypoints, the corners' names and the box's edges as COCO's 1-based
+/// `skeleton`.
+fn coco_category(keypoints: bool) -> Value {
+    let mut category = json!({"id": 1, "name": "box", "supercategory": "box"});
+    if keypoints {
+        let names: Vec<String> = (0..8).map(|i| format!("corner_{i}")).collect();
+        let skeleton: Vec<[usize; 2]> = box_edges().map(|(i, j)| [i + 1, j + 1]).collect();
+        category["keypoints"] = json!(names);
+        category["skeleton"] = json!(skeleton);
+    }
+    category
+}
+
 fn coco(args: &CocoArgs, out: &Path) -> anyhow::Result<()> {
     let dataset = Dataset::open(&args.dataset)?;
     crate::inspect::warn_if_incomplete(&dataset);
@@ -797,7 +855,7 @@ fn coco(args: &CocoArgs, out: &Path) -> anyhow::Result<()> {
             let sil = silhouette(&frame, instance);
             let bbox = xywh(instance.visible_bbox);
             let amodal_bbox = mask_bbox(&sil.mask, frame.width);
-            annotations.push(json!({
+            let mut annotation = json!({
                 "id": annotations.len() + 1,
                 "image_id": image_id,
                 "category_id": 1,
@@ -811,7 +869,13 @@ fn coco(args: &CocoArgs, out: &Path) -> anyhow::Result<()> {
                 "visib_fract": instance.visible_fraction,
                 "object_id": instance.object_id,
                 "obj_id": obj_id(&ids, instance)?,
-            }));
+            });
+            if args.keypoints {
+                let (keypoints, num_keypoints) = coco_keypoints(instance);
+                annotation["keypoints"] = json!(keypoints);
+                annotation["num_keypoints"] = json!(num_keypoints);
+            }
+            annotations.push(annotation);
         }
         bar.inc(1);
     }
@@ -828,7 +892,7 @@ fn coco(args: &CocoArgs, out: &Path) -> anyhow::Result<()> {
             "licenses": [],
             "images": images,
             "annotations": annotations,
-            "categories": [{"id": 1, "name": "box", "supercategory": "box"}],
+            "categories": [coco_category(args.keypoints)],
         }),
     )?;
     println!("{n_images} images, {n_annotations} annotations");
@@ -860,6 +924,37 @@ mod tests {
         let mask = [false, true, true, false, false, true];
         assert_eq!(rle(&mask, 3, 2)["counts"], json!([2, 1, 1, 2]));
         assert_eq!(rle(&[true; 4], 2, 2)["counts"], json!([0, 4]));
+    }
+
+    #[test]
+    fn box_edges_join_corners_one_sign_apart() {
+        let edges: Vec<(usize, usize)> = box_edges().collect();
+        assert_eq!(edges.len(), 12);
+        for &(i, j) in &edges {
+            assert!(i < j && j < 8 && (i ^ j).count_ones() == 1, "{i}-{j}");
+        }
+        let unique: std::collections::BTreeSet<_> = edges.iter().collect();
+        assert_eq!(unique.len(), 12);
+        // every corner meets three edges
+        for corner in 0..8 {
+            let degree = edges.iter().filter(|&&(i, j)| i == corner || j == corner);
+            assert_eq!(degree.count(), 3);
+        }
+    }
+
+    #[test]
+    fn coco_visibility_flags_and_keypoint_category() {
+        assert_eq!(coco_visibility(Visibility::Visible), 2);
+        assert_eq!(coco_visibility(Visibility::OccludedByOther), 1);
+        assert_eq!(coco_visibility(Visibility::SelfOccluded), 1);
+        assert_eq!(coco_visibility(Visibility::OutsideImage), 0);
+        let category = coco_category(true);
+        assert_eq!(category["keypoints"][7], json!("corner_7"));
+        assert_eq!(category["skeleton"][0], json!([1, 2]));
+        assert_eq!(
+            coco_category(false),
+            json!({"id": 1, "name": "box", "supercategory": "box"})
+        );
     }
 
     #[test]
