@@ -30,5 +30,5 @@ def unknown_keys_problem(data: dict, source: str) -> str | None:
     return (
         f"recipe {source}: unknown key{'s' if len(unknown) > 1 else ''} "
         f"{', '.join(repr(k) for k in unknown)} (misspelt? `boxpose schema` lists every "
-        "recipe key, under \"recipe\")"
+        'recipe key, under "recipe")'
     )
