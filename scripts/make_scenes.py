@@ -687,25 +687,34 @@ def claim_dataset(args, manifest: dict) -> None:
         _claim_under_lock(args, manifest)
 
 
+def settings_differ(args, manifest: dict) -> bool:
+    """Whether the folder's manifest (if any) records other settings than `manifest`, which
+    only --regenerate may replace: without it, refused."""
+    path = args.dataset / MANIFEST
+    if not path.is_file():
+        return False
+    try:
+        found = json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise DriverError(
+            f"{path}: unreadable manifest ({e}); delete it to adopt the folder"
+        ) from e
+    differ = [k for k in manifest if found.get(k) != manifest[k]]
+    if differ and not args.regenerate:
+        what = "; ".join(f"{k} {found.get(k)!r} then, {manifest[k]!r} now" for k in differ)
+        raise DriverError(
+            f"{args.dataset} was generated from other settings ({what}): resuming would mix "
+            "two datasets. Use another --dataset folder, or --regenerate to delete this "
+            "one's outputs and start again"
+        )
+    return bool(differ)
+
+
 def _claim_under_lock(args, manifest: dict) -> None:
     path = args.dataset / MANIFEST
     if path.is_file():
-        try:
-            found = json.loads(path.read_text())
-        except (OSError, ValueError) as e:
-            raise DriverError(
-                f"{path}: unreadable manifest ({e}); delete it to adopt the folder"
-            ) from e
-        differ = [k for k in manifest if found.get(k) != manifest[k]]
-        if not differ:
+        if not settings_differ(args, manifest):
             return
-        if not args.regenerate:
-            what = "; ".join(f"{k} {found.get(k)!r} then, {manifest[k]!r} now" for k in differ)
-            raise DriverError(
-                f"{args.dataset} was generated from other settings ({what}): resuming would mix "
-                "two datasets. Use another --dataset folder, or --regenerate to delete this "
-                "one's outputs and start again"
-            )
         for name in GENERATED:
             target = args.dataset / name
             if target.is_dir():
@@ -746,16 +755,16 @@ def run(args) -> int:
     if args.regenerate and args.shards is not None:
         raise DriverError("--regenerate deletes every shard: run it without --shards")
     check_bpy(args.python)
+    manifest = {
+        "recipe": recipe.name,
+        "recipe_sha256": hashlib.sha256(text.encode()).hexdigest(),
+        "num_scenes": num_scenes,
+        "num_shards": args.num_shards,
+    }
+    # before the lock files are created: a refused command leaves another dataset as it was
+    settings_differ(args, manifest)
     args.locks = lock_dataset(args, shards)
-    claim_dataset(
-        args,
-        {
-            "recipe": recipe.name,
-            "recipe_sha256": hashlib.sha256(text.encode()).hexdigest(),
-            "num_scenes": num_scenes,
-            "num_shards": args.num_shards,
-        },
-    )
+    claim_dataset(args, manifest)
 
     frames_per_scene = recipe.camera.frames_per_scene
     total = num_scenes * frames_per_scene * len(shards) // args.num_shards

@@ -57,6 +57,8 @@ pub struct Args {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    // its own earlier output is rewritten (its stale files removed below)
+    crate::output_folder::refuse_foreign(&args.out, "--out", "eval", &["eval.parquet"])?;
     let mut model = KeypointModel::load(&args.model, args.backend.device()?)?;
     if let Some(radius) = args.peak_refine_radius {
         model.config.peak_refine_radius = radius;

@@ -68,6 +68,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         args.out.display(),
         args.out.join("eval_geometry.parquet").display()
     );
+    // its own earlier table is replaced; any other file (another command's table, a manifest)
+    // is not this command's to overwrite
+    if args.out.exists() {
+        boxpose_data::read_shard(&args.out, &boxpose_data::schema::EVAL_GEOMETRY).map_err(|e| {
+            anyhow::anyhow!(
+                "--out {} exists and is not an eval-geometry table ({e}): choose a new path for --out",
+                args.out.display()
+            )
+        })?;
+    }
     let dataset = Dataset::open(&args.dataset)?;
     crate::inspect::warn_if_incomplete(&dataset);
     let frames = dataset.frames()?;

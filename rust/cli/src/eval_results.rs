@@ -186,6 +186,12 @@ struct Row {
 }
 
 fn bop(args: &BopArgs) -> anyhow::Result<()> {
+    crate::output_folder::refuse_foreign(
+        &args.out,
+        "--out",
+        "eval-results",
+        &["eval_results.parquet"],
+    )?;
     let dataset = Dataset::open(&args.dataset)?;
     crate::inspect::warn_if_incomplete(&dataset);
     let ids = export::object_ids(&dataset)?;

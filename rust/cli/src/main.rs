@@ -7,6 +7,7 @@ mod eval_results;
 mod export;
 mod fit_table;
 mod inspect;
+mod output_folder;
 mod plots;
 mod predict;
 mod render;

@@ -109,7 +109,9 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             args.out.display()
         );
     }
-    refuse_dataset_folder(&args.out)?;
+    // The rendered rows are written as the folder's only shards (`part-00000-of-00001`), which
+    // would replace another dataset's rows or an earlier render's: no marker is its own.
+    crate::output_folder::refuse_foreign(&args.out, "--out", "render", &[])?;
     let (scenes, objects) = scene_rows(&args.dataset, args.scene)
         .with_context(|| format!("reading scene {} of {}", args.scene, args.dataset.display()))?;
     check_frames(&args.dataset, args.scene, &args.frames)?;
@@ -180,30 +182,6 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     write_shard(&args.out, &schema::INSTANCES, &name, &instances)?;
     write_shard(&args.out, &schema::FRAMES, &name, &frames)?;
     println!("rows: {}", args.out.display());
-    Ok(())
-}
-
-/// Refuses an --out that holds dataset tables or a manifest.json: the rendered rows are written
-/// as the folder's only shards (`part-00000-of-00001`), which would replace another dataset's
-/// rows (leaving its manifest describing a dataset that is gone) or an earlier render's.
-fn refuse_dataset_folder(out: &Path) -> anyhow::Result<()> {
-    let held: Vec<&str> = [
-        schema::SCENES.name,
-        schema::OBJECTS.name,
-        schema::FRAMES.name,
-        schema::INSTANCES.name,
-        "manifest.json",
-    ]
-    .into_iter()
-    .filter(|name| out.join(name).exists())
-    .collect();
-    anyhow::ensure!(
-        held.is_empty(),
-        "--out {} already holds {} (another dataset, or an earlier render): rendering into it would \
-         replace those rows; choose a new folder for --out",
-        out.display(),
-        held.join(", ")
-    );
     Ok(())
 }
 

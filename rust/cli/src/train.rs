@@ -57,6 +57,17 @@ pub struct RunArgs {
 }
 
 impl RunArgs {
+    /// A run folder resumes its own checkpoint; a dataset or another command's run is refused
+    /// before the run writes its config.toml into it.
+    fn refuse_foreign_out(&self, command: &str) -> anyhow::Result<()> {
+        crate::output_folder::refuse_foreign(
+            &self.out,
+            "--out",
+            command,
+            &["config.toml", "checkpoint"],
+        )
+    }
+
     fn override_config(&self, data: &mut DataConfig, o: &mut OptimizerConfig) {
         if !self.datasets.is_empty() {
             data.datasets = self.datasets.clone();
@@ -194,6 +205,7 @@ fn parse_backbone(text: &str) -> Result<Backbone, String> {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    args.run.refuse_foreign_out("train")?;
     let mut config = TrainConfig::load(&args.config)?;
     args.run
         .override_config(&mut config.data, &mut config.optimizer);
@@ -268,6 +280,7 @@ pub struct SegmenterArgs {
 }
 
 pub fn run_segmenter(args: &SegmenterArgs) -> anyhow::Result<()> {
+    args.run.refuse_foreign_out("train-segmenter")?;
     let mut config = SegmenterTrainConfig::load(&args.config)?;
     args.run
         .override_config(&mut config.data, &mut config.optimizer);

@@ -1,0 +1,54 @@
+//! The one check every writing command makes of its output folder before it writes: a folder
+//! holding another dataset or another command's run is refused, so that no command replaces or
+//! mixes into what it did not write (issue 31, item 2). Each command names the markers it writes
+//! itself, which it may find and rewrite or resume (eval rewriting its own earlier output).
+
+use std::path::Path;
+
+use boxpose_data::schema;
+
+/// What the search variants command writes beside its tables: which run and draw they hold, so a
+/// resume can tell its own shards from another dataset's.
+pub const VARIANTS_FILE: &str = "variants.json";
+
+/// The files and folders that mark a folder as some command's output, and what that output is.
+const MARKERS: [(&str, &str); 13] = [
+    (schema::SCENES.name, "a dataset"),
+    (schema::OBJECTS.name, "a dataset"),
+    (schema::FRAMES.name, "a dataset"),
+    (schema::INSTANCES.name, "a dataset"),
+    ("manifest.json", "a dataset"),
+    (VARIANTS_FILE, "search variants' dataset"),
+    ("run.json", "a search run"),
+    ("config.toml", "a training run"),
+    ("checkpoint", "a training run"),
+    ("eval.parquet", "eval's output"),
+    ("eval_results.parquet", "eval-results' output"),
+    ("predictions.parquet", "predict's output"),
+    ("camera.json", "a BOP export"),
+];
+
+/// Refuses `folder` (the value of `flag`) when it holds a marker of another dataset or run, any
+/// marker but the command's `own`. Checked before anything is created, so a refused command
+/// leaves the folder as it found it.
+pub fn refuse_foreign(
+    folder: &Path,
+    flag: &str,
+    command: &str,
+    own: &[&str],
+) -> anyhow::Result<()> {
+    let held: Vec<(&str, &str)> = MARKERS
+        .into_iter()
+        .filter(|(name, _)| !own.contains(name) && folder.join(name).exists())
+        .collect();
+    let Some((_, what)) = held.first() else {
+        return Ok(());
+    };
+    let names: Vec<&str> = held.iter().map(|(name, _)| *name).collect();
+    anyhow::bail!(
+        "{flag} {} already holds {what} ({}): {command} would replace or mix into output it did \
+         not write; choose a new or empty folder for {flag}",
+        folder.display(),
+        names.join(", ")
+    )
+}

@@ -1,0 +1,119 @@
+"""No output replaces what it did not write (issue 31, item 2): every command that writes a dataset
+or run folder, pointed at a folder that holds another dataset, refuses with a message naming the
+folder and leaves every file of it byte for byte as it was, and adds none."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import REPO, render_synthetic_dataset
+
+KEYPOINT_MODEL = REPO / "models" / "keypoint-slim"
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory) -> Path:
+    """The valid input every command reads: two tiny synthetic scenes, two 32×24 views each."""
+    return render_synthetic_dataset(tmp_path_factory.mktemp("outputs") / "input", 32, 24)
+
+
+@pytest.fixture
+def foreign(dataset, tmp_path) -> Path:
+    """Another dataset, as `make scenes` leaves one: its tables and its manifest.json."""
+    folder = tmp_path / "other-dataset"
+    shutil.copytree(dataset, folder)
+    manifest = {"recipe": "other", "recipe_sha256": "0" * 64, "num_scenes": 2, "num_shards": 1}
+    (folder / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    return folder
+
+
+def snapshot(folder: Path) -> dict[str, bytes | None]:
+    """Every path under `folder` with its bytes (None for a folder)."""
+    return {
+        str(p.relative_to(folder)): None if p.is_dir() else p.read_bytes()
+        for p in sorted(folder.rglob("*"))
+    }
+
+
+# Each writing command, with valid other arguments, aimed at the folder OUT; DATASET is the input.
+BOXPOSE_COMMANDS = {
+    "render": ["render", "DATASET", "--scene", "0", "--out", "OUT"],
+    "search": ["search", "configs/search/single_box.toml", "--out", "OUT"],
+    "search variants": ["search", "variants", "RUN", "--out", "OUT"],
+    "search replay": ["search", "replay", "RUN", "--sample", "0", "--out", "OUT"],
+    "export bop": ["export", "bop", "DATASET", "OUT"],
+    "export coco": ["export", "coco", "DATASET", "OUT"],
+    "eval": ["eval", "DATASET", "--model", str(KEYPOINT_MODEL), "--out", "OUT"],
+    # a file path: aimed at another dataset's manifest
+    "eval-geometry": ["eval-geometry", "DATASET", "--out", "OUT/manifest.json"],
+    "eval-results bop": ["eval-results", "bop", "RESULTS", "DATASET", "--out", "OUT"],
+    "predict": [
+        "predict",
+        "DATASET",
+        "--scene",
+        "0",
+        "--frame",
+        "0",
+        "--model",
+        str(KEYPOINT_MODEL),
+        "--out",
+        "OUT",
+    ],
+    "train": ["train", "--config", "configs/tiny.toml", "--dataset", "DATASET", "--out", "OUT"],
+    "train-segmenter": [
+        "train-segmenter",
+        "--config",
+        "configs/segmenter-tiny.toml",
+        "--dataset",
+        "DATASET",
+        "--out",
+        "OUT",
+    ],
+}
+
+
+def command_line(name, boxpose_bin, dataset, foreign, tmp_path) -> list[str]:
+    if name == "make scenes":
+        return [
+            sys.executable,
+            str(REPO / "scripts" / "make_scenes.py"),
+            "--recipe",
+            "tiny",
+            "--dataset",
+            str(foreign),
+            "--no-inspect",
+        ]
+    results = tmp_path / "results.csv"
+    results.write_text("scene_id,im_id,obj_id,score,R,t,time\n")
+    values = {
+        "DATASET": str(dataset),
+        "OUT": str(foreign),
+        "RUN": str(tmp_path / "no-run-needed"),
+        "RESULTS": str(results),
+    }
+    args = BOXPOSE_COMMANDS[name]
+    return [str(boxpose_bin), *(values.get(a, a.replace("OUT", str(foreign))) for a in args)]
+
+
+@pytest.mark.parametrize("name", [*BOXPOSE_COMMANDS, "make scenes"])
+def test_a_writing_command_refuses_a_folder_holding_another_dataset(
+    name, boxpose_bin, dataset, foreign, tmp_path
+):
+    before = snapshot(foreign)
+    result = subprocess.run(
+        command_line(name, boxpose_bin, dataset, foreign, tmp_path),
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
+    assert result.returncode != 0, f"{name} wrote into another dataset:\n{result.stdout}"
+    assert str(foreign) in result.stderr, result.stderr
+    after = snapshot(foreign)
+    assert sorted(after) == sorted(before), f"{name} added or removed files"
+    changed = [path for path in before if after[path] != before[path]]
+    assert not changed, f"{name} changed {changed}"
