@@ -261,8 +261,8 @@ def test_render_refuses_an_out_holding_a_dataset(dataset, boxpose_bin, tmp_path)
     ):
         before = folder_bytes(out)
         r = boxpose(boxpose_bin, "render", dataset, "--scene", 1, "--out", out)
-        assert r.returncode != 0 and f"already holds {held}" in r.stderr, r.stderr
-        assert "choose a new folder for --out" in r.stderr
+        assert r.returncode != 0 and f"already holds a dataset ({held})" in r.stderr, r.stderr
+        assert "choose a new or empty folder for --out" in r.stderr
         assert folder_bytes(out) == before
 
     # a second render into one folder would drop the first one's rows
@@ -271,7 +271,7 @@ def test_render_refuses_an_out_holding_a_dataset(dataset, boxpose_bin, tmp_path)
     assert r.returncode == 0, r.stderr
     before = folder_bytes(out)
     r = boxpose(boxpose_bin, "render", dataset, "--scene", 1, "--out", out)
-    assert r.returncode != 0 and "choose a new folder for --out" in r.stderr, r.stderr
+    assert r.returncode != 0 and "choose a new or empty folder for --out" in r.stderr, r.stderr
     assert folder_bytes(out) == before
 
 
