@@ -51,12 +51,14 @@ rust: $(MUJOCO_LINK_DIR)/.stamp ## Build the Rust workspace (release) and instal
 
 setup: $(VENV)/.stamp $(MUJOCO_LINK_DIR)/.stamp rust ## Create .venv with pinned deps, prepare MuJoCo linking, build Rust
 
-schema: ## Regenerate python/boxpose_io/schema.json and the column reference in docs/dataset.md from the Rust schema
+schema: ## Regenerate python/boxpose_io/schema.json, the column reference in docs/dataset.md and docs/recipes.md from the Rust schema
 	# Each file is written beside its target and renamed: a killed `make schema` leaves no half file.
 	cargo run --release --quiet -p boxpose-cli -- schema > python/boxpose_io/schema.json.tmp
 	mv python/boxpose_io/schema.json.tmp python/boxpose_io/schema.json
 	mkdir -p build && cargo run --release --quiet -p boxpose-cli -- schema --markdown > build/columns.md
 	$(PY) scripts/splice_doc.py docs/dataset.md build/columns.md
+	cargo run --release --quiet -p boxpose-cli -- schema --recipes-markdown > docs/recipes.md.tmp
+	mv docs/recipes.md.tmp docs/recipes.md
 
 scenes: setup ## Generate a dataset: Drake scenes then Blender renders, shard by shard, resumable (RECIPE=clutter SHARDS=1)
 	$(PY) scripts/make_scenes.py --recipe $(RECIPE) --dataset $(DATASET) --num-shards $(SHARDS) --boxpose $(BOXPOSE)

@@ -29,6 +29,6 @@ def unknown_keys_problem(data: dict, source: str) -> str | None:
         return None
     return (
         f"recipe {source}: unknown key{'s' if len(unknown) > 1 else ''} "
-        f"{', '.join(repr(k) for k in unknown)} (misspelt? `boxpose schema` lists every "
-        'recipe key, under "recipe")'
+        f"{', '.join(repr(k) for k in unknown)} (misspelt? docs/recipes.md lists every recipe "
+        'key with its type, range and default, as does `boxpose schema` under "recipe")'
     )

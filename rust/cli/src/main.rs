@@ -37,8 +37,12 @@ enum Command {
     /// Print the dataset contract (tables, columns, types, units) as JSON or Markdown.
     Schema {
         /// Markdown column reference (as in docs/dataset.md) instead of JSON.
-        #[arg(long)]
+        #[arg(long, conflicts_with = "recipes_markdown")]
         markdown: bool,
+        /// Markdown reference of every recipe key: type, accepted values, default, unit and
+        /// meaning (docs/recipes.md).
+        #[arg(long)]
+        recipes_markdown: bool,
     },
     /// Validate every shard of a dataset folder and summarize it.
     ///
@@ -156,10 +160,14 @@ pub(crate) fn to_stdout(
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
-        Command::Schema { markdown: true } => {
+        Command::Schema { markdown: true, .. } => {
             to_stdout(|out| Ok(out.write_all(boxpose_data::schema::to_markdown().as_bytes())?))?
         }
-        Command::Schema { markdown: false } => {
+        Command::Schema {
+            recipes_markdown: true,
+            ..
+        } => to_stdout(|out| Ok(out.write_all(boxpose_data::recipe::to_markdown().as_bytes())?))?,
+        Command::Schema { .. } => {
             let json = serde_json::to_string_pretty(&boxpose_data::schema::to_json())?;
             to_stdout(|out| Ok(writeln!(out, "{json}")?))?
         }

@@ -244,7 +244,8 @@ impl RecipePhysics {
         let unknown = boxpose_data::recipe::unknown_keys(&table);
         if !unknown.is_empty() {
             return Err(PhysicsError::Recipe(format!(
-                "unknown keys {unknown:?} (misspelt? `boxpose schema` lists every recipe key, under \"recipe\")"
+                "unknown keys {unknown:?} (misspelt? docs/recipes.md lists every recipe key with its \
+                 type, range and default, as does `boxpose schema` under \"recipe\")"
             )));
         }
         let recipe: Self = toml::Value::Table(table)
