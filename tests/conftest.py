@@ -9,6 +9,31 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 
+# A single-box search space over a small range of every parameter; {recipe} is its base recipe.
+TINY_SEARCH_SPACE = """
+name = "test_single_box"
+recipe = "{recipe}"
+
+[target]
+size_m = {{ x = [0.10, 0.20], y = [0.08, 0.16], z = [0.06, 0.12] }}
+orientation = "so3"
+x_m = [-0.05, 0.05]
+y_m = [-0.05, 0.05]
+drop_height_m = [0.02, 0.08]
+
+[camera]
+distance_m = [0.45, 0.55]
+elevation_deg = [40.0, 65.0]
+azimuth_deg = [0.0, 360.0]
+hfov_deg = [45.0, 55.0]
+
+[lighting]
+sun_elevation_deg = [30.0, 80.0]
+sun_azimuth_deg = [0.0, 360.0]
+sun_strength = [1.0, 4.0]
+world_strength = [0.2, 0.8]
+"""
+
 
 @pytest.fixture(scope="session")
 def repo() -> Path:

@@ -17,6 +17,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 import boxpose
 from blender_scripts.recipe import parse_render_recipe
 from boxpose_io.recipe_keys import RECIPE_KEYS
+from conftest import TINY_SEARCH_SPACE
 from drake_scenes.recipe import Recipe, RecipeError
 
 TINY = Path(__file__).resolve().parent.parent / "datasets" / "recipes" / "tiny.toml"
@@ -166,36 +167,11 @@ def test_the_rust_reader_refuses_a_key_that_is_not_a_recipe_key(
 
 # The search's own reader of a base recipe's [materials] (`boxpose_search::scene`) and
 # `boxpose_data::recipe::tape_along` are Rust; the search space lets any base recipe in.
-SEARCH_SPACE = """
-name = "fuzz"
-recipe = "{recipe}"
-
-[target]
-size_m = {{ x = [0.10, 0.20], y = [0.08, 0.16], z = [0.06, 0.12] }}
-orientation = "so3"
-x_m = [-0.05, 0.05]
-y_m = [-0.05, 0.05]
-drop_height_m = [0.02, 0.08]
-
-[camera]
-distance_m = [0.45, 0.55]
-elevation_deg = [40.0, 65.0]
-azimuth_deg = [0.0, 360.0]
-hfov_deg = [45.0, 55.0]
-
-[lighting]
-sun_elevation_deg = [30.0, 80.0]
-sun_azimuth_deg = [0.0, 360.0]
-sun_strength = [1.0, 4.0]
-world_strength = [0.2, 0.8]
-"""
-
-
 @pytest.fixture(scope="module")
 def search_space(tmp_path_factory) -> Path:
     """A search space whose base recipe is `recipe.toml` beside it (each example rewrites it)."""
     root = tmp_path_factory.mktemp("space")
-    (root / "space.toml").write_text(SEARCH_SPACE.format(recipe=root / "recipe.toml"))
+    (root / "space.toml").write_text(TINY_SEARCH_SPACE.format(recipe=root / "recipe.toml"))
     return root / "space.toml"
 
 
