@@ -409,6 +409,11 @@ def test_clutter_on_the_segmenters_crops(spaces, boxpose_bin, tmp_path):
             lambda t: t.replace("size_m = { x = [0.10, 0.20]", "size_m = { x = [-0.10, 0.20]"),
             "target.size_m.x",
         ),
+        # a position beyond the support would be clamped, and the recorded parameter not used
+        (
+            lambda t: t.replace("x_m = [-0.05, 0.05]", "x_m = [5.0, 6.0]"),
+            "target.x_m",
+        ),
         # a value of the wrong type says what a parameter may be, not serde's enum variants
         (
             lambda t: t.replace("distance_m = [0.45, 0.55]", 'distance_m = "far"'),

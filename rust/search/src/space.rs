@@ -59,6 +59,14 @@ impl Distribution {
         }
     }
 
+    /// The interval its values lie in: the uniform's range or the normal's truncation.
+    pub fn range(&self) -> [f64; 2] {
+        match *self {
+            Distribution::Uniform(range) => range,
+            Distribution::TruncatedNormal(TruncatedNormal { within, .. }) => within,
+        }
+    }
+
     /// Checks that the distribution is proper: finite bounds, a non-empty range, a positive
     /// standard deviation and a truncation interval with positive mass.
     fn validate(&self, key: &str) -> Result<()> {
@@ -68,10 +76,7 @@ impl Distribution {
                 problem,
             })
         };
-        let [lo, hi] = match *self {
-            Distribution::Uniform(range) => range,
-            Distribution::TruncatedNormal(TruncatedNormal { within, .. }) => within,
-        };
+        let [lo, hi] = self.range();
         if !(lo.is_finite() && hi.is_finite()) {
             return bad(format!("range [{lo}, {hi}] must be finite"));
         }
@@ -336,6 +341,40 @@ impl Parameters {
     }
 }
 
+/// Refuses a position range (`x_m`, `y_m` of the target and the neighbours) that reaches beyond
+/// the base recipe's support region: such draws are clamped to the region's edge when the scene is
+/// built, so the parameter recorded for a sample would not be the position used.
+fn check_positions_on_the_support(file: &SpaceFile, recipe_toml: &str) -> Result<()> {
+    let Ok(physics) = boxpose_physics::RecipePhysics::from_toml(recipe_toml) else {
+        // the recipe's own errors are reported where it is read in full
+        return Ok(());
+    };
+    let [hx, hy] = physics.support.half_extent_m;
+    let mut ranges = vec![
+        ("target.x_m", file.target.x_m, hx),
+        ("target.y_m", file.target.y_m, hy),
+    ];
+    if let Some(n) = &file.neighbours {
+        ranges.push(("neighbours.x_m", n.x_m, hx));
+        ranges.push(("neighbours.y_m", n.y_m, hy));
+    }
+    for (key, distribution, half) in ranges {
+        let [lo, hi] = distribution.range();
+        if lo < -half || hi > half {
+            return Err(SearchError::Space {
+                key: key.to_string(),
+                problem: format!(
+                    "[{lo}, {hi}] reaches beyond the recipe's support, which spans [{}, {half}] m \
+                     along this axis: a box would be clamped to its edge and the recorded \
+                     parameter would not be the position used; keep the range within it",
+                    -half
+                ),
+            });
+        }
+    }
+    Ok(())
+}
+
 /// "; the known WHAT: a, b, c" — the `*.toml` names in `dir`, for an error about a name that is
 /// not one of them; empty when `dir` cannot be listed.
 fn known_names(dir: &Path, what: &str) -> String {
@@ -403,6 +442,7 @@ impl SearchSpace {
                     known_names(recipes_dir, "recipes")
                 ),
             })?;
+        check_positions_on_the_support(&file, &recipe_toml)?;
         // with [neighbours] beside it, from_parts refuses the space before any dataset is read
         let pile = match (&file.pile, &file.neighbours) {
             (Some(spec), None) => Some(load_pile(spec, &recipe_toml)?),
