@@ -113,7 +113,7 @@ def test_the_same_seed_trains_the_same_network_with_or_without_an_interruption(
     scene = int(pd.read_parquet(tiny_dataset / "frames").scene_id.iloc[0])
     outputs = []
     for model in (run / "model", again / "model"):
-        out = tmp_path / model.parent.name
+        out = tmp_path / f"{model.parent.name}-predictions"
         run_boxpose(
             boxpose_bin, "predict", tiny_dataset, "--scene", scene, "--model", model, "--out", out
         )

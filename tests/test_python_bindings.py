@@ -380,7 +380,10 @@ def test_ctrl_c_interrupts_a_loop_of_fits_at_their_caps():
     a corner triple: the slowest case), so a Ctrl-C (raised by Python when the call returns)
     stops a notebook's loop of them within seconds instead of after minutes."""
     script = (
-        "import numpy as np, boxpose\n"
+        "import signal, numpy as np, boxpose\n"
+        # Python leaves SIGINT ignored when it inherits that (a job started with `&` by a
+        # non-interactive shell, e.g. CI in the background): install the Ctrl-C handler itself.
+        "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
         "rng = np.random.default_rng(0)\n"
         "corners = boxpose.box_corners((0.2, 0.15, 0.1)) + [0, 0, 1]\n"
         "p = corners[np.arange(60) % 8] + rng.normal(scale=0.003, size=(60, 3))\n"
