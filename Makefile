@@ -148,6 +148,9 @@ demo: setup ## The main job on the default recipe: a small photoreal clutter dat
 	$(BOXPOSE) eval-geometry $(DEMO_DATASET) --out $(DEMO_RESULTS)/eval_geometry_clean.parquet
 	$(BOXPOSE) eval-geometry $(DEMO_DATASET) --outliers 4 --out $(DEMO_RESULTS)/eval_geometry_4_outliers.parquet
 	@echo; echo "== re-render a 128×128 crop of scene 0 from Rust (embedded Blender)"
+	# render refuses a folder holding an earlier render: this one is the demo's own, so a second
+	# `make demo` starts it afresh
+	rm -rf $(DEMO_RESULTS)/rerender
 	$(BOXPOSE) render $(DEMO_DATASET) --scene 0 --crop 256,176,384,304 --out $(DEMO_RESULTS)/rerender
 	@echo; echo "== the shipped networks ($(SEGMENTER), $(MODEL)) on these freshly rendered scenes: one frame, then all of them"
 	$(BOXPOSE) predict $(DEMO_DATASET) --scene 0 --frame 0 --crops predicted --model $(MODEL) --segmenter $(SEGMENTER) --out $(DEMO_RESULTS)/predict
