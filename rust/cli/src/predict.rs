@@ -419,13 +419,18 @@ fn predicted_targets(
 /// Warns about each box whose measured depth makes it implausible for the network: wider, at
 /// that depth, than the heatmap's whole depth range, or narrower than a tenth of it. A depth PNG
 /// read in the wrong unit does that (BOP's 0.1 mm units read as millimetres put a box 10× too
-/// far, so 10× too large), and the fit then reports a confident pose that is far off.
+/// far, so 10× too large), and the fit then reports a confident pose that is far off. A network
+/// whose depth axis scales with the crop fits boxes of any size, so it gets no such warning.
 fn warn_implausible_depths(
     frame: &Frame,
     targets: &[Target],
     model: &KeypointModel,
     depth_scale: f64,
 ) {
+    if model.config.depth_scale_crop_m.is_some() {
+        // Its depth axis scales with the crop: any box size fits it, so none tells a misread unit.
+        return;
+    }
     let [near, far] = model.config.depth_range_m;
     let depth_range = far - near;
     for target in targets {

@@ -56,6 +56,7 @@ fn main() {
         depth_range_m: [-0.12, 0.24],
         sigma_voxels: 1.0,
         crop_margin: 1.25,
+        depth_scale_crop_m: None,
         peak_refine_radius: 1,
     };
     let device = backend.device().expect("backend available").autodiff();

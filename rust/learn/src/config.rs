@@ -77,8 +77,17 @@ pub struct NetworkConfig {
     /// Depth bins D of the heatmap.
     pub depth_bins: usize,
     /// Depth range of the heatmap relative to the crop's reference depth (the median depth of the
-    /// box's visible pixels), metres: [near, far].
+    /// box's visible pixels), metres: [near, far]. With `depth_scale_crop_m`, the range of a crop
+    /// that wide; other crops scale it.
     pub depth_range_m: [f64; 2],
+    /// When set, the crop's depth axis scales with the crop as its image axes do: a crop whose
+    /// window is w metres wide at its reference depth (side · z_ref / fx) gets the heatmap range
+    /// `depth_range_m` · w / `depth_scale_crop_m`, and its depth input is scaled alike. The
+    /// network then sees a 50 cm box at 1.2 m as it sees a 10 cm box at 0.24 m, and no box is too
+    /// deep for the heatmap (a fixed range of 36 cm cannot hold the corners of a 50 cm box).
+    /// Absent (models trained before it): a fixed range in metres.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub depth_scale_crop_m: Option<f64>,
     /// Standard deviation of the target Gaussians and of the NMS kernel, in voxels.
     pub sigma_voxels: f64,
     /// The square crop's side is the box's visible bounding box's longer side times this.
@@ -101,10 +110,18 @@ impl NetworkConfig {
     /// depth bins and range, crop margin) must agree. The target Gaussians' width
     /// (`sigma_voxels`, a loss setting) and the decoding window (`peak_refine_radius`) may
     /// differ: the weights fit any of them, and the run's own network.toml records its choice.
+    /// A run may also scale the depth axis with the crop (`depth_scale_crop_m`) where the trained
+    /// weights had a fixed range: for crops of that width the voxels are the same, and the run
+    /// learns the rest.
     pub fn can_fine_tune_from(&self, trained: &NetworkConfig) -> bool {
+        let depth_scale_crop_m = match trained.depth_scale_crop_m {
+            None => self.depth_scale_crop_m,
+            scaled => scaled,
+        };
         let trained = NetworkConfig {
             sigma_voxels: self.sigma_voxels,
             peak_refine_radius: self.peak_refine_radius,
+            depth_scale_crop_m,
             ..trained.clone()
         };
         *self == trained
@@ -112,6 +129,16 @@ impl NetworkConfig {
 
     pub fn heatmap_size(&self) -> usize {
         self.input_size / 4
+    }
+
+    /// How much a crop's depth axis (heatmap range and depth input) is stretched against
+    /// `depth_range_m`: 1 for a fixed metric range, else the window's width in metres at the
+    /// reference depth over `depth_scale_crop_m`.
+    pub fn depth_stretch(&self, fx: f64, window_side_px: f64, z_ref: f64) -> f64 {
+        match self.depth_scale_crop_m {
+            None => 1.0,
+            Some(reference_m) => window_side_px * z_ref / fx / reference_m,
+        }
     }
 
     pub fn validate(&self) -> Result<(), LearnError> {
@@ -130,6 +157,13 @@ impl NetworkConfig {
             return bad(format!(
                 "depth_range_m {:?} must be finite with near < far",
                 self.depth_range_m
+            ));
+        }
+        if let Some(w) = self.depth_scale_crop_m
+            && !(w.is_finite() && w > 0.0)
+        {
+            return bad(format!(
+                "depth_scale_crop_m {w} must be a positive width in metres"
             ));
         }
         if !(self.sigma_voxels > 0.0) || !(self.crop_margin >= 1.0) {
@@ -323,6 +357,24 @@ impl OptimizerConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn every_shipped_keypoint_config_loads() {
+        let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+        let mut loaded = Vec::new();
+        for entry in std::fs::read_dir(&configs).unwrap() {
+            let path = entry.unwrap().path();
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            if name.ends_with(".toml") && !name.starts_with("segmenter") {
+                TrainConfig::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+                loaded.push(name);
+            }
+        }
+        assert!(
+            loaded.contains(&"keypoint-wide.toml".to_string()),
+            "{loaded:?}"
+        );
+    }
 
     #[test]
     fn augmentation_that_would_crash_the_loader_is_refused_up_front() {

@@ -23,8 +23,9 @@ use crate::config::{AugmentConfig, DataConfig, NetworkConfig};
 const RGB_MEAN: f32 = 0.5;
 const RGB_STD: f32 = 0.25;
 /// Depth enters the network as (z − z_ref)/DEPTH_SCALE_M, clamped to ±DEPTH_CLAMP; 0 where the
-/// pixel has no depth.
-const DEPTH_SCALE_M: f32 = 0.1;
+/// pixel has no depth. A keypoint crop whose depth axis scales with it
+/// ([`NetworkConfig::depth_stretch`]) divides by DEPTH_SCALE_M times the stretch.
+pub(crate) const DEPTH_SCALE_M: f32 = 0.1;
 const DEPTH_CLAMP: f32 = 3.0;
 
 /// A square window of the image, in pixel-index coordinates: it covers pixels x0..x0+side.
@@ -124,7 +125,8 @@ pub fn voxel_grid(
     z_ref: f64,
 ) -> VoxelGrid {
     let scale = window.side / config.heatmap_size() as f64;
-    let [near, far] = config.depth_range_m;
+    let stretch = config.depth_stretch(intrinsics.fx, window.side, z_ref);
+    let [near, far] = config.depth_range_m.map(|z| z * stretch);
     VoxelGrid {
         intrinsics: PinholeIntrinsics {
             fx: intrinsics.fx,
@@ -193,22 +195,24 @@ pub(crate) fn reference_depth(
     Some(*depths.select_nth_unstable_by(middle, f32::total_cmp).1 as f64)
 }
 
-/// The network input `[4, S, S]` (R, G, B, depth) of a square window.
+/// The network input `[4, S, S]` (R, G, B, depth) of a square window, S = `input_size`.
 pub(crate) fn crop_input(
+    config: &NetworkConfig,
     frame: &Frame,
     window: &CropWindow,
     z_ref: f64,
-    size: usize,
     turn: Option<&InPlaneTurn>,
     augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
 ) -> Vec<f32> {
+    let size = config.input_size;
     let step = window.side / size as f64;
+    let stretch = config.depth_stretch(frame.intrinsics.fx, window.side, z_ref);
     resample_input(
         frame,
         [window.x0, window.y0],
         [step, step],
         [size, size],
-        z_ref,
+        (z_ref, DEPTH_SCALE_M * stretch as f32),
         turn,
         augment,
     )
@@ -245,13 +249,14 @@ pub fn depth_view(frame: &Frame) -> DepthView<'_> {
 /// pixel `origin` and advances `step` image pixels per input pixel: RGB resampled bilinearly,
 /// depth by nearest neighbour (interpolating across a box's edge would invent surfaces), both
 /// with the half-pixel-centre convention of [`CropTransform`]. Outside the image: grey, no depth.
+/// Depth enters as (z − z_ref)/scale of `(z_ref, scale)`, clamped to ±DEPTH_CLAMP.
 /// With a `turn`, the region is one of the turned camera's image, read from the frame through it.
 pub(crate) fn resample_input(
     frame: &Frame,
     origin: [f64; 2],
     step: [f64; 2],
     [width, height]: [usize; 2],
-    z_ref: f64,
+    (z_ref, depth_scale_m): (f64, f32),
     turn: Option<&InPlaneTurn>,
     augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
 ) -> Vec<f32> {
@@ -295,7 +300,7 @@ pub(crate) fn resample_input(
     }
     for z in &mut input[3 * plane..] {
         if *z > 0.0 {
-            *z = ((*z - z_ref as f32) / DEPTH_SCALE_M).clamp(-DEPTH_CLAMP, DEPTH_CLAMP);
+            *z = ((*z - z_ref as f32) / depth_scale_m).clamp(-DEPTH_CLAMP, DEPTH_CLAMP);
         }
     }
     input
@@ -488,7 +493,7 @@ pub(crate) fn sample_at(
     turn: Option<&InPlaneTurn>,
     augment: Option<(&AugmentConfig, &mut ChaCha8Rng)>,
 ) -> Result<Sample, LearnError> {
-    let input = crop_input(frame, window, z_ref, config.input_size, turn, augment);
+    let input = crop_input(config, frame, window, z_ref, turn, augment);
     let grid = voxel_grid(config, &frame.intrinsics, window, z_ref);
     let corners = turn.map_or(*corners_camera, |turn| {
         corners_camera.map(|c| turn.point(c))
@@ -785,6 +790,7 @@ mod tests {
             depth_range_m: [-0.12, 0.24],
             sigma_voxels: 1.0,
             crop_margin: 1.25,
+            depth_scale_crop_m: None,
             peak_refine_radius: 1,
         };
         let augment = AugmentConfig {

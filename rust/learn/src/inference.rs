@@ -205,10 +205,10 @@ pub fn perceive(
         .iter()
         .map(|b| {
             data::crop_input(
+                &model.config,
                 frame,
                 &b.crop.window,
                 b.crop.z_ref,
-                model.config.input_size,
                 None,
                 None,
             )

@@ -162,7 +162,7 @@ pub(crate) fn frame_input(
         [0.0, 0.0],
         input_step(config, frame),
         [config.input_width, config.input_height],
-        z_ref,
+        (z_ref, data::DEPTH_SCALE_M),
         None,
         augment,
     )

@@ -20,6 +20,7 @@ fn tiny_config() -> NetworkConfig {
         depth_range_m: [-0.12, 0.24],
         sigma_voxels: 1.0,
         crop_margin: 1.25,
+        depth_scale_crop_m: None,
         peak_refine_radius: 1,
     }
 }
@@ -56,24 +57,32 @@ fn a_training_step_runs_forward_and_backward_and_lowers_the_loss() {
     );
 }
 
-/// A box's 8 corners (camera frame), a crop's voxel grid around them and their target heatmap,
-/// at the shipped network's heatmap shape.
-fn target_of_a_box(
-    config: &NetworkConfig,
-) -> (
+/// A box's 8 corners (camera frame), a crop's voxel grid around them and their target heatmap.
+type BoxTarget = (
     [[f64; 3]; 8],
     boxpose_geometry::heatmap::VoxelGrid,
     Vec<f32>,
-) {
+);
+
+/// [`BoxTarget`] of one box at the shipped network's heatmap shape.
+fn target_of_a_box(config: &NetworkConfig) -> BoxTarget {
+    target_of_a_scaled_box(config, 1.0).unwrap()
+}
+
+/// [`target_of_a_box`] with the box and its distance `scale` times larger: the same image.
+fn target_of_a_scaled_box(
+    config: &NetworkConfig,
+    scale: f64,
+) -> Result<BoxTarget, boxpose_learn::LearnError> {
     let k = Intrinsics {
         fx: 600.0,
         fy: 600.0,
         cx: 320.0,
         cy: 240.0,
     };
-    let model = BoxModel::new(Vector3::new(0.2, 0.16, 0.12)).unwrap();
+    let model = BoxModel::new(Vector3::new(0.2, 0.16, 0.12) * scale).unwrap();
     let pose = Isometry3::from_parts(
-        Translation3::new(0.03, -0.02, 1.2),
+        Translation3::new(0.03 * scale, -0.02 * scale, 1.2 * scale),
         UnitQuaternion::from_euler_angles(0.5, -0.3, 0.8),
     );
     let corners: [[f64; 3]; 8] = model.corners().map(|c| (pose * c).coords.into());
@@ -93,9 +102,9 @@ fn target_of_a_box(
         ],
         1.3,
     );
-    let grid = data::voxel_grid(config, &k, &window, 1.15);
-    let target = data::target_heatmap(config, &grid, &corners).unwrap();
-    (corners, grid, target)
+    let grid = data::voxel_grid(config, &k, &window, 1.15 * scale);
+    let target = data::target_heatmap(config, &grid, &corners)?;
+    Ok((corners, grid, target))
 }
 
 /// Each true corner's offset (u, v, z-bin), in voxels, from the nearest decoded peak.
@@ -172,6 +181,64 @@ fn the_peak_refine_radius_moves_peaks_off_the_voxel_centres_and_closer_to_the_co
             );
         }
     }
+}
+
+/// The shipped shape with its depth axis scaled with the crop, the range it has at a 0.2 m crop.
+fn crop_scaled_shape() -> NetworkConfig {
+    NetworkConfig {
+        depth_scale_crop_m: Some(0.2),
+        ..shipped_shape()
+    }
+}
+
+#[test]
+fn a_crop_scaled_depth_axis_sees_a_five_times_larger_box_five_times_farther_as_the_same_box() {
+    let config = crop_scaled_shape();
+    let (_, grid, near) = target_of_a_scaled_box(&config, 1.0).unwrap();
+    let (corners, far_grid, far) = target_of_a_scaled_box(&config, 5.0).unwrap();
+    let largest = near
+        .iter()
+        .zip(&far)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(largest < 1e-4, "the targets differ by up to {largest}");
+    assert!((far_grid.depth.bin_size / grid.depth.bin_size - 5.0).abs() < 1e-9);
+    // And the 1 m box decodes back onto its corners, within half a voxel.
+    let (_, points) = inference::decode(&config, &far, &far_grid).unwrap();
+    let bin_m = far_grid.depth.bin_size;
+    for corner in corners {
+        let nearest = points
+            .iter()
+            .map(|p| (p.coords - Vector3::from(corner)).norm())
+            .fold(f64::MAX, f64::min);
+        assert!(
+            nearest < bin_m,
+            "a corner {nearest:.4} m from every peak (bin {bin_m:.4} m)"
+        );
+    }
+    // A fixed range of 0.36 m cannot hold the 1 m box's corners at all.
+    let fixed = target_of_a_scaled_box(&shipped_shape(), 5.0);
+    let left_out = fixed.map_or(true, |(_, _, t)| {
+        let total: f32 = t.iter().sum();
+        total < 0.9 * near.iter().sum::<f32>()
+    });
+    assert!(left_out, "a fixed depth range held a 1 m box");
+}
+
+#[test]
+fn a_crop_scaled_run_may_start_from_fixed_range_weights_but_not_the_reverse() {
+    assert!(crop_scaled_shape().can_fine_tune_from(&shipped_shape()));
+    assert!(!shipped_shape().can_fine_tune_from(&crop_scaled_shape()));
+    let other_width = NetworkConfig {
+        depth_scale_crop_m: Some(0.3),
+        ..shipped_shape()
+    };
+    assert!(!other_width.can_fine_tune_from(&crop_scaled_shape()));
+    let bad = NetworkConfig {
+        depth_scale_crop_m: Some(0.0),
+        ..shipped_shape()
+    };
+    assert!(bad.validate().is_err());
 }
 
 #[test]
