@@ -685,6 +685,45 @@ def test_fine_tuning_on_variants_of_the_counterexamples(failing_run, spaces, box
     assert summary["samples_spent"] == 2
 
 
+def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
+    mc_run, failing_run, spaces, boxpose_bin, tmp_path
+):
+    """`search compare`: the shipped network against a one-step tiny network on the same six
+    scenes (same space, seed and settings), paired sample by sample, McNemar's exact p-value
+    recomputed here from the two samples tables."""
+    tiny = tmp_path / "tiny"
+    trained = run_boxpose(
+        boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml",
+        "--dataset", failing_run / "counterexamples", "--steps", 1, "--batch-size", 1,
+        "--validate-every", 1, "--out", tiny,
+    )  # fmt: skip
+    assert trained.returncode == 0, trained.stderr
+    after = tmp_path / "after"
+    search(boxpose_bin, spaces["single"], "--out", after, "--fail-when", "mssd:0.05",
+           "--model", tiny / "model", *MC)  # fmt: skip
+    r = search(boxpose_bin, "compare", mc_run, after, "--json", tmp_path / "compare.json")
+    c = json.loads((tmp_path / "compare.json").read_text())
+    b = pd.read_parquet(mc_run / "samples.parquet").set_index("sample_id")
+    a = pd.read_parquet(after / "samples.parquet").set_index("sample_id")
+    paired = b.valid & a.valid
+    assert c["pairs"] == paired.sum() > 0 and c["unpaired"] == (b.valid ^ a.valid).sum()
+    assert c["fixed"] == list(b.index[paired & b.failed & ~a.failed])
+    assert c["new"] == list(b.index[paired & ~b.failed & a.failed])
+    assert c["before"]["failures"] == (paired & b.failed).sum()
+    assert c["after"]["failures"] == (paired & a.failed).sum()
+    fixed, new = len(c["fixed"]), len(c["new"])
+    tail = sum(math.comb(fixed + new, i) for i in range(min(fixed, new) + 1)) / 2 ** (fixed + new)
+    assert c["mcnemar_p"] == pytest.approx(min(1.0, 2 * tail), abs=1e-12)
+    assert f"fixed {fixed} (failed before only), new {new}" in r.stdout
+    # a run against itself: nothing discordant
+    same = search(boxpose_bin, "compare", mc_run, mc_run)
+    assert "fixed 0 (failed before only), new 0" in same.stdout and "p = 1.000e0" in same.stdout
+    # runs that drew other scenes cannot be paired, and the refusal names what differs
+    other = search(boxpose_bin, "compare", mc_run, failing_run, check=False)
+    assert other.returncode == 1 and "cannot be paired" in other.stderr
+    assert "--seed is 3 there, 0 here" in other.stderr and "--fail-when" in other.stderr
+
+
 def test_fine_tuning_from_another_network_is_one_clear_error(failing_run, boxpose_bin, tmp_path):
     r = run_boxpose(
         boxpose_bin,

@@ -1,7 +1,7 @@
 //! `boxpose search`: the counterexample search — sample scenes from a search space, settle,
 //! render and score them end to end, and estimate the pipeline's failure probability (Monte
 //! Carlo or cross-entropy importance sampling) with its 95% interval; `search report` draws a
-//! run, `search merge` joins the shards of one.
+//! run, `search merge` joins the shards of one, `search compare` pairs two runs' samples.
 
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
@@ -124,6 +124,24 @@ enum Command {
     Merge {
         /// Run folder.
         run: PathBuf,
+    },
+    /// Compare two Monte Carlo runs of one search, sample by sample: the same space, seed and
+    /// settings, the networks or the fit changed (common random numbers: sample i is the same
+    /// scene in both). Prints the failure rate before and after over the paired samples with
+    /// their 95% intervals, the discordant pairs (fixed: failed before only; new: failed after
+    /// only) and McNemar's exact p-value.
+    #[command(after_help = "Example:
+          boxpose search shift_size --samples 1000 --seed 5 --out results/before
+          boxpose search shift_size --samples 1000 --seed 5 --model runs/tuned/model --out results/after
+          boxpose search compare results/before results/after --json results/compare.json")]
+    Compare {
+        /// The run before the change.
+        before: PathBuf,
+        /// The run after it.
+        after: PathBuf,
+        /// Also write the comparison (and the fixed and new sample ids) to this JSON file.
+        #[arg(long)]
+        json: Option<PathBuf>,
     },
 }
 
@@ -264,8 +282,46 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             // the report draws the merged tables, and names the folder it is in now
             search_report::write(&run.dir, 6)
         }
+        Some(Command::Compare {
+            before,
+            after,
+            json,
+        }) => compare(before, after, json.as_deref()),
         None => search(&args.run),
     }
+}
+
+fn compare(before: &Path, after: &Path, json: Option<&Path>) -> anyhow::Result<()> {
+    let comparison = boxpose_search::compare::compare(&Run::open(before)?, &Run::open(after)?)?;
+    let rate = |r: &boxpose_search::compare::Rate| {
+        format!(
+            "{:.3e} [{:.2e}, {:.2e}] ({} of {})",
+            r.p_hat, r.ci95.0, r.ci95.1, r.failures, r.samples
+        )
+    };
+    let c = &comparison;
+    println!(
+        "{} paired samples (valid in both runs; {} unpaired)
+  before {}  {}
+  after  {}  {}
+           fixed {} (failed before only), new {} (failed after only), failed both {}
+           McNemar exact p = {:.3e}",
+        c.pairs,
+        c.unpaired,
+        rate(&c.before),
+        before.display(),
+        rate(&c.after),
+        after.display(),
+        c.fixed.len(),
+        c.new.len(),
+        c.failed_both,
+        c.mcnemar_p,
+    );
+    if let Some(path) = json {
+        boxpose_data::write_file_atomically(path, serde_json::to_string_pretty(c)?.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
 }
 
 fn search(args: &RunArgs) -> anyhow::Result<()> {

@@ -36,5 +36,5 @@ pub use splitting::{
 };
 pub use stats::{
     CiMethod, EstimateError, EstimatorKind, ImportanceEstimate, WeightedSample, clopper_pearson,
-    normal_cdf, normal_quantile, wilson,
+    mcnemar_exact, normal_cdf, normal_quantile, wilson,
 };

@@ -2,7 +2,7 @@
 //! probability.
 
 use serde::{Deserialize, Serialize};
-use statrs::distribution::{ContinuousCDF, Normal};
+use statrs::distribution::{Binomial, ContinuousCDF, DiscreteCDF, Normal};
 use statrs::function::beta::inv_beta_reg;
 
 /// Relative error above which [`ImportanceEstimate`] reports the log-scale Wald interval instead
@@ -62,6 +62,24 @@ pub fn clopper_pearson(k: u64, n: u64, confidence: f64) -> (f64, f64) {
         inv_beta_reg(kf + 1.0, nf - kf, 1.0 - alpha / 2.0)
     };
     (lower, upper)
+}
+
+/// McNemar's exact test of paired binary outcomes (each sample failed or not, before and after a
+/// change, on the same inputs): of the `fixed + new` discordant pairs (failed before only, failed
+/// after only), the count `fixed` is Binomial(fixed + new, ½) when the change does nothing. The
+/// two-sided p-value is
+///
+/// p = min(1, 2 · P(X ≤ min(fixed, new))), X ~ Binomial(fixed + new, ½),
+///
+/// and 1 without discordant pairs. The concordant pairs (failed both times, or neither) carry no
+/// information about the difference and do not enter.
+pub fn mcnemar_exact(fixed: u64, new: u64) -> f64 {
+    let discordant = fixed + new;
+    if discordant == 0 {
+        return 1.0;
+    }
+    let binomial = Binomial::new(0.5, discordant).expect("p = ½ and n ≥ 1 are valid");
+    (2.0 * binomial.cdf(fixed.min(new))).min(1.0)
 }
 
 /// The Wilson score interval for a binomial proportion p̂ = k/n at the given `confidence`, with
@@ -486,6 +504,18 @@ impl ImportanceEstimate {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mcnemar_exact_matches_the_binomial_tail_and_is_symmetric() {
+        // 10 fixed, none new: 2 · (½)¹⁰.
+        assert!((mcnemar_exact(10, 0) - 2.0 / 1024.0).abs() < 1e-12);
+        assert_eq!(mcnemar_exact(7, 3), mcnemar_exact(3, 7));
+        assert_eq!(mcnemar_exact(5, 5), 1.0);
+        assert_eq!(mcnemar_exact(0, 0), 1.0);
+        // 8 against 2: 2 · (1 + 10 + 45)/1024 (scipy.stats.binomtest(2, 10).pvalue).
+        assert!((mcnemar_exact(8, 2) - 112.0 / 1024.0).abs() < 1e-12);
+        assert!(mcnemar_exact(40, 10) < 1e-4);
+    }
 
     fn close(actual: f64, expected: f64, rel: f64) -> bool {
         (actual - expected).abs() <= rel * expected.abs()

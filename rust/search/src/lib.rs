@@ -2,8 +2,10 @@
 //! a search space ([`space`]), build them in the dataset contract and settle them with MuJoCo
 //! ([`scene`]), render them through the embedded Blender and run the perception pipeline on them
 //! ([`sut`]), and estimate how often it fails — Monte Carlo or cross-entropy importance sampling,
-//! resumable and shardable ([`run`]); statistics come from `boxpose-search-stats`.
+//! resumable and shardable ([`run`]) — and compare two runs on the same inputs ([`compare`]);
+//! statistics come from `boxpose-search-stats`.
 
+pub mod compare;
 pub mod error;
 pub mod run;
 pub mod scene;

@@ -165,7 +165,7 @@ pub fn check_shard(shard: usize, num_shards: usize) -> Result<()> {
 
 /// What differs between the search a run folder holds (`run`) and a command's (`this`), in the
 /// command's terms: the flag (or the file) and both values.
-fn differences(run: &RunRecord, this: &RunRecord) -> Vec<String> {
+pub(crate) fn differences(run: &RunRecord, this: &RunRecord) -> Vec<String> {
     let mut out = Vec::new();
     if run.space_toml != this.space_toml {
         out.push("the search space differs".to_string());
@@ -429,7 +429,7 @@ impl Run {
         })
     }
 
-    fn settings(&self) -> &RunSettings {
+    pub(crate) fn settings(&self) -> &RunSettings {
         &self.record.settings
     }
 
