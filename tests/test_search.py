@@ -724,6 +724,66 @@ def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
     assert "--seed is 3 there, 0 here" in other.stderr and "--fail-when" in other.stderr
 
 
+def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings(
+    failing_run, spaces, boxpose_bin, tmp_path
+):
+    """`boxpose improve` at tiny settings: two rounds of search, variants, fine-tuning and paired
+    evaluation, killed once a round's network exists and resumed by the same command, which
+    redoes no finished step. (A one-step tiny network and a threshold nothing meets make every
+    sample fail: the plumbing is tested, not the gain.)"""
+    tiny = tmp_path / "tiny"
+    trained = run_boxpose(
+        boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml",
+        "--dataset", failing_run / "counterexamples", "--steps", 1, "--batch-size", 1,
+        "--validate-every", 1, "--out", tiny,
+    )  # fmt: skip
+    assert trained.returncode == 0, trained.stderr
+    out = tmp_path / "loop"
+    command = [
+        str(boxpose_bin), "improve", str(spaces["single"]), "--out", str(out),
+        "--model", str(tiny / "model"), "--config", str(REPO / "configs" / "tiny.toml"),
+        "--rounds", "2", "--search-samples", "2", "--eval-samples", "2", "--batch-size", "2",
+        "--per-failure", "1", "--steps", "1", "--batch-size-train", "1",
+        "--fail-when", "mssd:0.000001", "--threads", "1",
+    ]  # fmt: skip
+    loop = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    first_network = out / "round-00" / "train" / "model" / "network.toml"
+    deadline = time.monotonic() + 600
+    while not first_network.exists() and loop.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    loop.send_signal(signal.SIGTERM)
+    _, stderr = loop.communicate(timeout=120)
+    assert first_network.exists(), stderr.decode()
+    assert loop.returncode != 0 and not (out / "rounds.csv").exists()
+    first_search = out / "round-00" / "search" / "samples.parquet"
+    searched = first_search.stat().st_mtime_ns
+    time.sleep(1)  # the steps left running with the loop were stopped with it
+    assert not any(p.name.endswith(".tmp") for p in out.rglob("*.json"))
+
+    r = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert first_search.stat().st_mtime_ns == searched
+    rounds = pd.read_csv(out / "rounds.csv")
+    assert list(rounds["round"]) == [0, 1]
+    assert (rounds.search_failures > 0).all() and rounds.fine_tuned.all()
+    for network in range(3):
+        assert (out / "eval" / f"model-{network}" / "summary.json").is_file()
+    assert (out / "round-01" / "train" / "model" / "network.toml").is_file()
+    for row in rounds.itertuples():
+        c = json.loads((out / f"round-{row.round:02d}" / "compare.json").read_text())
+        assert (c["pairs"], len(c["fixed"]), len(c["new"])) == (row.pairs, row.fixed, row.new)
+        # the evaluation inputs are common: network k's run is both rounds' "before"/"after"
+        before = pd.read_parquet(out / "eval" / f"model-{row.round}" / "samples.parquet")
+        after = pd.read_parquet(out / "eval" / f"model-{row.round + 1}" / "samples.parquet")
+        assert (before.seed.to_numpy() == after.seed.to_numpy()).all()
+    assert "McNemar p" in r.stdout
+
+    changed = list(command)
+    changed[changed.index("--steps") + 1] = "2"
+    other = subprocess.run(changed, cwd=REPO, capture_output=True, text=True)
+    assert other.returncode == 1 and "--steps is 1 there, 2 here" in other.stderr
+
+
 def test_fine_tuning_from_another_network_is_one_clear_error(failing_run, boxpose_bin, tmp_path):
     r = run_boxpose(
         boxpose_bin,

@@ -6,6 +6,7 @@ mod eval_geometry;
 mod eval_results;
 mod export;
 mod fit_table;
+mod improve;
 mod inspect;
 mod output_folder;
 mod plots;
@@ -83,6 +84,7 @@ enum Command {
     /// and the error histogram (the paper's Fig. 6).
     Eval(eval::Args),
     Search(search::Args),
+    Improve(improve::Args),
     Export(export::Args),
     EvalResults(eval_results::Args),
 }
@@ -181,6 +183,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Predict(args) => predict::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
         Command::Search(args) => search::run(&args)?,
+        Command::Improve(args) => improve::run(&args)?,
         Command::Export(args) => export::run(&args)?,
         Command::EvalResults(args) => eval_results::run(&args)?,
     }

@@ -12,7 +12,7 @@ use boxpose_data::schema;
 pub const VARIANTS_FILE: &str = "variants.json";
 
 /// The files and folders that mark a folder as some command's output, and what that output is.
-const MARKERS: [(&str, &str); 13] = [
+const MARKERS: [(&str, &str); 14] = [
     (schema::SCENES.name, "a dataset"),
     (schema::OBJECTS.name, "a dataset"),
     (schema::FRAMES.name, "a dataset"),
@@ -26,6 +26,7 @@ const MARKERS: [(&str, &str); 13] = [
     ("eval_results.parquet", "eval-results' output"),
     ("predictions.parquet", "predict's output"),
     ("camera.json", "a BOP export"),
+    (crate::improve::SETTINGS_FILE, "an improve run"),
 ];
 
 /// Refuses `folder` (the value of `flag`) when it holds a marker of another dataset or run, any

@@ -1,0 +1,411 @@
+//! `boxpose improve`: the closed loop. Each round searches the space with the current keypoint
+//! network, renders variants around every failure, fine-tunes the network on them (with the
+//! counterexamples themselves, every earlier round's, and the original data), and judges the new
+//! network against the old on fresh inputs that no round picked variants from: one Monte Carlo
+//! evaluation seed for every network, so rounds compare pair by pair (`search compare`).
+//!
+//! Every step is one `boxpose` command run as a child process in its own folder of the run, and
+//! each of those resumes by itself; the loop only decides which step comes next from what the run
+//! folder holds. A kill loses at most the step in flight, and the same command resumes.
+
+use std::io::Write;
+use std::os::unix::process::CommandExt;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use anyhow::Context;
+use boxpose_search::compare::{PairedComparison, compare};
+use boxpose_search::run::Run;
+
+use crate::output_folder::refuse_foreign;
+
+/// The run's settings, recorded in it; a resumed run must have the same.
+pub const SETTINGS_FILE: &str = "improve.json";
+/// Search seeds of the rounds are `seed + 1 + round`; the evaluation's is far from them.
+const EVALUATION_SEED_OFFSET: u64 = 1_000_000;
+
+#[derive(clap::Args)]
+#[command(
+    about = "The closed loop: search → variants → fine-tune → paired evaluation, round after round",
+    long_about = "The closed loop: find the pipeline's failures in a search space, learn from them, and show \
+        with paired statistics whether the failure rate fell.\n\n\
+        Each round: (1) `search SPACE` with the current network (--search-samples, a seed of its own per \
+        round); (2) `search variants` around every failure (--per-failure scenes, --sigma); (3) `train \
+        --init` from the current network on the counterexamples and variants of this and every earlier \
+        round plus --dataset (the original data; the mix is instance by instance); (4) a Monte Carlo \
+        evaluation of the new network on --eval-samples fresh samples whose seed no round searched with, \
+        the same for every network, paired with the previous network's (`search compare`: p̂ before and \
+        after with their intervals, fixed and new failures, McNemar's exact p). A round without failures \
+        keeps its network.\n\n\
+        RUN/round-NN/{search,variants,train}, RUN/eval/model-K (network K: 0 is --model), \
+        RUN/round-NN/compare.json and RUN/rounds.csv. Re-run the same command to resume; other \
+        settings are refused.",
+    after_help = "Example:\n  \
+        boxpose improve shift_camera_low --model models/keypoint-slim --dataset datasets/generated/train \\\n    \
+        --rounds 2 --search-samples 400 --eval-samples 1000 --steps 2000 --out results/improve/low"
+)]
+pub struct Args {
+    /// Search space: a name in configs/search/ or a TOML path.
+    space: String,
+    /// Run folder (created, or resumed when it holds the same loop).
+    #[arg(long)]
+    out: PathBuf,
+    /// The keypoint network the loop starts from.
+    #[arg(long, default_value = "models/keypoint-slim")]
+    model: PathBuf,
+    /// Segmenter folder (with --crops predicted); it is not fine-tuned.
+    #[arg(long)]
+    segmenter: Option<PathBuf>,
+    /// Where the keypoint network's crop comes from: gt or predicted (the segmenter's).
+    #[arg(long, default_value = "gt", value_parser = ["gt", "predicted"])]
+    crops: String,
+    /// The pose fit under test (as `boxpose search --fit`).
+    #[arg(long, default_value = "paper")]
+    fit: String,
+    /// Failure predicate (as `boxpose search --fail-when`).
+    #[arg(long, default_value = "paper")]
+    fail_when: String,
+    /// Rounds of search, variants, fine-tuning and evaluation.
+    #[arg(long, default_value_t = 2)]
+    rounds: usize,
+    /// Monte Carlo samples of each round's search (whose failures are learnt from).
+    #[arg(long, default_value_t = 400)]
+    search_samples: usize,
+    /// Monte Carlo samples of each network's evaluation (fresh inputs, common to all networks).
+    #[arg(long, default_value_t = 1000)]
+    eval_samples: usize,
+    /// Samples per batch of the searches (their unit of resumption).
+    #[arg(long, default_value_t = 25)]
+    batch_size: usize,
+    /// Scenes drawn around each failure (`search variants --per-failure`).
+    #[arg(long, default_value_t = 8)]
+    per_failure: usize,
+    /// Standard deviation of the variants' moves (`search variants --sigma`).
+    #[arg(long, default_value_t = 0.3)]
+    sigma: f64,
+    /// Training config of the fine-tuning (its [network] must be --model's).
+    #[arg(long, default_value = "configs/keypoint-slim.toml")]
+    config: PathBuf,
+    /// Original training data, mixed into every fine-tuning (repeatable).
+    #[arg(long = "dataset")]
+    datasets: Vec<PathBuf>,
+    /// Fine-tuning steps per round.
+    #[arg(long, default_value_t = 2000)]
+    steps: usize,
+    /// Fine-tuning learning rate.
+    #[arg(long, default_value_t = 3e-4)]
+    learning_rate: f64,
+    /// Fine-tuning batch size (default: the config's).
+    #[arg(long)]
+    batch_size_train: Option<usize>,
+    /// Seed of the loop: round r searches with seed + 1 + r, every evaluation with seed + 1e6.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Cycles threads of the renders (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+}
+
+impl Args {
+    /// Everything that shapes the loop's results, as recorded in `improve.json`.
+    fn settings(&self) -> serde_json::Value {
+        serde_json::json!({
+            "space": self.space,
+            "model": self.model,
+            "segmenter": self.segmenter,
+            "crops": self.crops,
+            "fit": self.fit,
+            "fail_when": self.fail_when,
+            "rounds": self.rounds,
+            "search_samples": self.search_samples,
+            "eval_samples": self.eval_samples,
+            "batch_size": self.batch_size,
+            "per_failure": self.per_failure,
+            "sigma": self.sigma,
+            "config": self.config,
+            "datasets": self.datasets,
+            "steps": self.steps,
+            "learning_rate": self.learning_rate,
+            "batch_size_train": self.batch_size_train,
+            "seed": self.seed,
+        })
+    }
+}
+
+pub fn run(args: &Args) -> anyhow::Result<()> {
+    anyhow::ensure!(args.rounds >= 1, "--rounds must be at least 1");
+    anyhow::ensure!(
+        args.model.join("network.toml").is_file(),
+        "--model {}: not a keypoint network folder (no network.toml)",
+        args.model.display()
+    );
+    refuse_foreign(&args.out, "--out", "improve", &[SETTINGS_FILE])?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    let _lock = lock(&args.out)?;
+    claim(&args.out, &args.settings())?;
+
+    let mut model = args.model.clone();
+    let mut learnt_from: Vec<PathBuf> = Vec::new();
+    let mut rows = Vec::new();
+    evaluate(args, 0, &model)?;
+    for round in 0..args.rounds {
+        let dir = args.out.join(format!("round-{round:02}"));
+        let search = dir.join("search");
+        let failures = search_round(args, round, &model, &search)?;
+        let learnt = if failures > 0 {
+            let variants = dir.join("variants");
+            boxpose(&variants_command(args, round, &search, &variants))?;
+            learnt_from.push(search.join("counterexamples"));
+            learnt_from.push(variants);
+            let train = dir.join("train");
+            if !train.join("model").join("network.toml").is_file() {
+                boxpose(&train_command(args, &model, &learnt_from, &train))?;
+            }
+            model = train.join("model");
+            true
+        } else {
+            println!("round {round}: no failure in the search, the network stays as it is");
+            false
+        };
+        evaluate(args, round + 1, &model)?;
+        let comparison = compare(
+            &Run::open(&evaluation_dir(args, round))?,
+            &Run::open(&evaluation_dir(args, round + 1))?,
+        )?;
+        boxpose_data::write_file_atomically(
+            &dir.join("compare.json"),
+            serde_json::to_string_pretty(&comparison)?.as_bytes(),
+        )?;
+        print_round(round, failures, learnt, &comparison);
+        rows.push((round, failures, learnt, comparison));
+    }
+    write_rounds(&args.out.join("rounds.csv"), &rows)?;
+    println!(
+        "{}: rounds.csv; the last network is {}",
+        args.out.display(),
+        model.display()
+    );
+    Ok(())
+}
+
+/// An exclusive lock on the run folder while the loop runs: two loops in one folder would start
+/// the same steps.
+fn lock(out: &Path) -> anyhow::Result<std::fs::File> {
+    let path = out.join(".improve.lock");
+    let file =
+        std::fs::File::create(&path).with_context(|| format!("creating {}", path.display()))?;
+    match file.try_lock() {
+        Ok(()) => Ok(file),
+        Err(std::fs::TryLockError::WouldBlock) => anyhow::bail!(
+            "--out {}: another `boxpose improve` is running in it; wait for it or stop it",
+            out.display()
+        ),
+        Err(std::fs::TryLockError::Error(e)) => Err(e).context(path.display().to_string()),
+    }
+}
+
+/// Records the settings in a new run folder, or checks that a resumed one has the same, naming
+/// every setting that differs.
+fn claim(out: &Path, settings: &serde_json::Value) -> anyhow::Result<()> {
+    let path = out.join(SETTINGS_FILE);
+    if !path.is_file() {
+        let text = serde_json::to_string_pretty(settings)?;
+        return Ok(boxpose_data::write_file_atomically(&path, text.as_bytes())?);
+    }
+    let found: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path)?)
+        .with_context(|| format!("{}: unreadable", path.display()))?;
+    let (Some(found), Some(ours)) = (found.as_object(), settings.as_object()) else {
+        anyhow::bail!("{}: not an improve run's settings", path.display());
+    };
+    let differ: Vec<String> = ours
+        .iter()
+        .filter(|(key, value)| found.get(*key) != Some(value))
+        .map(|(key, value)| {
+            let theirs = found.get(key).map_or("none".into(), |v| v.to_string());
+            format!(
+                "--{} is {theirs} there, {value} here",
+                key.replace('_', "-")
+            )
+        })
+        .collect();
+    anyhow::ensure!(
+        differ.is_empty(),
+        "--out {} holds another improve run ({}); resume it with its own settings or choose a new --out",
+        out.display(),
+        differ.join("; ")
+    );
+    Ok(())
+}
+
+fn evaluation_dir(args: &Args, network: usize) -> PathBuf {
+    args.out.join("eval").join(format!("model-{network}"))
+}
+
+/// The arguments of a Monte Carlo `boxpose search` of the loop's space with `model`.
+fn search_command(args: &Args, model: &Path, samples: usize, seed: u64, out: &Path) -> Vec<String> {
+    let mut command: Vec<String> = vec![
+        "search".into(),
+        args.space.clone(),
+        "--out".into(),
+        path_arg(out),
+        "--model".into(),
+        path_arg(model),
+        "--samples".into(),
+        samples.to_string(),
+        "--batch-size".into(),
+        args.batch_size.to_string(),
+        "--seed".into(),
+        seed.to_string(),
+        "--crops".into(),
+        args.crops.clone(),
+        "--fit".into(),
+        args.fit.clone(),
+        "--fail-when".into(),
+        args.fail_when.clone(),
+        "--threads".into(),
+        args.threads.to_string(),
+    ];
+    if let Some(segmenter) = &args.segmenter {
+        command.extend(["--segmenter".into(), path_arg(segmenter)]);
+    }
+    command
+}
+
+/// Round `round`'s search (resumed, or read when done); returns its number of valid failures.
+fn search_round(args: &Args, round: usize, model: &Path, out: &Path) -> anyhow::Result<usize> {
+    if !out.join("summary.json").is_file() {
+        let seed = args.seed + 1 + round as u64;
+        boxpose(&search_command(args, model, args.search_samples, seed, out))?;
+    }
+    let (rows, _) = Run::open(out)?.rows()?;
+    Ok(rows.iter().filter(|r| r.valid && r.failed).count())
+}
+
+/// Network `network`'s evaluation on the loop's common evaluation inputs (resumed, or kept).
+fn evaluate(args: &Args, network: usize, model: &Path) -> anyhow::Result<()> {
+    let out = evaluation_dir(args, network);
+    if !out.join("summary.json").is_file() {
+        let seed = args.seed + EVALUATION_SEED_OFFSET;
+        boxpose(&search_command(args, model, args.eval_samples, seed, &out))?;
+    }
+    Ok(())
+}
+
+fn variants_command(args: &Args, round: usize, search: &Path, out: &Path) -> Vec<String> {
+    vec![
+        "search".into(),
+        "variants".into(),
+        path_arg(search),
+        "--out".into(),
+        path_arg(out),
+        "--per-failure".into(),
+        args.per_failure.to_string(),
+        "--sigma".into(),
+        args.sigma.to_string(),
+        "--seed".into(),
+        (args.seed + round as u64).to_string(),
+        "--threads".into(),
+        args.threads.to_string(),
+    ]
+}
+
+fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path) -> Vec<String> {
+    let mut command: Vec<String> = vec![
+        "train".into(),
+        "--config".into(),
+        path_arg(&args.config),
+        "--init".into(),
+        path_arg(model),
+        "--steps".into(),
+        args.steps.to_string(),
+        "--learning-rate".into(),
+        args.learning_rate.to_string(),
+        "--out".into(),
+        path_arg(out),
+    ];
+    if let Some(batch) = args.batch_size_train {
+        command.extend(["--batch-size".into(), batch.to_string()]);
+    }
+    for dataset in args.datasets.iter().chain(learnt_from) {
+        command.extend(["--dataset".into(), path_arg(dataset)]);
+    }
+    command
+}
+
+fn path_arg(path: &Path) -> String {
+    path.to_string_lossy().into_owned()
+}
+
+/// Runs `boxpose ARGS` (this executable) and waits for it. The child dies with the loop (a
+/// killed loop leaves no step running that would hold its folder's lock on resume).
+fn boxpose(arguments: &[String]) -> anyhow::Result<()> {
+    println!("$ boxpose {}", arguments.join(" "));
+    std::io::stdout().flush()?;
+    let executable = std::env::current_exe().context("finding the boxpose executable")?;
+    let mut command = Command::new(executable);
+    command.args(arguments);
+    // SAFETY: prctl is async-signal-safe and touches no memory of the parent.
+    unsafe {
+        command.pre_exec(|| {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) == -1 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let status = command.status().context("starting a boxpose step")?;
+    anyhow::ensure!(
+        status.success(),
+        "the step `boxpose {}` failed ({status}); fix what it says and re-run this command to resume",
+        arguments.join(" ")
+    );
+    Ok(())
+}
+
+fn print_round(round: usize, failures: usize, learnt: bool, c: &PairedComparison) {
+    println!(
+        "round {round}: {failures} search failures{}; on {} paired evaluation samples p̂ {:.3e} \
+         [{:.2e}, {:.2e}] → {:.3e} [{:.2e}, {:.2e}], fixed {}, new {}, McNemar p = {:.3e}",
+        if learnt { " learnt from" } else { "" },
+        c.pairs,
+        c.before.p_hat,
+        c.before.ci95.0,
+        c.before.ci95.1,
+        c.after.p_hat,
+        c.after.ci95.0,
+        c.after.ci95.1,
+        c.fixed.len(),
+        c.new.len(),
+        c.mcnemar_p,
+    );
+}
+
+/// One row per round: what it learnt from and its paired evaluation.
+fn write_rounds(
+    path: &Path,
+    rows: &[(usize, usize, bool, PairedComparison)],
+) -> anyhow::Result<()> {
+    let mut text = String::from(
+        "round,search_failures,fine_tuned,pairs,failures_before,p_before,p_before_lo,p_before_hi,\
+         failures_after,p_after,p_after_lo,p_after_hi,fixed,new,mcnemar_p\n",
+    );
+    for (round, failures, learnt, c) in rows {
+        text.push_str(&format!(
+            "{round},{failures},{learnt},{},{},{},{},{},{},{},{},{},{},{},{}\n",
+            c.pairs,
+            c.before.failures,
+            c.before.p_hat,
+            c.before.ci95.0,
+            c.before.ci95.1,
+            c.after.failures,
+            c.after.p_hat,
+            c.after.ci95.0,
+            c.after.ci95.1,
+            c.fixed.len(),
+            c.new.len(),
+            c.mcnemar_p,
+        ));
+    }
+    Ok(boxpose_data::write_file_atomically(path, text.as_bytes())?)
+}
