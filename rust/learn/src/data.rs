@@ -582,8 +582,11 @@ impl InstanceSet {
                 split.train_frames += 1;
             }
             for (i, instance) in frame.instances.iter().enumerate() {
+                // A box reaching behind the camera (a close camera over a large box) has corners
+                // no pixel shows and no voxel holds: it cannot be a target.
                 if instance.visible_fraction < min_visible_fraction
                     || instance.visible_bbox.is_none()
+                    || instance.corners_camera.iter().any(|c| c[2] <= 0.0)
                 {
                     continue;
                 }
