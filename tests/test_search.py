@@ -699,14 +699,20 @@ def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
     )  # fmt: skip
     assert trained.returncode == 0, trained.stderr
     after = tmp_path / "after"
+    # a shorter run (4 of the 6 samples, other batches) pairs over the sample ids both drew
+    shorter = [*MC]
+    shorter[1], shorter[3] = 4, 4
     search(boxpose_bin, spaces["single"], "--out", after, "--fail-when", "mssd:0.05",
-           "--model", tiny / "model", *MC)  # fmt: skip
+           "--model", tiny / "model", *shorter)  # fmt: skip
     r = search(boxpose_bin, "compare", mc_run, after, "--json", tmp_path / "compare.json")
     c = json.loads((tmp_path / "compare.json").read_text())
-    b = pd.read_parquet(mc_run / "samples.parquet").set_index("sample_id")
+    all_before = pd.read_parquet(mc_run / "samples.parquet").set_index("sample_id")
     a = pd.read_parquet(after / "samples.parquet").set_index("sample_id")
+    assert list(a.index) == [0, 1, 2, 3]
+    b = all_before.loc[a.index]
     paired = b.valid & a.valid
-    assert c["pairs"] == paired.sum() > 0 and c["unpaired"] == (b.valid ^ a.valid).sum()
+    assert c["pairs"] == paired.sum() > 0
+    assert c["unpaired"] == all_before.valid.sum() + a.valid.sum() - 2 * paired.sum()
     assert c["fixed"] == list(b.index[paired & b.failed & ~a.failed])
     assert c["new"] == list(b.index[paired & ~b.failed & a.failed])
     assert c["before"]["failures"] == (paired & b.failed).sum()
@@ -722,6 +728,7 @@ def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
     other = search(boxpose_bin, "compare", mc_run, failing_run, check=False)
     assert other.returncode == 1 and "cannot be paired" in other.stderr
     assert "--seed is 3 there, 0 here" in other.stderr and "--fail-when" in other.stderr
+    assert "--samples" not in other.stderr.split("cannot be paired")[1].split(");")[0]
 
 
 def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings(

@@ -56,8 +56,9 @@ pub struct PairedComparison {
 }
 
 /// Pairs the samples of `before` and `after`, two Monte Carlo runs of one search (space, recipe,
-/// seed, samples, batches, crops and predicate equal) that may differ in the networks and the
-/// fit. Refuses runs that do not draw the same scenes, naming what differs.
+/// seed, crops and predicate equal) that may differ in the networks, the fit and their length
+/// (pairs are the sample ids both drew). Refuses runs that do not draw the same scenes, naming
+/// what differs.
 pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
     for run in [before, after] {
         if run.settings().sampler != Sampler::Mc {
@@ -70,7 +71,12 @@ pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
         }
     }
     // What the comparison is about may differ; everything that draws or judges a sample may not.
+    // Sample i's inputs depend on (seed, iteration, i) only, so runs of other lengths or batch
+    // sizes pair over the samples both drew.
     let mut as_before = after.record.clone();
+    as_before.settings.samples = before.settings().samples;
+    as_before.settings.batch_size = before.settings().batch_size;
+    as_before.settings.ce.final_samples = before.settings().ce.final_samples;
     as_before.settings.model = before.settings().model.clone();
     as_before.settings.segmenter = before.settings().segmenter.clone();
     as_before.settings.fit = before.settings().fit.clone();
@@ -80,7 +86,7 @@ pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
             problem: format!(
                 "its samples are not {before}'s, so they cannot be paired (\"there\" is {before}, \
                  \"here\" this run: {}); run it with the same space, seed and settings, changing \
-                 only --model, --segmenter or --fit",
+                 only --model, --segmenter, --fit or --samples",
                 differences(&before.record, &as_before).join("; "),
                 before = before.dir.display(),
             ),
