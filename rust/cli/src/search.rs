@@ -301,11 +301,9 @@ fn compare(before: &Path, after: &Path, json: Option<&Path>) -> anyhow::Result<(
     };
     let c = &comparison;
     println!(
-        "{} paired samples (valid in both runs; {} unpaired)
-  before {}  {}
-  after  {}  {}
-           fixed {} (failed before only), new {} (failed after only), failed both {}
-           McNemar exact p = {:.3e}",
+        "{} paired samples (valid in both runs; {} unpaired)\n  before {}  {}\n  after  {}  {}\n  \
+         fixed {} (failed before only), new {} (failed after only), failed both {}\n  \
+         McNemar exact p = {:.3e}",
         c.pairs,
         c.unpaired,
         rate(&c.before),
