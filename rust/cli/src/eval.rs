@@ -93,7 +93,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         let chosen: Vec<_> = frame
             .instances
             .iter()
-            .filter(|i| i.visible_fraction >= args.min_visible_fraction && i.visible_bbox.is_some())
+            .filter(|i| boxpose_learn::data::is_target(i, args.min_visible_fraction))
             .collect();
         let crops = match &segmenter {
             Some(segmenter) => CropSource::Segmenter(segmenter),

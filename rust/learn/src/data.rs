@@ -548,6 +548,15 @@ pub struct DatasetSplit {
     pub held_out_instances: usize,
 }
 
+/// Whether a box is one the network learns and is judged on: at least `min_visible_fraction`
+/// visible, with a visible bounding box, and wholly in front of the camera (a close camera over a
+/// large box leaves corners behind it that no pixel shows and no voxel holds).
+pub fn is_target(instance: &Instance, min_visible_fraction: f32) -> bool {
+    instance.visible_fraction >= min_visible_fraction
+        && instance.visible_bbox.is_some()
+        && instance.corners_camera.iter().all(|c| c[2] > 0.0)
+}
+
 /// Whether a scene is held out from training: every `val_modulus`-th scene id, all its views.
 pub fn is_held_out(scene_id: i64, val_modulus: i64) -> bool {
     scene_id.rem_euclid(val_modulus) == 0
@@ -582,12 +591,7 @@ impl InstanceSet {
                 split.train_frames += 1;
             }
             for (i, instance) in frame.instances.iter().enumerate() {
-                // A box reaching behind the camera (a close camera over a large box) has corners
-                // no pixel shows and no voxel holds: it cannot be a target.
-                if instance.visible_fraction < min_visible_fraction
-                    || instance.visible_bbox.is_none()
-                    || instance.corners_camera.iter().any(|c| c[2] <= 0.0)
-                {
+                if !is_target(instance, min_visible_fraction) {
                     continue;
                 }
                 if held_out {
