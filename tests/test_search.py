@@ -685,25 +685,31 @@ def test_fine_tuning_on_variants_of_the_counterexamples(failing_run, spaces, box
     assert summary["samples_spent"] == 2
 
 
-def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
-    mc_run, failing_run, spaces, boxpose_bin, tmp_path
-):
-    """`search compare`: the shipped network against a one-step tiny network on the same six
-    scenes (same space, seed and settings), paired sample by sample, McNemar's exact p-value
-    recomputed here from the two samples tables."""
-    tiny = tmp_path / "tiny"
+@pytest.fixture(scope="module")
+def tiny_network(failing_run, boxpose_bin, tmp_path_factory) -> Path:
+    """A one-step tiny keypoint network (its model folder): another network to compare with."""
+    tiny = tmp_path_factory.mktemp("tiny") / "run"
     trained = run_boxpose(
         boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml",
         "--dataset", failing_run / "counterexamples", "--steps", 1, "--batch-size", 1,
         "--validate-every", 1, "--out", tiny,
     )  # fmt: skip
     assert trained.returncode == 0, trained.stderr
+    return tiny / "model"
+
+
+def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
+    mc_run, failing_run, tiny_network, spaces, boxpose_bin, tmp_path
+):
+    """`search compare`: the shipped network against a one-step tiny network on the same six
+    scenes (same space, seed and settings), paired sample by sample, McNemar's exact p-value
+    recomputed here from the two samples tables."""
     after = tmp_path / "after"
     # a shorter run (4 of the 6 samples, other batches) pairs over the sample ids both drew
     shorter = [*MC]
     shorter[1], shorter[3] = 4, 4
     search(boxpose_bin, spaces["single"], "--out", after, "--fail-when", "mssd:0.05",
-           "--model", tiny / "model", *shorter)  # fmt: skip
+           "--model", tiny_network, *shorter)  # fmt: skip
     r = search(boxpose_bin, "compare", mc_run, after, "--json", tmp_path / "compare.json")
     c = json.loads((tmp_path / "compare.json").read_text())
     all_before = pd.read_parquet(mc_run / "samples.parquet").set_index("sample_id")
@@ -732,23 +738,16 @@ def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
 
 
 def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings(
-    failing_run, spaces, boxpose_bin, tmp_path
+    tiny_network, spaces, boxpose_bin, tmp_path
 ):
     """`boxpose improve` at tiny settings: two rounds of search, variants, fine-tuning and paired
     evaluation, killed once a round's network exists and resumed by the same command, which
     redoes no finished step. (A one-step tiny network and a threshold nothing meets make every
     sample fail: the plumbing is tested, not the gain.)"""
-    tiny = tmp_path / "tiny"
-    trained = run_boxpose(
-        boxpose_bin, "train", "--config", REPO / "configs" / "tiny.toml",
-        "--dataset", failing_run / "counterexamples", "--steps", 1, "--batch-size", 1,
-        "--validate-every", 1, "--out", tiny,
-    )  # fmt: skip
-    assert trained.returncode == 0, trained.stderr
     out = tmp_path / "loop"
     command = [
         str(boxpose_bin), "improve", str(spaces["single"]), "--out", str(out),
-        "--model", str(tiny / "model"), "--config", str(REPO / "configs" / "tiny.toml"),
+        "--model", str(tiny_network), "--config", str(REPO / "configs" / "tiny.toml"),
         "--rounds", "2", "--search-samples", "2", "--eval-samples", "2", "--batch-size", "2",
         "--per-failure", "1", "--steps", "1", "--batch-size-train", "1",
         "--fail-when", "mssd:0.000001", "--threads", "1",
