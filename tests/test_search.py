@@ -452,6 +452,124 @@ def test_a_bad_cross_entropy_setting_names_its_flag(flag, value, spaces, boxpose
     assert "ce config" not in r.stderr and not out.exists()
 
 
+SPLITTING = [
+    "--sampler",
+    "splitting",
+    "--samples",
+    10,
+    "--batch-size",
+    4,
+    "--splitting-level-probability",
+    0.2,
+    "--splitting-max-levels",
+    3,
+    "--fail-when",
+    "mssd:0.02",
+    "--seed",
+    5,
+    "--threads",
+    1,
+]
+
+
+@pytest.fixture(scope="module")
+def splitting_run(spaces, boxpose_bin, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("splitting") / "run"
+    search(boxpose_bin, spaces["single"], "--out", out, *SPLITTING)
+    return out
+
+
+def test_subset_simulation_multiplies_its_levels_from_chains_it_stores(splitting_run):
+    samples = pd.read_parquet(splitting_run / "samples.parquet")
+    summary = json.loads((splitting_run / "summary.json").read_text())
+    result = json.loads((splitting_run / "splitting.json").read_text())
+    split = summary["splitting"]
+    # every evaluation is one sample row, numbered once, each weighing 1
+    assert list(samples.sample_id) == list(range(len(samples)))
+    assert set(samples.stage) == {"split"} and (samples.log_weight == 0).all()
+    assert split["evaluations"] == len(samples) == sum(lv["evaluations"] for lv in split["levels"])
+    # stage 0 is 10 nominal draws; each later stage grows N·p₀ = 2 chains (more on ties) from
+    # the particles above the previous level, which carry over unscored: N − chains new rows
+    assert (samples.iteration == 0).sum() == 10
+    levels = split["levels"]
+    assert levels[0]["chains"] == 10 and levels[0]["acceptance_rate"] is None
+    for level in levels[1:]:
+        assert level["chains"] >= 2 and level["evaluations"] == 10 - level["chains"]
+    thresholds = [lv["threshold"] for lv in levels]
+    assert thresholds == sorted(thresholds), "the levels rise"
+    # a stage's share above its level is what its particles say: at stage 0, the stored scores
+    first = samples[samples.iteration == 0]
+    above = (first.score.fillna(-math.inf) > thresholds[0]) & first.valid
+    assert math.isclose(levels[0]["conditional_probability"], above.mean())
+    # these settings reach the failure level at stage 1 (the first chains' stage)
+    assert split["reached"] and len(levels) == 2
+    # p̂ is the product of the shares over P̂(valid), the valid share of stage 0
+    e = summary["estimate"]
+    product = math.prod(lv["conditional_probability"] for lv in levels)
+    assert thresholds[-1] == 0.0 and math.isclose(e["p_fail_and_valid"], product)
+    assert math.isclose(e["p_hat"], product / e["p_valid"])
+    lo, hi = e["ci95"]
+    assert e["ci_method"] == "log_normal" and lo < e["p_hat"] < hi
+    # the final failures are stored samples that failed
+    failing = {p["evaluation"] for p in result["failures"]}
+    assert failing and failing <= set(samples.sample_id[samples.failed])
+    assert (splitting_run / "report" / "index.html").read_text().count("Splitting stages") == 1
+
+
+def test_a_killed_subset_simulation_resumes_to_the_same_run(
+    splitting_run, spaces, boxpose_bin, tmp_path
+):
+    out = tmp_path / "run"
+    args = [str(boxpose_bin), "search", spaces["single"], "--out", out, *map(str, SPLITTING)]
+    process = subprocess.Popen(
+        args, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+    )
+    # killed once the first barrier is passed: stage 0 ranked, the chains' first move planned
+    deadline = time.time() + 300
+    while (
+        not (out / "proposals" / "iter-0001.json").exists()
+        and time.time() < deadline
+        and process.poll() is None
+    ):
+        time.sleep(0.02)
+    os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
+    assert not (out / "splitting.json").exists(), "killed before the end"
+    search(boxpose_bin, spaces["single"], "--out", out, *SPLITTING)
+    for name in ("samples.parquet", "splitting.json"):
+        assert (out / name).read_bytes() == (splitting_run / name).read_bytes(), name
+    # the finished run is complete for a scheduler too
+    r = search(boxpose_bin, spaces["single"], "--out", out, *SPLITTING, "--pending")
+    assert json.loads(r.stdout)["complete"] is True
+    # and another level probability is another search, named with both values
+    changed = [str(a) for a in SPLITTING]
+    changed[changed.index("--splitting-level-probability") + 1] = "0.1"
+    r = search(boxpose_bin, spaces["single"], "--out", out, *changed, check=False)
+    assert r.returncode != 0 and "--splitting-level-probability is 0.2 there, 0.1 here" in r.stderr
+
+
+@pytest.mark.parametrize(
+    "args, said",
+    [
+        (["--samples", 12], "--splitting-level-probability: 12 particles × 0.2 = 2.4"),
+        (["--splitting-max-levels", 0], "--splitting-max-levels"),
+    ],
+)
+def test_a_bad_splitting_setting_names_its_flag(args, said, spaces, boxpose_bin, tmp_path):
+    base = [str(a) for a in SPLITTING]
+    for flag, value in zip(args[::2], args[1::2], strict=True):
+        base[base.index(flag) + 1] = str(value)
+    out = tmp_path / "run"
+    r = search(boxpose_bin, spaces["single"], "--out", out, *base, check=False)
+    assert r.returncode != 0 and said in r.stderr, r.stderr
+    assert not out.exists()
+
+
+def test_subset_simulation_refuses_a_stratified_space(spaces, boxpose_bin, tmp_path):
+    r = search(boxpose_bin, spaces["clutter"], "--out", tmp_path / "run", *SPLITTING, check=False)
+    assert r.returncode != 0 and "draws from one stratum" in r.stderr, r.stderr
+
+
 def test_cross_entropy_tilts_only_the_named_parameters(spaces, boxpose_bin, tmp_path):
     out = tmp_path / "tilt"
     search(

@@ -14,11 +14,11 @@ use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_render::Renderer;
 use boxpose_search::run::{
-    IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler,
+    IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler, SplittingSummary,
 };
 use boxpose_search::space::SearchSpace;
 use boxpose_search::sut::{self, Crops, Predicate, SystemUnderTest};
-use boxpose_search_stats::{CeConfig, ImportanceEstimate, clopper_pearson};
+use boxpose_search_stats::{CeConfig, ImportanceEstimate, SplittingConfig, clopper_pearson};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -42,7 +42,12 @@ use crate::search_report;
         failures (--ce-* options), then draws --samples fresh samples from the frozen proposal mixed with the \
         nominal, and reports the weighted (ratio) estimate, its 95% interval, the effective sample size and \
         the largest weight's share, with a warning when the weights are too uneven to trust the interval \
-        (--ce-tilt keeps parameters the failures do not depend on at their nominal). Both estimate \
+        (--ce-tilt keeps parameters the failures do not depend on at their nominal). --sampler splitting \
+        (subset simulation, adaptive multilevel splitting) draws --samples particles from the nominal, keeps \
+        the highest-scoring share --splitting-level-probability of them and grows Markov chains from them \
+        that stay above that level, stage after stage, until that share fails: p̂ is the product of the \
+        stages' shares, with a log-normal interval that counts the chains' correlation, and each stage's \
+        level, share and move acceptance in summary.json (docs/search.md). All estimate \
         P(fail | valid scene) and report P(valid).\n\n\
         The run folder (--out) resumes: re-run the same command after an interruption. Several processes can \
         split one run with --shard/--num-shards (same --out). Failing samples are written as dataset rows in \
@@ -50,6 +55,7 @@ use crate::search_report;
     after_help = "Examples:\n  \
         boxpose search single_box --samples 500 --out results/search/mc\n  \
         boxpose search single_box --sampler ce --samples 500 --ce-samples-per-iteration 200 --out results/search/ce\n  \
+        boxpose search single_box --sampler splitting --samples 500 --batch-size 50 --out results/search/split\n  \
         boxpose search clutter --crops predicted --fit robust --fail-when mssd:0.1 --out results/search/clutter\n  \
         boxpose search report results/search/ce"
 )]
@@ -156,7 +162,8 @@ struct RunArgs {
     #[arg(long, value_enum, default_value = "mc")]
     sampler: SamplerArg,
     /// Monte Carlo: samples in all. Cross-entropy: samples from the frozen proposal (the estimate);
-    /// its tuning samples come on top.
+    /// its tuning samples come on top. Splitting: particles per stage (N; N × the level
+    /// probability must be a whole number).
     #[arg(long, default_value_t = 200)]
     samples: usize,
     /// Samples per batch: the unit of resumption (a kill loses at most one batch) and of sharding.
@@ -211,6 +218,18 @@ struct RunArgs {
     /// variance. Default: all.
     #[arg(long, value_delimiter = ',')]
     ce_tilt: Vec<String>,
+    /// Splitting: the share p₀ of each stage's particles above the next level (Au & Beck: 0.1).
+    #[arg(long, default_value_t = 0.1)]
+    splitting_level_probability: f64,
+    /// Splitting: most stages, the first included (p₀ to this power bounds the smallest p it reaches).
+    #[arg(long, default_value_t = 10)]
+    splitting_max_levels: u32,
+    /// Splitting: the move acceptance its step size adapts towards.
+    #[arg(long, default_value_t = 0.3)]
+    splitting_target_acceptance: f64,
+    /// Splitting: the correlation ρ of the first stage's moves (z' = ρ z + √(1 − ρ²) ξ).
+    #[arg(long, default_value_t = 0.8)]
+    splitting_initial_rho: f64,
     /// Print the work a scheduler can hand out now as one JSON line (the current iteration, its
     /// uncommitted batches, whether the run is complete), passing every finished iteration's
     /// cross-entropy barrier first, and exit: what `python -m boxpose_ray search` asks between
@@ -244,6 +263,8 @@ enum SamplerArg {
     Mc,
     /// Cross-entropy adaptive importance sampling.
     Ce,
+    /// Subset simulation (adaptive multilevel splitting) with level-preserving Markov chains.
+    Splitting,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -337,6 +358,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         sampler: match args.sampler {
             SamplerArg::Mc => Sampler::Mc,
             SamplerArg::Ce => Sampler::Ce,
+            SamplerArg::Splitting => Sampler::Splitting,
         },
         samples: args.samples,
         batch_size: args.batch_size,
@@ -356,6 +378,13 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
             ..CeConfig::default()
         },
         ce_tilt: args.ce_tilt.clone(),
+        splitting: matches!(args.sampler, SamplerArg::Splitting).then(|| SplittingConfig {
+            particles: args.samples,
+            level_probability: args.splitting_level_probability,
+            target_acceptance: args.splitting_target_acceptance,
+            initial_rho: args.splitting_initial_rho,
+            max_levels: args.splitting_max_levels,
+        }),
         model: args.model.display().to_string(),
         segmenter: (crops == Crops::Predicted).then(|| args.segmenter.display().to_string()),
     };
@@ -407,6 +436,9 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         }
     }
     let summary = run.merge()?;
+    if let Some(splitting) = &summary.splitting {
+        print_levels(splitting);
+    }
     print_estimate(out, &summary.estimate, summary.samples_spent);
     print_warnings(&summary.warnings);
     search_report::write(out, 6)?;
@@ -718,6 +750,33 @@ fn print_warnings(warnings: &[String]) {
     }
 }
 
+/// A subset simulation's stages: level, conditional share, correlation and acceptance.
+fn print_levels(s: &SplittingSummary) {
+    println!("stage  level (score)  share above  γ      chains  acceptance  evaluations");
+    for (i, l) in s.levels.iter().enumerate() {
+        println!(
+            "{i:>5}  {:>13.4}  {:>11.4}  {:<5.2}  {:>6}  {:>10}  {:>11}",
+            l.threshold,
+            l.conditional_probability,
+            l.correlation_factor,
+            l.chains,
+            l.acceptance_rate
+                .map_or("—".to_string(), |a| format!("{:.1}%", 100.0 * a)),
+            l.evaluations
+        );
+    }
+    if let Some(e) = &s.estimate {
+        println!(
+            "P(score > 0) = {:.3e}: coefficient of variation {:.2} (Au & Beck {:.2}, lineages {:.2}); the final failures descend from {} first-stage samples",
+            e.p_hat,
+            e.coefficient_of_variation,
+            e.au_beck_coefficient_of_variation,
+            e.lineage_coefficient_of_variation,
+            s.distinct_ancestors
+        );
+    }
+}
+
 fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
     let ci = e
         .ci95
@@ -851,6 +910,23 @@ impl Observer for Progress {
         self.bar.set_length(plan.samples as u64);
         self.bar.set_position(done.len() as u64);
         self.bar.set_prefix(format!("{} {}", plan.stage, iteration));
+        if let Some(state) = &plan.splitting {
+            self.bar.set_prefix(format!(
+                "splitting stage {} step {}",
+                state.stage, state.step
+            ));
+            if let (0, Some(level)) = (state.step, state.levels().last()) {
+                self.bar.suspend(|| {
+                    println!(
+                        "splitting stage {} done: level {:.3} (failure at 0), {:.1}% of its particles above; growing {} chains",
+                        state.stage - 1,
+                        level.threshold,
+                        100.0 * level.conditional_probability,
+                        state.candidates().len()
+                    )
+                });
+            }
+        }
         self.stage = plan.stage.clone();
         (
             self.valid,

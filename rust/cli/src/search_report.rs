@@ -32,11 +32,16 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&tmp).with_context(|| tmp.display().to_string())?;
 
-    let stage = match settings.sampler {
-        Sampler::Mc => "mc",
-        Sampler::Ce => "final",
-    };
-    let estimating: Vec<&SampleRow> = rows.iter().filter(|r| r.stage == stage).collect();
+    // the samples that follow the nominal (Monte Carlo, splitting's first stage) or that the
+    // weights bring back to it (the cross-entropy final stage)
+    let estimating: Vec<&SampleRow> = rows
+        .iter()
+        .filter(|r| match settings.sampler {
+            Sampler::Mc => r.stage == "mc",
+            Sampler::Ce => r.stage == "final",
+            Sampler::Splitting => r.iteration == 0,
+        })
+        .collect();
     let (metric_name, threshold, metric): (&str, f64, MetricOf) = match settings.predicate {
         Predicate::PaperError { threshold } => ("paper's error / (diag²/3)", threshold, |r| {
             r.paper_error_normalized
@@ -59,6 +64,10 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
         let title = match settings.sampler {
             Sampler::Mc => format!("{metric_name}, {} scored samples", weighted.len()),
             Sampler::Ce => format!("{metric_name}, {} samples weighted by p/q", weighted.len()),
+            Sampler::Splitting => format!(
+                "{metric_name}, {} first-stage (nominal) samples",
+                weighted.len()
+            ),
         };
         plots::weighted_histogram(
             &tmp.join("error_hist.png"),
@@ -177,10 +186,11 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
 /// (samples spent, p̂, CI low, CI high) at up to [`CURVE_POINTS`] prefixes of the estimating stage.
 fn estimate_curve(rows: &[SampleRow], run: &Run) -> anyhow::Result<Vec<(f64, f64, f64, f64)>> {
     let sampler = run.record.settings.sampler;
-    let stage = if sampler == Sampler::Mc {
-        "mc"
-    } else {
-        "final"
+    let stage = match sampler {
+        Sampler::Mc => "mc",
+        Sampler::Ce => "final",
+        // its estimate is a product over stages, not a running mean: the levels table shows it
+        Sampler::Splitting => return Ok(Vec::new()),
     };
     let before = rows.iter().filter(|r| r.stage != stage).count();
     let estimating: Vec<SampleRow> = rows.iter().filter(|r| r.stage == stage).cloned().collect();
@@ -277,6 +287,32 @@ fn page(
             "<p>The run is not complete ({} samples so far): no estimate yet.</p>",
             rows.len()
         )?,
+    }
+    if let Some(levels) = summary
+        .as_ref()
+        .and_then(|v| v.pointer("/splitting/levels"))
+        .and_then(|v| v.as_array())
+    {
+        writeln!(
+            h,
+            "<h2>Splitting stages</h2><p>Each stage's level (score = log10 of the metric over its threshold; the last is 0, failure), the share of its particles above it, its chains' correlation factor γ and the share of moves accepted while growing it.</p><table><tr><th>stage</th><th>level</th><th>share above</th><th>γ</th><th>chains</th><th>acceptance</th><th>evaluations</th></tr>"
+        )?;
+        for (i, l) in levels.iter().enumerate() {
+            let f = |k: &str| l.get(k).and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
+            writeln!(
+                h,
+                "<tr><td>{i}</td><td>{:.4}</td><td>{:.4}</td><td>{:.2}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                f("threshold"),
+                f("conditional_probability"),
+                f("correlation_factor"),
+                f("chains"),
+                l.get("acceptance_rate")
+                    .and_then(|v| v.as_f64())
+                    .map_or("—".to_string(), |a| format!("{:.1}%", 100.0 * a)),
+                f("evaluations"),
+            )?;
+        }
+        writeln!(h, "</table>")?;
     }
     for warning in summary
         .as_ref()

@@ -31,8 +31,8 @@ pub use ce::{CeConfig, CeError, CeRun, CeStep, ce_step, run_in_memory, run_in_me
 pub use proposal::{Component, Proposal, ProposalError, RotationShape, log_nominal};
 pub use rng::sample_rng;
 pub use splitting::{
-    Level, Particle, SplittingConfig, SplittingError, SplittingEstimate, SplittingRun,
-    correlation_factor, propose_move,
+    Candidate, Level, Particle, SplittingConfig, SplittingError, SplittingEstimate, SplittingRun,
+    SplittingState, correlation_factor, propose_move,
 };
 pub use stats::{
     CiMethod, EstimateError, EstimatorKind, ImportanceEstimate, WeightedSample, clopper_pearson,

@@ -27,8 +27,8 @@
 //! between levels that δ leaves out, and the log-normal 95 % interval takes the larger of the
 //! two ([`SplittingEstimate`]).
 //!
-//! This is the core, validated on analytic failure functions (`tests/splitting.rs`); the
-//! search CLI does not offer it as a sampler yet.
+//! This is the core, validated on analytic failure functions (`tests/splitting.rs`);
+//! `boxpose search --sampler splitting` drives [`SplittingState`] over a run folder.
 
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
@@ -403,15 +403,49 @@ impl SplittingEstimate {
     }
 }
 
+/// JSON has no NaN or ±∞, which scores take (invalid samples, nothing fitted): they are
+/// written as the strings "NaN", "inf" and "-inf".
+mod non_finite {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(x: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if x.is_finite() {
+            s.serialize_f64(*x)
+        } else {
+            s.serialize_str(&x.to_string())
+        }
+    }
+
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum Number {
+        Finite(f64),
+        Text(String),
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        match Number::deserialize(d)? {
+            Number::Finite(x) => Ok(x),
+            Number::Text(t) => t
+                .parse()
+                .map_err(|_| serde::de::Error::custom(format!("not a number: {t:?}"))),
+        }
+    }
+}
+
 /// A particle: its z, its score and its ancestor.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Particle {
     /// The point in z-space.
     pub z: Vec<f64>,
-    /// Its score (NaN: invalid, below every threshold).
+    /// Its score (NaN: invalid, below every threshold; +∞: nothing fitted).
+    #[serde(with = "non_finite")]
     pub score: f64,
     /// Index of the stage-0 particle it descends from (a seed of the first level).
     pub ancestor: usize,
+    /// The score evaluation that produced it, counted from 0 over the whole run (a rejected
+    /// move repeats its chain's particle, evaluation included): a run folder's sample id.
+    pub evaluation: u64,
 }
 
 impl Particle {
@@ -421,7 +455,7 @@ impl Particle {
     }
 }
 
-/// The outcome of [`run_in_memory`].
+/// The outcome of a run ([`run_in_memory`], [`SplittingState::advance`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SplittingRun {
     /// Whether a stage had at least N·p₀ failures within `max_levels` stages.
@@ -442,18 +476,78 @@ pub struct SplittingRun {
     pub distinct_ancestors: usize,
 }
 
-/// Reference driver for cheap score functions (tests, benchmarks): subset simulation in one
-/// process.
+impl SplittingRun {
+    /// The run's estimate in the form every sampler reports, for a run folder's summary:
+    /// p̂ = P̂(score > 0) / P̂(valid), where invalid samples lie below every level (so the
+    /// levels estimate P(fail ∧ valid)) and P̂(valid) = `first_stage_valid` / N is the share of
+    /// valid nominal draws of stage 0. P̂(valid)'s own error is not propagated: with every
+    /// first-stage sample valid (as in the shipped single-box space) it is 1. Every sample's
+    /// weight is 1, so the weight diagnostics are those of unit weights; `failures` counts the
+    /// final stage's distinct failing evaluations. `None` when the failure level was not
+    /// reached.
+    pub fn importance_estimate(
+        &self,
+        particles: usize,
+        first_stage_valid: u64,
+        valid: u64,
+    ) -> Option<crate::stats::ImportanceEstimate> {
+        let estimate = self.estimate.as_ref()?;
+        let p_valid = first_stage_valid as f64 / particles as f64;
+        if p_valid == 0.0 {
+            return None;
+        }
+        let mut distinct: Vec<u64> = self.failures.iter().map(|p| p.evaluation).collect();
+        distinct.sort_unstable();
+        distinct.dedup();
+        let failures = distinct.len() as u64;
+        let cv = estimate.coefficient_of_variation;
+        Some(crate::stats::ImportanceEstimate {
+            estimator: crate::stats::EstimatorKind::Splitting,
+            p_hat: estimate.p_hat / p_valid,
+            std_error: cv * estimate.p_hat / p_valid,
+            relative_error: (estimate.p_hat > 0.0).then_some(cv),
+            ci95: Some((estimate.ci95.0 / p_valid, estimate.ci95.1 / p_valid)),
+            ci_method: crate::stats::CiMethod::LogNormal,
+            samples: self.evaluations,
+            valid,
+            failures,
+            p_valid,
+            p_valid_std_error: 0.0,
+            p_fail_and_valid: estimate.p_hat,
+            p_fail_and_valid_std_error: cv * estimate.p_hat,
+            kish_ess: self.evaluations as f64,
+            failure_ess: failures as f64,
+            max_weight_share: if failures > 0 {
+                1.0 / failures as f64
+            } else {
+                0.0
+            },
+            strata: Vec::new(),
+        })
+    }
+}
+
+/// One point to score: the `evaluation`-th of the run, drawn from
+/// [`sample_rng`]`(seed, stream, index)` (stage 0: the nominal; later: a move of chain `chain`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Candidate {
+    pub z: Vec<f64>,
+    pub chain: usize,
+    pub stream: u32,
+    pub index: u64,
+    pub evaluation: u64,
+}
+
+/// A subset simulation one synchronous batch of candidates at a time, serialisable between
+/// batches: a run folder stores it at every barrier and a killed run resumes from it, with the
+/// same result as an uninterrupted run ([`run_in_memory`] is this state driven in a loop).
 ///
-/// z ∈ R^`dim` with the orientation blocks z[s..s + 4], s ∈ `rotation_blocks`; failure ⇔
-/// score(z) > 0 (the search's scores are log10(metric/threshold)); a NaN score marks an
-/// invalid sample, which is below every threshold. Stage 0 draws particle i from
-/// [`sample_rng`]`(seed, 0, i)`. A later stage s grows its chains in synchronous steps (every
-/// chain moves once per step, as a batch would in a parallel run); chain j's step t draws its
-/// candidate from `sample_rng(seed, s, (t << 32) | j)`, so a run is a deterministic function
-/// of the seed whatever order the candidates are scored in. Seeds are taken in the order of the
-/// previous stage's particles (chain by chain); N states are shared out so chain lengths
-/// differ by at most one.
+/// Stage 0 draws particle i from [`sample_rng`]`(seed, 0, i)`. A later stage s grows its
+/// chains in synchronous steps (every chain moves once per step, as a batch would in a parallel
+/// run); chain j's step t draws its candidate from `sample_rng(seed, s, (t << 32) | j)`, so a
+/// run is a deterministic function of the seed whatever order the candidates are scored in.
+/// Seeds are taken in the order of the previous stage's particles (chain by chain); N states
+/// are shared out so chain lengths differ by at most one.
 ///
 /// **ρ adaptation.** Within a stage ρ is fixed before each step, from the acceptance of the
 /// previous steps: σ = √(1 − ρ²) is updated as ln σ ← ln σ + (â_t − a*)/√t after step t
@@ -463,39 +557,187 @@ pub struct SplittingRun {
 /// fixed ρ falls as the levels rise: a per-level update would always lag one level behind.
 /// Every step's kernel leaves the conditional law invariant; ρ depends on the population's
 /// past acceptance, an O(1/seeds) dependence on any one chain.
-pub fn run_in_memory(
-    config: &SplittingConfig,
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SplittingState {
+    config: SplittingConfig,
     dim: usize,
-    rotation_blocks: &[usize],
+    rotation_blocks: Vec<usize>,
     seed: u64,
-    score: impl Fn(&[f64]) -> f64,
-) -> Result<SplittingRun, SplittingError> {
-    config.validate()?;
-    validate_rotation_blocks(dim, rotation_blocks)?;
-    let n = config.particles;
-    let wanted_seeds = config.seeds_per_level();
-    let mut chains: Vec<Vec<Particle>> = (0..n)
-        .map(|i| {
-            let mut rng = sample_rng(seed, 0, i as u64);
-            let z: Vec<f64> = (0..dim).map(|_| StandardNormal.sample(&mut rng)).collect();
-            let score = score(&z);
-            vec![Particle {
-                z,
-                score,
-                ancestor: i,
-            }]
+    /// The stage being grown (0: the nominal draws).
+    pub stage: usize,
+    /// Move steps of this stage done so far.
+    pub step: usize,
+    /// The level this stage's moves must stay above (unused at stage 0).
+    #[serde(with = "non_finite")]
+    pub threshold: f64,
+    chains: Vec<Vec<Particle>>,
+    lengths: Vec<usize>,
+    move_size: f64,
+    levels: Vec<Level>,
+    rhos: Vec<f64>,
+    proposed: u64,
+    accepted: u64,
+    acceptance_rate: Option<f64>,
+    stage_evaluations: u64,
+    /// Score evaluations so far.
+    pub evaluations: u64,
+}
+
+impl SplittingState {
+    /// A run about to draw its stage 0; checks the config and the rotation blocks.
+    pub fn new(
+        config: &SplittingConfig,
+        dim: usize,
+        rotation_blocks: &[usize],
+        seed: u64,
+    ) -> Result<Self, SplittingError> {
+        config.validate()?;
+        validate_rotation_blocks(dim, rotation_blocks)?;
+        Ok(Self {
+            config: config.clone(),
+            dim,
+            rotation_blocks: rotation_blocks.to_vec(),
+            seed,
+            stage: 0,
+            step: 0,
+            threshold: f64::NEG_INFINITY,
+            chains: Vec::new(),
+            lengths: Vec::new(),
+            move_size: (1.0 - config.initial_rho * config.initial_rho)
+                .sqrt()
+                .clamp(MIN_MOVE_SIZE, MAX_MOVE_SIZE),
+            levels: Vec::new(),
+            rhos: Vec::new(),
+            proposed: 0,
+            accepted: 0,
+            acceptance_rate: None,
+            stage_evaluations: 0,
+            evaluations: 0,
         })
-        .collect();
-    let mut levels = Vec::new();
-    let mut evaluations = n as u64;
-    let mut stage_evaluations = n as u64;
-    let mut acceptance_rate = None;
-    let mut rhos = Vec::new();
-    let mut move_size = (1.0 - config.initial_rho * config.initial_rho)
-        .sqrt()
+    }
+
+    /// The levels ranked so far.
+    pub fn levels(&self) -> &[Level] {
+        &self.levels
+    }
+
+    /// The ρ of the next move step.
+    pub fn rho(&self) -> f64 {
+        rho_of(self.move_size)
+    }
+
+    /// The points to score next, in the order [`SplittingState::advance`] takes their scores.
+    pub fn candidates(&self) -> Vec<Candidate> {
+        if self.stage == 0 {
+            return (0..self.config.particles)
+                .map(|i| {
+                    let mut rng = sample_rng(self.seed, 0, i as u64);
+                    Candidate {
+                        z: (0..self.dim)
+                            .map(|_| StandardNormal.sample(&mut rng))
+                            .collect(),
+                        chain: i,
+                        stream: 0,
+                        index: i as u64,
+                        evaluation: i as u64,
+                    }
+                })
+                .collect();
+        }
+        let step = self.step + 1;
+        let rho = self.rho();
+        let mut evaluation = self.evaluations;
+        self.chains
+            .iter()
+            .enumerate()
+            .filter(|&(j, _)| self.lengths[j] > step)
+            .map(|(j, chain)| {
+                let current = chain.last().expect("a chain starts at its seed");
+                let index = ((step as u64) << 32) | j as u64;
+                let mut rng = sample_rng(self.seed, self.stage as u32, index);
+                let candidate = Candidate {
+                    z: propose_move(&current.z, &self.rotation_blocks, rho, &mut rng),
+                    chain: j,
+                    stream: self.stage as u32,
+                    index,
+                    evaluation,
+                };
+                evaluation += 1;
+                candidate
+            })
+            .collect()
+    }
+
+    /// Takes the scores of [`SplittingState::candidates`] (NaN: invalid), in their order, and
+    /// moves on: to the next step, or past a level barrier. `Some` when the run has ended (the
+    /// failure level reached, or `max_levels` stages spent).
+    pub fn advance(&mut self, scores: &[f64]) -> Result<Option<SplittingRun>, SplittingError> {
+        let candidates = self.candidates();
+        assert_eq!(
+            scores.len(),
+            candidates.len(),
+            "one score per candidate of the step"
+        );
+        if self.stage == 0 {
+            self.chains = candidates
+                .into_iter()
+                .zip(scores)
+                .map(|(c, &score)| {
+                    vec![Particle {
+                        z: c.z,
+                        score,
+                        ancestor: c.chain,
+                        evaluation: c.evaluation,
+                    }]
+                })
+                .collect();
+            self.evaluations = self.config.particles as u64;
+            self.stage_evaluations = self.evaluations;
+            return self.rank();
+        }
+        self.rhos.push(self.rho());
+        let mut step_accepted = 0u64;
+        for (candidate, &score) in candidates.iter().zip(scores) {
+            let chain = &mut self.chains[candidate.chain];
+            let current = chain.last().expect("a chain starts at its seed");
+            let next = if score > self.threshold {
+                step_accepted += 1;
+                Particle {
+                    z: candidate.z.clone(),
+                    score,
+                    ancestor: current.ancestor,
+                    evaluation: candidate.evaluation,
+                }
+            } else {
+                current.clone()
+            };
+            chain.push(next);
+        }
+        let step_proposed = candidates.len() as u64;
+        self.step += 1;
+        self.evaluations += step_proposed;
+        let step_acceptance = step_accepted as f64 / step_proposed as f64;
+        self.move_size = (self.move_size.ln()
+            + (step_acceptance - self.config.target_acceptance) / (self.step as f64).sqrt())
+        .exp()
         .clamp(MIN_MOVE_SIZE, MAX_MOVE_SIZE);
-    for stage in 0..config.max_levels as usize {
-        let particles = chains.iter().flatten();
+        self.proposed += step_proposed;
+        self.accepted += step_accepted;
+        if self.step + 1 < self.lengths[0] {
+            return Ok(None);
+        }
+        self.acceptance_rate =
+            (self.proposed > 0).then(|| self.accepted as f64 / self.proposed as f64);
+        self.stage_evaluations = self.proposed;
+        self.rank()
+    }
+
+    /// The barrier after a stage: ranks its particles into the next level and picks the
+    /// seeds, or ends the run.
+    fn rank(&mut self) -> Result<Option<SplittingRun>, SplittingError> {
+        let n = self.config.particles;
+        let wanted_seeds = self.config.seeds_per_level();
+        let particles = self.chains.iter().flatten();
         let failing = particles.clone().filter(|p| p.above(0.0)).count();
         let threshold = if failing >= wanted_seeds {
             0.0
@@ -515,102 +757,94 @@ pub fn run_in_memory(
             ranked.sort_by(|a, b| b.total_cmp(a));
             ranked[wanted_seeds - 1].next_down()
         };
-        let indicators: Vec<Vec<bool>> = chains
+        let indicators: Vec<Vec<bool>> = self
+            .chains
             .iter()
             .map(|c| c.iter().map(|p| p.above(threshold)).collect())
             .collect();
         let above = indicators.iter().flatten().filter(|&&b| b).count();
         if above == 0 || (above == n && threshold < 0.0) {
-            return Err(SplittingError::Plateau { stage, threshold });
+            return Err(SplittingError::Plateau {
+                stage: self.stage,
+                threshold,
+            });
         }
-        levels.push(Level {
+        self.levels.push(Level {
             threshold,
             conditional_probability: above as f64 / n as f64,
             correlation_factor: correlation_factor(&indicators),
-            chains: chains.len(),
-            acceptance_rate,
-            rhos: std::mem::take(&mut rhos),
-            evaluations: stage_evaluations,
+            chains: self.chains.len(),
+            acceptance_rate: self.acceptance_rate,
+            rhos: std::mem::take(&mut self.rhos),
+            evaluations: self.stage_evaluations,
         });
         if threshold == 0.0 {
-            let failures: Vec<Particle> = chains
+            let failures: Vec<Particle> = std::mem::take(&mut self.chains)
                 .into_iter()
                 .flatten()
                 .filter(|p| p.above(0.0))
                 .collect();
             let mut ancestors: Vec<usize> = failures.iter().map(|p| p.ancestor).collect();
-            let estimate = SplittingEstimate::new(&levels, n, &ancestors);
+            let estimate = SplittingEstimate::new(&self.levels, n, &ancestors);
             ancestors.sort_unstable();
             ancestors.dedup();
-            return Ok(SplittingRun {
+            return Ok(Some(SplittingRun {
                 reached: true,
                 estimate: Some(estimate),
-                levels,
-                evaluations,
+                levels: self.levels.clone(),
+                evaluations: self.evaluations,
                 failures,
                 distinct_ancestors: ancestors.len(),
-            });
+            }));
         }
-        if stage + 1 == config.max_levels as usize {
-            break;
+        if self.stage + 1 == self.config.max_levels as usize {
+            return Ok(Some(SplittingRun {
+                reached: false,
+                levels: self.levels.clone(),
+                estimate: None,
+                evaluations: self.evaluations,
+                failures: Vec::new(),
+                distinct_ancestors: 0,
+            }));
         }
-        let seeds: Vec<Particle> = chains
+        let seeds: Vec<Particle> = std::mem::take(&mut self.chains)
             .into_iter()
             .flatten()
             .filter(|p| p.above(threshold))
             .collect();
-        let lengths: Vec<usize> = (0..seeds.len())
+        self.lengths = (0..seeds.len())
             .map(|j| n / seeds.len() + usize::from(j < n % seeds.len()))
             .collect();
-        chains = seeds.into_iter().map(|s| vec![s]).collect();
-        let (mut proposed, mut accepted) = (0u64, 0u64);
-        let steps = lengths[0] - 1;
-        for step in 1..=steps {
-            let rho = rho_of(move_size);
-            rhos.push(rho);
-            let (mut step_proposed, mut step_accepted) = (0u64, 0u64);
-            for (j, chain) in chains.iter_mut().enumerate() {
-                if lengths[j] <= step {
-                    continue;
-                }
-                let current = chain.last().expect("a chain starts at its seed");
-                let sample_index = ((step as u64) << 32) | j as u64;
-                let mut rng = sample_rng(seed, stage as u32 + 1, sample_index);
-                let z = propose_move(&current.z, rotation_blocks, rho, &mut rng);
-                let candidate_score = score(&z);
-                step_proposed += 1;
-                let next = if candidate_score > threshold {
-                    step_accepted += 1;
-                    Particle {
-                        z,
-                        score: candidate_score,
-                        ancestor: current.ancestor,
-                    }
-                } else {
-                    current.clone()
-                };
-                chain.push(next);
-            }
-            let step_acceptance = step_accepted as f64 / step_proposed as f64;
-            move_size = (move_size.ln()
-                + (step_acceptance - config.target_acceptance) / (step as f64).sqrt())
-            .exp()
-            .clamp(MIN_MOVE_SIZE, MAX_MOVE_SIZE);
-            proposed += step_proposed;
-            accepted += step_accepted;
-        }
-        acceptance_rate = (proposed > 0).then(|| accepted as f64 / proposed as f64);
-        stage_evaluations = proposed;
-        evaluations += proposed;
+        self.chains = seeds.into_iter().map(|s| vec![s]).collect();
+        self.threshold = threshold;
+        self.stage += 1;
+        self.step = 0;
+        self.proposed = 0;
+        self.accepted = 0;
+        Ok(None)
     }
-    Ok(SplittingRun {
-        reached: false,
-        levels,
-        estimate: None,
-        evaluations,
-        failures: Vec::new(),
-        distinct_ancestors: 0,
-    })
+}
+
+/// Reference driver for cheap score functions (tests, benchmarks): subset simulation in one
+/// process, [`SplittingState`] in a loop.
+///
+/// z ∈ R^`dim` with the orientation blocks z[s..s + 4], s ∈ `rotation_blocks`; failure ⇔
+/// score(z) > 0 (the search's scores are log10(metric/threshold)); a NaN score marks an
+/// invalid sample, which is below every threshold.
+pub fn run_in_memory(
+    config: &SplittingConfig,
+    dim: usize,
+    rotation_blocks: &[usize],
+    seed: u64,
+    score: impl Fn(&[f64]) -> f64,
+) -> Result<SplittingRun, SplittingError> {
+    let mut state = SplittingState::new(config, dim, rotation_blocks, seed)?;
+    loop {
+        let scores: Vec<f64> = state.candidates().iter().map(|c| score(&c.z)).collect();
+        if let Some(run) = state.advance(&scores)? {
+            return Ok(run);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -838,5 +1072,56 @@ mod tests {
             run_in_memory(&config, 8, &[], 3, |_| -1.0),
             Err(SplittingError::Plateau { stage: 0, .. })
         ));
+    }
+
+    /// What a run folder does: the state saved as JSON and read back before every step, the
+    /// candidates scored in another order, invalid (NaN) and nothing-fitted (+∞) scores among
+    /// them — and the run is the uninterrupted one, with every evaluation numbered once.
+    #[test]
+    fn a_state_saved_and_resumed_at_every_step_gives_the_same_run() {
+        let config = SplittingConfig {
+            particles: 100,
+            ..SplittingConfig::default()
+        };
+        let score = |z: &[f64]| {
+            if z[2] > 2.5 {
+                f64::NAN
+            } else if z[3] > 3.0 {
+                f64::INFINITY
+            } else {
+                z[0] + 0.5 * z[1] - 3.5
+            }
+        };
+        let uninterrupted = run_in_memory(&config, 8, &[4], 11, score).unwrap();
+        let mut state = SplittingState::new(&config, 8, &[4], 11).unwrap();
+        let mut numbers = Vec::new();
+        let resumed = loop {
+            state = serde_json::from_str(&serde_json::to_string(&state).unwrap()).unwrap();
+            let candidates = state.candidates();
+            numbers.extend(candidates.iter().map(|c| c.evaluation));
+            let mut scores = vec![0.0; candidates.len()];
+            for (i, c) in candidates.iter().enumerate().rev() {
+                scores[i] = score(&c.z);
+            }
+            if let Some(run) = state.advance(&scores).unwrap() {
+                break run;
+            }
+        };
+        assert_eq!(
+            serde_json::to_string(&resumed).unwrap(),
+            serde_json::to_string(&uninterrupted).unwrap()
+        );
+        assert!(resumed.reached && resumed.levels.len() >= 3);
+        assert_eq!(
+            numbers,
+            (0..resumed.evaluations).collect::<Vec<_>>(),
+            "every evaluation numbered once, in order"
+        );
+        assert!(
+            resumed
+                .failures
+                .iter()
+                .all(|p| p.evaluation < resumed.evaluations)
+        );
     }
 }

@@ -131,6 +131,9 @@ pub enum EstimatorKind {
     /// Some samples were invalid: p̂_s = Σ w_i 1{valid ∧ fail} / Σ w_i 1{valid}, the ratio
     /// estimator of P(fail | valid, s), with delta-method variance.
     Ratio,
+    /// Subset simulation: the product of the levels' conditional probabilities
+    /// ([`crate::splitting::SplittingEstimate`]), over the share of valid first-stage samples.
+    Splitting,
 }
 
 /// Which 95 % interval [`ImportanceEstimate::ci95`] is.
@@ -147,6 +150,9 @@ pub enum CiMethod {
     LogWald,
     /// No interval: importance sampling with no failure (p̂ = 0, se = 0) gives none.
     None,
+    /// Subset simulation's log-normal interval from the larger of two coefficients of
+    /// variation ([`crate::splitting::SplittingEstimate`]).
+    LogNormal,
 }
 
 /// The estimate within one stratum.

@@ -1,11 +1,14 @@
-//! A search run: its folder, its samplers (Monte Carlo, cross-entropy), resumable batches and
-//! the failure-probability estimate.
+//! A search run: its folder, its samplers (Monte Carlo, cross-entropy, subset simulation),
+//! resumable batches and the failure-probability estimate.
 //!
 //! Run folder (every file published atomically):
 //! - `run.json`: what is searched and how (space, recipe, sampler settings, seed): a resumed or
 //!   sharded process must find the same, or it refuses to touch the folder.
 //! - `proposals/iter-KKKK.json`, K ≥ 1: the proposal iteration K draws from (computed at the
 //!   barrier after iteration K − 1 from all of its samples; iteration 0 draws from the nominal).
+//!   For subset simulation, the splitting state before move step K (its chains, level and ρ):
+//!   each iteration is one synchronous move of every chain, and `splitting.json`, written at
+//!   the last barrier, holds the levels and the estimate.
 //! - `batches/samples/iter-KKKK-batch-BBBBB.parquet` and `batches/timings/…`: one file per batch,
 //!   the samples file last (it is the batch's commit point); a batch whose samples file exists
 //!   is done and skipped on resume. Sample i's z, stratum and seed are a function of
@@ -28,18 +31,22 @@ use arrow::record_batch::RecordBatch;
 use boxpose_data::schema::{self, SEARCH_SAMPLES, SEARCH_TIMINGS, Table};
 use boxpose_data::{Object, Scene};
 use boxpose_search_stats::{
-    CeConfig, CeError, CeStep, ImportanceEstimate, Proposal, WeightedSample, ce_step, log_nominal,
-    sample_rng,
+    CeConfig, CeError, CeStep, ImportanceEstimate, Proposal, SplittingConfig, SplittingError,
+    SplittingRun, SplittingState, WeightedSample, ce_step, log_nominal, sample_rng,
 };
 use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{Result, SearchError};
 use crate::space::SearchSpace;
-use crate::sut::{Crops, Invalid, Outcome, Perceived, Predicate, SystemUnderTest};
+use crate::sut::{Crops, Evaluate, Invalid, Outcome, Perceived, Predicate};
 
 /// Version of the run folder's layout and `run.json`.
 pub const RUN_FORMAT: u32 = 1;
+
+/// The random stream of splitting candidates' scene seeds (the chains' moves use the streams of
+/// their stages, 0, 1, 2, …).
+const SPLITTING_SEED_STREAM: u32 = u32::MAX;
 
 /// Which sampler draws the scenes.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -49,6 +56,8 @@ pub enum Sampler {
     Mc,
     /// Cross-entropy adaptive importance sampling, then a frozen defensive proposal.
     Ce,
+    /// Subset simulation (adaptive multilevel splitting) from the nominal.
+    Splitting,
 }
 
 impl Sampler {
@@ -56,6 +65,7 @@ impl Sampler {
         match self {
             Sampler::Mc => "mc",
             Sampler::Ce => "ce",
+            Sampler::Splitting => "splitting",
         }
     }
 }
@@ -66,6 +76,7 @@ impl Sampler {
 pub struct RunSettings {
     pub sampler: Sampler,
     /// Monte Carlo: samples in all. Cross-entropy: the final batch (`ce.final_samples`).
+    /// Subset simulation: particles per stage (`splitting.particles`).
     pub samples: usize,
     /// Samples per batch file (the unit of resumption and of sharding).
     pub batch_size: usize,
@@ -85,6 +96,9 @@ pub struct RunSettings {
     /// Empty: all of them.
     #[serde(default)]
     pub ce_tilt: Vec<String>,
+    /// Subset simulation's settings (`particles` is `samples`); only with that sampler.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub splitting: Option<SplittingConfig>,
     /// The networks, as given (their files are not hashed).
     pub model: String,
     pub segmenter: Option<String>,
@@ -122,6 +136,45 @@ impl RunRecord {
                 }
                 other => SearchError::Sample(other.to_string()),
             })?;
+        }
+        match (settings.sampler, &settings.splitting) {
+            (Sampler::Splitting, Some(config)) => {
+                if config.particles != settings.samples {
+                    return Err(SearchError::Sample(format!(
+                        "splitting particles {} differ from --samples {}",
+                        config.particles, settings.samples
+                    )));
+                }
+                config.validate().map_err(|e| match e {
+                    SplittingError::Config { key, message } => SearchError::Sample(format!(
+                        "{}: {message}",
+                        if key == "particles" {
+                            "--samples".to_string()
+                        } else {
+                            setting_flag(&format!("splitting.{key}"))
+                        }
+                    )),
+                    other => SearchError::Sample(other.to_string()),
+                })?;
+                if space.strata().len() > 1 {
+                    return Err(SearchError::Sample(format!(
+                        "--sampler splitting draws from one stratum, and this space has {} \
+                         (its neighbour counts): use --sampler mc or ce",
+                        space.strata().len()
+                    )));
+                }
+            }
+            (Sampler::Splitting, None) => {
+                return Err(SearchError::Sample(
+                    "--sampler splitting needs its settings".into(),
+                ));
+            }
+            (_, Some(_)) => {
+                return Err(SearchError::Sample(
+                    "splitting settings are for --sampler splitting only".into(),
+                ));
+            }
+            (_, None) => {}
         }
         let names: Vec<&str> = space.dimensions.iter().map(|d| d.name.as_str()).collect();
         for prefix in &settings.ce_tilt {
@@ -207,6 +260,22 @@ pub(crate) fn differences(run: &RunRecord, this: &RunRecord) -> Vec<String> {
                     }
                 }
             }
+            (
+                "splitting",
+                serde_json::Value::Object(theirs),
+                Some(serde_json::Value::Object(ours)),
+            ) => {
+                for (split_key, value) in theirs {
+                    // the particles are --samples, compared above
+                    if split_key != "particles" {
+                        differ(
+                            &format!("splitting.{split_key}"),
+                            Some(value),
+                            ours.get(split_key),
+                        );
+                    }
+                }
+            }
             (_, value, ours) => differ(key, Some(value), ours),
         }
     }
@@ -229,12 +298,25 @@ fn setting_flag(field: &str) -> String {
 /// What iteration K does: its stage, its number of samples, the proposal it draws from.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct IterationPlan {
-    /// `mc`, `tune` or `final`.
+    /// `mc`, `tune`, `final` or `split`.
     pub stage: String,
     pub samples: usize,
+    /// The density the samples' log_proposal is of (subset simulation: the nominal, every
+    /// weight 1; its samples come from [`IterationPlan::splitting`]).
     pub proposal: Proposal,
     /// Cross-entropy: the step that produced this proposal (none for iteration 0).
     pub step: Option<CeStep>,
+    /// Subset simulation: the state whose candidates this iteration scores.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub splitting: Option<SplittingState>,
+}
+
+impl IterationPlan {
+    /// Whether a barrier follows this iteration (cross-entropy tuning, every splitting step
+    /// until the run ends), rather than it being the run's last.
+    fn has_barrier(&self) -> bool {
+        self.stage == "tune" || self.stage == "split"
+    }
 }
 
 /// Progress reports from a run; the CLI draws them (the library never prints).
@@ -457,7 +539,7 @@ impl Run {
     /// The first sample_id of `iteration`: tuning iterations hold `samples_per_iteration` each.
     fn first_id(&self, iteration: u32) -> i64 {
         match self.settings().sampler {
-            Sampler::Mc => 0,
+            Sampler::Mc | Sampler::Splitting => 0,
             Sampler::Ce => iteration as i64 * self.settings().ce.samples_per_iteration as i64,
         }
     }
@@ -511,7 +593,23 @@ impl Run {
                     samples: s.samples,
                     proposal: Proposal::nominal(dim),
                     step: None,
+                    splitting: None,
                 },
+                Sampler::Splitting => {
+                    let config = s.splitting.as_ref().expect("checked by RunRecord::new");
+                    let state = SplittingState::new(config, dim, &self.splitting_blocks(), s.seed)
+                        .map_err(|e| SearchError::Run {
+                            path: self.dir.clone(),
+                            problem: format!("the splitting run: {e}"),
+                        })?;
+                    IterationPlan {
+                        stage: "split".into(),
+                        samples: config.particles,
+                        proposal: Proposal::nominal(dim),
+                        step: None,
+                        splitting: Some(state),
+                    }
+                }
                 Sampler::Ce => IterationPlan {
                     stage: "tune".into(),
                     samples: s.ce.samples_per_iteration,
@@ -522,6 +620,7 @@ impl Run {
                             problem: format!("the starting proposal: {e}"),
                         })?,
                     step: None,
+                    splitting: None,
                 },
             }));
         }
@@ -542,7 +641,7 @@ impl Run {
     pub fn plans(&self) -> Result<Vec<IterationPlan>> {
         let mut plans = Vec::new();
         while let Some(plan) = self.plan(plans.len() as u32)? {
-            let last = plan.stage != "tune";
+            let last = !plan.has_barrier();
             plans.push(plan);
             if last {
                 break;
@@ -558,7 +657,7 @@ impl Run {
     pub fn sample(
         &self,
         space: &SearchSpace,
-        sut: &mut SystemUnderTest,
+        sut: &mut dyn Evaluate,
         shard: usize,
         num_shards: usize,
         observer: &mut dyn Observer,
@@ -582,14 +681,16 @@ impl Run {
                 }
                 self.run_batch(space, sut, iteration, batch, &plan, observer)?;
             }
-            if plan.stage != "tune" {
+            if !plan.has_barrier() {
                 if shard == 0 {
                     self.wait_for_batches(iteration, batches, observer)?;
                 }
                 return Ok(());
             }
             self.wait_for_batches(iteration, batches, observer)?;
-            self.advance(iteration, &plan)?;
+            if !self.advance(iteration, &plan)? {
+                return Ok(());
+            }
             iteration += 1;
         }
     }
@@ -608,7 +709,9 @@ impl Run {
             let batches: Vec<usize> = (0..self.batches(plan.samples))
                 .filter(|&b| !self.batch_path(&SEARCH_SAMPLES, iteration, b).exists())
                 .collect();
-            if !batches.is_empty() || plan.stage != "tune" {
+            let last =
+                batches.is_empty() && plan.has_barrier() && !self.advance(iteration, &plan)?;
+            if !batches.is_empty() || !plan.has_barrier() || last {
                 return Ok(PendingWork {
                     iteration,
                     stage: plan.stage,
@@ -618,7 +721,6 @@ impl Run {
                     batches,
                 });
             }
-            self.advance(iteration, &plan)?;
             iteration += 1;
         }
     }
@@ -629,7 +731,7 @@ impl Run {
     pub fn sample_batch(
         &self,
         space: &SearchSpace,
-        sut: &mut SystemUnderTest,
+        sut: &mut dyn Evaluate,
         iteration: u32,
         batch: usize,
         observer: &mut dyn Observer,
@@ -687,11 +789,16 @@ impl Run {
 
     /// The barrier after tuning iteration `iteration`: the cross-entropy step on all of its
     /// samples, and the next iteration's plan (another tuning iteration, or the frozen final
-    /// proposal once the failure level is reached or the iterations run out).
-    fn advance(&self, iteration: u32, plan: &IterationPlan) -> Result<()> {
+    /// proposal once the failure level is reached or the iterations run out); after a
+    /// splitting step, the next step's state or, at the end, `splitting.json`. Returns whether
+    /// an iteration follows.
+    fn advance(&self, iteration: u32, plan: &IterationPlan) -> Result<bool> {
         let path = self.plan_path(iteration + 1);
         if path.exists() {
-            return Ok(());
+            return Ok(true);
+        }
+        if let Some(state) = &plan.splitting {
+            return self.advance_splitting(iteration, plan, state.clone());
         }
         let rows = self.iteration_rows(iteration, self.batches(plan.samples))?;
         let zs: Vec<Vec<f64>> = rows.iter().map(|r| r.z.clone()).collect();
@@ -710,6 +817,7 @@ impl Run {
                 samples: self.settings().samples,
                 proposal: step.next.with_defensive(ce.defensive_lambda),
                 step: Some(step),
+                splitting: None,
             }
         } else {
             IterationPlan {
@@ -717,13 +825,83 @@ impl Run {
                 samples: ce.samples_per_iteration,
                 proposal: step.next.clone(),
                 step: Some(step),
+                splitting: None,
             }
         };
         boxpose_data::write_file_atomically(
             &path,
             &serde_json::to_vec_pretty(&next).expect("a plan serialises"),
         )?;
-        Ok(())
+        Ok(true)
+    }
+
+    fn splitting_path(&self) -> PathBuf {
+        self.dir.join("splitting.json")
+    }
+
+    /// The orientation blocks of z, which the splitting moves turn as rotations.
+    fn splitting_blocks(&self) -> Vec<usize> {
+        self.record
+            .dimensions
+            .iter()
+            .enumerate()
+            .filter(|&(_, name)| name.ends_with(".orientation.q0"))
+            .map(|(i, _)| i)
+            .collect()
+    }
+
+    /// The barrier after splitting step `iteration`: its candidates' scores (invalid samples
+    /// below every level) move the state on; the next step's state becomes the next plan, or
+    /// the run's end `splitting.json`.
+    fn advance_splitting(
+        &self,
+        iteration: u32,
+        plan: &IterationPlan,
+        mut state: SplittingState,
+    ) -> Result<bool> {
+        if self.splitting_path().exists() {
+            return Ok(false);
+        }
+        let rows = self.iteration_rows(iteration, self.batches(plan.samples))?;
+        let scores: Vec<f64> = rows.iter().map(SampleRow::level_score).collect();
+        let ended = state.advance(&scores).map_err(|e| SearchError::Run {
+            path: self.dir.clone(),
+            problem: format!("subset simulation after iteration {iteration}: {e}"),
+        })?;
+        if let Some(result) = ended {
+            boxpose_data::write_file_atomically(
+                &self.splitting_path(),
+                &serde_json::to_vec_pretty(&result).expect("a splitting run serialises"),
+            )?;
+            return Ok(false);
+        }
+        let next = IterationPlan {
+            stage: "split".into(),
+            samples: state.candidates().len(),
+            proposal: plan.proposal.clone(),
+            step: None,
+            splitting: Some(state),
+        };
+        boxpose_data::write_file_atomically(
+            &self.plan_path(iteration + 1),
+            &serde_json::to_vec_pretty(&next).expect("a plan serialises"),
+        )?;
+        Ok(true)
+    }
+
+    /// The end of a subset simulation (`splitting.json`), once its last barrier is passed.
+    pub fn splitting_result(&self) -> Result<Option<SplittingRun>> {
+        let path = self.splitting_path();
+        if !path.exists() {
+            return Ok(None);
+        }
+        let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, e))?;
+        serde_json::from_str(&text)
+            .map(Some)
+            .map_err(|e| SearchError::Run {
+                path,
+                problem: format!("unreadable splitting result: {e}"),
+            })
     }
 
     fn iteration_rows(&self, iteration: u32, batches: usize) -> Result<Vec<SampleRow>> {
@@ -741,7 +919,7 @@ impl Run {
     fn run_batch(
         &self,
         space: &SearchSpace,
-        sut: &mut SystemUnderTest,
+        sut: &mut dyn Evaluate,
         iteration: u32,
         batch: usize,
         plan: &IterationPlan,
@@ -754,15 +932,29 @@ impl Run {
         let mut rows = Vec::new();
         let mut timings = Vec::new();
         let mut counterexamples: Vec<Outcome> = Vec::new();
+        let candidates = plan.splitting.as_ref().map(SplittingState::candidates);
         for index in first..last {
-            let sample_id = self.first_id(iteration) + index as i64;
-            let mut rng = sample_rng(s.seed, iteration, index as u64);
             // proportional allocation: every stratum gets its nominal share of every iteration
             let stratum = index % strata.len();
-            let z = plan.proposal.sample(&mut rng);
-            let seed = (rng.random::<u64>() >> 1) as i64;
+            let (sample_id, z, seed) = match &candidates {
+                // a splitting candidate's z comes from its chain; its scene seed is drawn
+                // afresh (an independent proposal from the seed's own nominal, so the move
+                // still leaves the conditioned nominal of (z, seed) invariant)
+                Some(candidates) => {
+                    let c = &candidates[index];
+                    let mut rng = sample_rng(s.seed, SPLITTING_SEED_STREAM, c.evaluation);
+                    let seed = (rng.random::<u64>() >> 1) as i64;
+                    (c.evaluation as i64, c.z.clone(), seed)
+                }
+                None => {
+                    let mut rng = sample_rng(s.seed, iteration, index as u64);
+                    let z = plan.proposal.sample(&mut rng);
+                    let seed = (rng.random::<u64>() >> 1) as i64;
+                    (self.first_id(iteration) + index as i64, z, seed)
+                }
+            };
             let parameters = space.parameters(&z, strata[stratum])?;
-            let outcome = sut.run(space, &parameters, sample_id, seed).map_err(|e| {
+            let outcome = sut.evaluate(space, &parameters, sample_id, seed).map_err(|e| {
                 SearchError::Sample(format!(
                     "sample {sample_id} (iteration {iteration}, index {index}, seed {seed}, {} neighbours): {e}",
                     strata[stratum]
@@ -820,7 +1012,7 @@ impl Run {
     pub fn replay(
         &self,
         space: &SearchSpace,
-        sut: &mut SystemUnderTest,
+        sut: &mut dyn Evaluate,
         row: &SampleRow,
     ) -> Result<(SampleRow, Outcome)> {
         let iteration = row.iteration as u32;
@@ -832,7 +1024,7 @@ impl Run {
             ),
         })?;
         let parameters = space.parameters(&row.z, row.stratum as u32)?;
-        let outcome = sut.run(space, &parameters, row.sample_id, row.seed)?;
+        let outcome = sut.evaluate(space, &parameters, row.sample_id, row.seed)?;
         let replayed = sample_row(
             row.sample_id,
             self.settings(),
@@ -852,6 +1044,9 @@ impl Run {
 
     /// Whether every batch of the run exists.
     pub fn complete(&self) -> Result<bool> {
+        if self.settings().sampler == Sampler::Splitting {
+            return Ok(self.splitting_path().exists());
+        }
         let plans = self.plans()?;
         let Some(last) = plans.last().filter(|p| p.stage != "tune") else {
             return Ok(false);
@@ -884,9 +1079,39 @@ impl Run {
     }
 
     /// The estimate from the samples the sampler's estimator uses: all of them for Monte Carlo,
-    /// the final (frozen-proposal) batch for cross-entropy.
+    /// the final (frozen-proposal) batch for cross-entropy; subset simulation's levels.
     pub fn estimate(&self, rows: &[SampleRow]) -> Result<ImportanceEstimate> {
-        estimate(rows, self.settings().sampler, None)
+        if self.settings().sampler != Sampler::Splitting {
+            return estimate(rows, self.settings().sampler, None);
+        }
+        let not_ready = |problem: &str| SearchError::Run {
+            path: self.dir.clone(),
+            problem: problem.into(),
+        };
+        let result = self
+            .splitting_result()?
+            .ok_or_else(|| not_ready("the subset simulation has not ended yet"))?;
+        let first_stage_valid = rows.iter().filter(|r| r.iteration == 0 && r.valid).count();
+        let valid = rows.iter().filter(|r| r.valid).count();
+        result
+            .importance_estimate(
+                self.settings().samples,
+                first_stage_valid as u64,
+                valid as u64,
+            )
+            .ok_or_else(|| {
+                not_ready(&format!(
+                    "the subset simulation did not reach the failure level within {} stages \
+                     (splitting.json has its levels): p is below about {:.1e}, or raise \
+                     --splitting-max-levels",
+                    result.levels.len(),
+                    result
+                        .levels
+                        .iter()
+                        .map(|l| l.conditional_probability)
+                        .product::<f64>()
+                ))
+            })
     }
 
     /// Merges the batches into `samples.parquet` and `timings.parquet` and writes
@@ -921,6 +1146,7 @@ impl Run {
 
     fn summary(&self, samples: &[SampleRow], timings: &[TimingRow]) -> Result<Summary> {
         let headline = self.estimate(samples)?;
+        let splitting = self.splitting_result()?;
         let plans = self.plans()?;
         let mean = |f: fn(&TimingRow) -> f64| {
             if timings.is_empty() {
@@ -970,14 +1196,21 @@ impl Run {
                 inference: mean(|t| t.inference_s),
                 fit: mean(|t| t.fit_s),
             },
-            warnings: warnings(&headline),
+            warnings: match &splitting {
+                Some(run) => splitting_warnings(run, &headline),
+                None => warnings(&headline),
+            },
+            strata: match &splitting {
+                Some(_) => vec![StratumSummary::whole(&headline)],
+                None => self
+                    .record
+                    .strata
+                    .iter()
+                    .map(|&n| StratumSummary::new(samples, s.sampler, n, self.record.strata.len()))
+                    .collect(),
+            },
             estimate: headline,
-            strata: self
-                .record
-                .strata
-                .iter()
-                .map(|&n| StratumSummary::new(samples, s.sampler, n, self.record.strata.len()))
-                .collect(),
+            splitting: splitting.map(|run| SplittingSummary::new(&run)),
             boxpose_version: env!("CARGO_PKG_VERSION").into(),
             mujoco_version: boxpose_physics::MUJOCO_VERSION.into(),
         })
@@ -998,6 +1231,13 @@ pub fn estimate(
     sampler: Sampler,
     neighbours: Option<u32>,
 ) -> Result<ImportanceEstimate> {
+    if sampler == Sampler::Splitting {
+        return Err(SearchError::Sample(
+            "subset simulation's estimate is the product of its levels (`splitting.json`), \
+             not a weighted mean of samples"
+                .into(),
+        ));
+    }
     let stage = estimating_stage(sampler);
     let weighted: Vec<WeightedSample> = rows
         .iter()
@@ -1024,6 +1264,7 @@ fn estimating_stage(sampler: Sampler) -> &'static str {
     match sampler {
         Sampler::Mc => "mc",
         Sampler::Ce => "final",
+        Sampler::Splitting => "split",
     }
 }
 
@@ -1055,6 +1296,94 @@ pub fn warnings(e: &ImportanceEstimate) -> Vec<String> {
     out
 }
 
+/// Why a subset simulation's interval may not be trusted: few lineages behind the final
+/// failures (the interval then rests on few independent clusters), chains that hardly moved,
+/// invalid first-stage samples (P̂(valid)'s own error is not in the interval).
+pub fn splitting_warnings(run: &SplittingRun, e: &ImportanceEstimate) -> Vec<String> {
+    let mut out = Vec::new();
+    if run.distinct_ancestors < MIN_SPLITTING_LINEAGES {
+        out.push(format!(
+            "the final failures descend from {} first-stage sample(s): the interval rests on few \
+             independent lineages; more particles (--samples) give more",
+            run.distinct_ancestors
+        ));
+    }
+    for (i, level) in run.levels.iter().enumerate() {
+        if let Some(rate) = level
+            .acceptance_rate
+            .filter(|&r| r < MIN_SPLITTING_ACCEPTANCE)
+        {
+            out.push(format!(
+                "stage {i} accepted {:.1}% of its moves: its chains hardly moved",
+                100.0 * rate
+            ));
+        }
+    }
+    if e.p_valid < 1.0 {
+        out.push(format!(
+            "{:.1}% of the first stage's samples were invalid: p̂ is P(fail ∧ valid)/P̂(valid), \
+             and the interval leaves P̂(valid)'s own error out",
+            100.0 * (1.0 - e.p_valid)
+        ));
+    }
+    out
+}
+
+/// Lineages (distinct first-stage ancestors of the final failures) below which a splitting
+/// interval is flagged.
+pub const MIN_SPLITTING_LINEAGES: usize = 5;
+/// Move acceptance below which a splitting stage is flagged.
+pub const MIN_SPLITTING_ACCEPTANCE: f64 = 0.05;
+
+/// A subset simulation's diagnostics in `summary.json`: per stage its level, conditional
+/// probability, correlation factor and acceptance, and the lineages of the final failures.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SplittingSummary {
+    pub reached: bool,
+    pub levels: Vec<SplittingLevelSummary>,
+    /// The estimate of P(score > 0) with both coefficients of variation.
+    pub estimate: Option<boxpose_search_stats::SplittingEstimate>,
+    pub evaluations: u64,
+    /// Distinct first-stage ancestors of the final failures.
+    pub distinct_ancestors: usize,
+}
+
+/// One stage of [`SplittingSummary`] (the ρ of each of its steps are in `splitting.json`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct SplittingLevelSummary {
+    /// The level b_i ranked from the stage's particles (the last: 0, failure), in score units
+    /// (log10 of the metric over its threshold).
+    pub threshold: f64,
+    pub conditional_probability: f64,
+    pub correlation_factor: f64,
+    pub chains: usize,
+    pub acceptance_rate: Option<f64>,
+    pub evaluations: u64,
+}
+
+impl SplittingSummary {
+    fn new(run: &SplittingRun) -> Self {
+        Self {
+            reached: run.reached,
+            levels: run
+                .levels
+                .iter()
+                .map(|l| SplittingLevelSummary {
+                    threshold: l.threshold,
+                    conditional_probability: l.conditional_probability,
+                    correlation_factor: l.correlation_factor,
+                    chains: l.chains,
+                    acceptance_rate: l.acceptance_rate,
+                    evaluations: l.evaluations,
+                })
+                .collect(),
+            estimate: run.estimate.clone(),
+            evaluations: run.evaluations,
+            distinct_ancestors: run.distinct_ancestors,
+        }
+    }
+}
+
 /// One stratum's own estimate of P(fail | valid), from the samples the headline estimate uses.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StratumSummary {
@@ -1074,6 +1403,20 @@ pub struct StratumSummary {
 }
 
 impl StratumSummary {
+    /// The only stratum of a run whose estimate is `e` (subset simulation draws from one).
+    fn whole(e: &ImportanceEstimate) -> Self {
+        Self {
+            neighbours: 0,
+            nominal_probability: 1.0,
+            samples: e.samples,
+            valid: e.valid,
+            failures: e.failures,
+            p_hat: Some(e.p_hat),
+            std_error: Some(e.std_error),
+            ci95: e.ci95,
+        }
+    }
+
     /// Stratum `neighbours`, one of `strata` strata, from the rows of the sampler's estimating
     /// stage.
     fn new(samples: &[SampleRow], sampler: Sampler, neighbours: u32, strata: usize) -> Self {
@@ -1127,8 +1470,12 @@ pub struct Summary {
     pub estimate: ImportanceEstimate,
     /// The same per stratum (number of neighbours; one stratum of 0 without neighbours).
     pub strata: Vec<StratumSummary>,
-    /// Why the interval may not be trusted (see [`warnings`]); empty when nothing stands out.
+    /// Why the interval may not be trusted (see [`warnings`], [`splitting_warnings`]); empty
+    /// when nothing stands out.
     pub warnings: Vec<String>,
+    /// Subset simulation's levels and diagnostics.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub splitting: Option<SplittingSummary>,
     pub boxpose_version: String,
     pub mujoco_version: String,
 }
@@ -1492,6 +1839,7 @@ mod tests {
                 predicate: Predicate::default(),
                 ce: CeConfig::default(),
                 ce_tilt: Vec::new(),
+                splitting: None,
                 model: "models/keypoint-slim".into(),
                 segmenter: None,
             },
@@ -1520,5 +1868,26 @@ mod tests {
         other = record.clone();
         other.space_toml = "name = \"clutter\"".into();
         assert_eq!(differences(&record, &other), ["the search space differs"]);
+        // splitting's settings by their flags; its particles are --samples, named once
+        let mut split = record.clone();
+        split.settings.sampler = Sampler::Splitting;
+        split.settings.splitting = Some(SplittingConfig {
+            particles: 100,
+            ..SplittingConfig::default()
+        });
+        let mut other = split.clone();
+        let settings = other.settings.splitting.as_mut().unwrap();
+        settings.level_probability = 0.2;
+        settings.particles = 200;
+        other.settings.samples = 200;
+        let mut found = differences(&split, &other);
+        found.sort();
+        assert_eq!(
+            found,
+            [
+                "--samples is 100 there, 200 here",
+                "--splitting-level-probability is 0.1 there, 0.2 here"
+            ]
+        );
     }
 }

@@ -234,6 +234,34 @@ pub struct Outcome {
     pub peaks: Vec<[f64; 3]>,
 }
 
+/// What a search run scores its samples with: one sample's inputs in, its outcome out. The
+/// real pipeline is [`SystemUnderTest`]; a closed-form evaluator lets the run folder's resume,
+/// shards, barriers and levels be tested without Blender or networks
+/// (`rust/search/tests/run_folder.rs`).
+pub trait Evaluate {
+    /// Builds, settles, renders and perceives sample `scene_id` with `seed` (whatever the
+    /// evaluator's stages are), and scores it.
+    fn evaluate(
+        &mut self,
+        space: &SearchSpace,
+        parameters: &crate::space::Parameters,
+        scene_id: i64,
+        seed: i64,
+    ) -> Result<Outcome>;
+}
+
+impl Evaluate for SystemUnderTest {
+    fn evaluate(
+        &mut self,
+        space: &SearchSpace,
+        parameters: &crate::space::Parameters,
+        scene_id: i64,
+        seed: i64,
+    ) -> Result<Outcome> {
+        self.run(space, parameters, scene_id, seed)
+    }
+}
+
 /// Everything loaded once for a search: the renderer (one per process), the networks, the fit.
 pub struct SystemUnderTest {
     pub physics: RecipePhysics,

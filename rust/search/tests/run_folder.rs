@@ -1,0 +1,309 @@
+//! The search's run folder without Blender or networks: a closed-form evaluator (a failure set
+//! of known probability in the real `single_box` space) drives Monte Carlo, cross-entropy and
+//! subset simulation runs through `Run`, so that resume after an interruption, shards, the
+//! barriers and the splitting levels are tested in seconds.
+
+use std::path::{Path, PathBuf};
+
+use boxpose_data::Scene;
+use boxpose_search::run::{Observer, Run, RunRecord, RunSettings, Sampler};
+use boxpose_search::space::{Parameters, SearchSpace};
+use boxpose_search::sut::{Crops, Evaluate, Metrics, Outcome, Perceived, Predicate, StageSeconds};
+use boxpose_search::{Result, SearchError};
+use boxpose_search_stats::splitting::run_in_memory;
+use boxpose_search_stats::{CeConfig, SplittingConfig, normal_cdf};
+
+/// The parameter whose nominal quantile decides failure: `camera.distance_m`, uniform on
+/// [0.6, 0.9] in `single_box`.
+const DECIDING: &str = "camera.distance_m";
+const DISTANCE_RANGE: [f64; 2] = [0.6, 0.9];
+
+/// A sample fails iff the deciding parameter's quantile u exceeds 1 − p (probability exactly p
+/// under the nominal); its paper's error is 0.005 · 10^(10 (u − (1 − p))), so that the search's
+/// score is 10 (u − (1 − p)). `interrupt_after`: the evaluation that errors, as a kill would.
+struct ClosedForm {
+    p: f64,
+    calls: usize,
+    interrupt_after: Option<usize>,
+}
+
+impl ClosedForm {
+    fn new(p: f64) -> Self {
+        Self {
+            p,
+            calls: 0,
+            interrupt_after: None,
+        }
+    }
+
+    fn interrupted_after(p: f64, calls: usize) -> Self {
+        Self {
+            interrupt_after: Some(calls),
+            ..Self::new(p)
+        }
+    }
+
+    fn score_of_quantile(&self, u: f64) -> f64 {
+        10.0 * (u - (1.0 - self.p))
+    }
+}
+
+impl Evaluate for ClosedForm {
+    fn evaluate(
+        &mut self,
+        _space: &SearchSpace,
+        parameters: &Parameters,
+        scene_id: i64,
+        seed: i64,
+    ) -> Result<Outcome> {
+        if self.interrupt_after == Some(self.calls) {
+            return Err(SearchError::Sample("interrupted".into()));
+        }
+        self.calls += 1;
+        let [lo, hi] = DISTANCE_RANGE;
+        let u = (parameters.get(DECIDING) - lo) / (hi - lo);
+        let error = 0.005 * 10f64.powf(self.score_of_quantile(u));
+        Ok(Outcome {
+            result: Ok(Perceived::Fitted(Metrics {
+                paper_error: error,
+                paper_error_normalized: error,
+                mssd_over_diameter: error,
+                cube_mssd_over_diameter: error,
+                add_s_m: error,
+                rotation_error_deg: 0.0,
+                translation_error_m: 0.0,
+                confidence: 1.0,
+                fitted_corners: [[0.0; 3]; 8],
+            })),
+            seconds: StageSeconds::default(),
+            scene: Scene {
+                scene_id,
+                seed,
+                recipe: "single_box".into(),
+                recipe_toml: String::new(),
+                tool_versions: String::new(),
+                physics_backend: "closed form".into(),
+                support: "floor".into(),
+                num_objects: 1,
+                solver: String::new(),
+                solver_status: String::new(),
+                solve_attempts: 0,
+                settle_time_s: 0.0,
+                max_linear_speed_mps: 0.0,
+                max_angular_speed_radps: 0.0,
+                min_signed_distance_m: 0.0,
+                stable: true,
+            },
+            objects: Vec::new(),
+            rendered: None,
+            peaks: Vec::new(),
+        })
+    }
+}
+
+struct Quiet;
+impl Observer for Quiet {}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn space() -> SearchSpace {
+    let path = repo().join("configs/search/single_box.toml");
+    SearchSpace::load(path.to_str().unwrap(), &repo().join("datasets/recipes")).unwrap()
+}
+
+fn settings(sampler: Sampler, samples: usize, batch_size: usize) -> RunSettings {
+    RunSettings {
+        sampler,
+        samples,
+        batch_size,
+        seed: 7,
+        crops: Crops::Gt,
+        whole_frames: false,
+        fit: "paper".into(),
+        predicate: Predicate::default(),
+        ce: CeConfig {
+            samples_per_iteration: 200,
+            max_iterations: 6,
+            final_samples: samples,
+            ..CeConfig::default()
+        },
+        ce_tilt: Vec::new(),
+        splitting: (sampler == Sampler::Splitting).then(|| SplittingConfig {
+            particles: samples,
+            max_levels: 8,
+            ..SplittingConfig::default()
+        }),
+        model: "closed form".into(),
+        segmenter: None,
+    }
+}
+
+/// Runs a whole search in `dir` with `evaluator`, merged.
+fn run(dir: &Path, settings: &RunSettings, evaluator: &mut dyn Evaluate) -> Result<()> {
+    let space = space();
+    let run = Run::create(dir, RunRecord::new(&space, settings.clone())?)?;
+    run.sample(&space, evaluator, 0, 1, &mut Quiet)?;
+    run.merge()?;
+    Ok(())
+}
+
+fn read(path: &Path) -> Vec<u8> {
+    std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+}
+
+fn summary(dir: &Path) -> serde_json::Value {
+    serde_json::from_slice(&read(&dir.join("summary.json"))).unwrap()
+}
+
+/// Interrupted at evaluation `at` (the batch in flight is lost), then resumed with a fresh
+/// evaluator: the tables equal the uninterrupted run's byte for byte.
+fn check_resume(sampler: Sampler, samples: usize, batch_size: usize, p: f64, at: usize) {
+    let root = tempfile::tempdir().unwrap();
+    let s = settings(sampler, samples, batch_size);
+    let whole = root.path().join("whole");
+    let mut uninterrupted = ClosedForm::new(p);
+    run(&whole, &s, &mut uninterrupted).unwrap();
+    assert!(
+        at < uninterrupted.calls,
+        "the interruption falls inside the run"
+    );
+    let resumed = root.path().join("resumed");
+    let mut interrupted = ClosedForm::interrupted_after(p, at);
+    assert!(run(&resumed, &s, &mut interrupted).is_err(), "interrupted");
+    assert!(!resumed.join("samples.parquet").exists());
+    let mut fresh = ClosedForm::new(p);
+    run(&resumed, &s, &mut fresh).unwrap();
+    // the committed batches were kept: only the batch in flight is evaluated twice
+    assert!(
+        fresh.calls < uninterrupted.calls
+            && interrupted.calls + fresh.calls - uninterrupted.calls < batch_size,
+        "{sampler:?}: {} + {} evaluations against {}",
+        interrupted.calls,
+        fresh.calls,
+        uninterrupted.calls
+    );
+    for name in ["samples.parquet", "summary.json"] {
+        assert_eq!(
+            read(&whole.join(name)),
+            read(&resumed.join(name)),
+            "{sampler:?}: {name}"
+        );
+    }
+}
+
+#[test]
+fn monte_carlo_estimates_a_known_probability_and_resumes_to_the_same_table() {
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("mc");
+    run(
+        &dir,
+        &settings(Sampler::Mc, 400, 50),
+        &mut ClosedForm::new(0.05),
+    )
+    .unwrap();
+    let e = &summary(&dir)["estimate"];
+    let (lo, hi) = (
+        e["ci95"][0].as_f64().unwrap(),
+        e["ci95"][1].as_f64().unwrap(),
+    );
+    assert!(
+        lo < 0.05 && 0.05 < hi,
+        "Clopper–Pearson [{lo}, {hi}] covers p = 0.05"
+    );
+    assert_eq!(e["samples"], 400);
+    check_resume(Sampler::Mc, 400, 50, 0.05, 130);
+}
+
+#[test]
+fn two_shards_merge_to_the_single_process_table() {
+    let root = tempfile::tempdir().unwrap();
+    let s = settings(Sampler::Mc, 300, 40);
+    let single = root.path().join("single");
+    run(&single, &s, &mut ClosedForm::new(0.1)).unwrap();
+    let sharded = root.path().join("sharded");
+    let space = space();
+    let folder = Run::create(&sharded, RunRecord::new(&space, s.clone()).unwrap()).unwrap();
+    // shard 1 first: it returns once its own batches are done; shard 0 then does the rest
+    let (mut one, mut zero) = (ClosedForm::new(0.1), ClosedForm::new(0.1));
+    folder.sample(&space, &mut one, 1, 2, &mut Quiet).unwrap();
+    assert!(!folder.complete().unwrap());
+    folder.sample(&space, &mut zero, 0, 2, &mut Quiet).unwrap();
+    assert_eq!(one.calls + zero.calls, 300);
+    assert_eq!((one.calls, zero.calls), (140, 160), "batches b mod 2");
+    folder.merge().unwrap();
+    assert_eq!(
+        read(&single.join("samples.parquet")),
+        read(&sharded.join("samples.parquet"))
+    );
+}
+
+#[test]
+fn cross_entropy_resumes_across_its_barriers() {
+    // interrupted in its second tuning iteration, after the first barrier wrote a proposal
+    check_resume(Sampler::Ce, 200, 50, 1e-3, 250);
+}
+
+#[test]
+fn subset_simulation_in_a_run_folder_is_the_in_memory_run_and_resumes() {
+    let p = 1e-3;
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("split");
+    let s = settings(Sampler::Splitting, 500, 60);
+    run(&dir, &s, &mut ClosedForm::new(p)).unwrap();
+    let result: serde_json::Value =
+        serde_json::from_slice(&read(&dir.join("splitting.json"))).unwrap();
+    // the same algorithm on the same z, scored in memory: the same levels
+    let space = space();
+    let record = RunRecord::new(&space, s.clone()).unwrap();
+    let k = record
+        .dimensions
+        .iter()
+        .position(|d| d == DECIDING)
+        .unwrap();
+    let blocks: Vec<usize> = record
+        .dimensions
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| d.ends_with(".orientation.q0"))
+        .map(|(i, _)| i)
+        .collect();
+    let closed = ClosedForm::new(p);
+    let memory = run_in_memory(
+        s.splitting.as_ref().unwrap(),
+        record.dimensions.len(),
+        &blocks,
+        s.seed,
+        |z| closed.score_of_quantile(normal_cdf(z[k])),
+    )
+    .unwrap();
+    let levels = result["levels"].as_array().unwrap();
+    assert_eq!(levels.len(), memory.levels.len());
+    assert!(memory.levels.len() >= 3, "several levels to p = 1e-3");
+    for (folder, memory) in levels.iter().zip(&memory.levels) {
+        assert!((folder["threshold"].as_f64().unwrap() - memory.threshold).abs() < 1e-9);
+        assert_eq!(
+            folder["conditional_probability"].as_f64().unwrap(),
+            memory.conditional_probability
+        );
+        assert_eq!(folder["evaluations"].as_u64().unwrap(), memory.evaluations);
+    }
+    assert_eq!(result["evaluations"].as_u64().unwrap(), memory.evaluations);
+    // the summary reports it as every sampler does, and it covers the known p
+    let summary = summary(&dir);
+    let e = &summary["estimate"];
+    assert_eq!(e["ci_method"], "log_normal");
+    assert_eq!(e["samples"].as_u64().unwrap(), memory.evaluations);
+    let (lo, hi) = (
+        e["ci95"][0].as_f64().unwrap(),
+        e["ci95"][1].as_f64().unwrap(),
+    );
+    assert!(lo < p && p < hi, "[{lo}, {hi}] covers p = {p}");
+    assert_eq!(
+        summary["splitting"]["levels"].as_array().unwrap().len(),
+        levels.len()
+    );
+    // interrupted inside its second stage's chains, resumed: the same run
+    check_resume(Sampler::Splitting, 500, 60, p, 700);
+}
