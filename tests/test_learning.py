@@ -90,6 +90,29 @@ def test_training_says_how_each_dataset_divides(trained, segmenter, tiny_dataset
         assert all(int(n) > 0 for n in share.groups()), share.group(0)
 
 
+def test_repeat_weighs_each_dataset_in_the_mix(tiny_dataset, boxpose_bin, tmp_path):
+    """`--repeat 3,1` trains on three copies of the first dataset's training scenes per epoch
+    beside one of the second's (here the same folder twice); held-out scenes are never repeated,
+    and a count per dataset is required."""
+    args = ["train", "--config", REPO / "configs" / "tiny.toml"]
+    args += ["--dataset", tiny_dataset, "--dataset", tiny_dataset]
+    r = run_boxpose(boxpose_bin, *args, "--repeat", "3,1", "--steps", 1, "--out", tmp_path / "run")
+    totals = re.search(r"on (\d+) training / (\d+) held-out instances", r.stdout)
+    shares = re.findall(
+        rf"^  {re.escape(str(tiny_dataset))}: (\d+) training( \(×3 per epoch\))? / (\d+) held-out",
+        r.stdout,
+        re.MULTILINE,
+    )
+    assert totals and len(shares) == 2, r.stdout
+    (n, thrice, held_out), (n2, once, held_out2) = shares
+    assert n == n2 and held_out == held_out2 and thrice and not once, shares
+    assert int(totals.group(1)) == 4 * int(n) and int(totals.group(2)) == 2 * int(held_out)
+    bad = run_boxpose(boxpose_bin, *args, "--repeat", 2, "--out", tmp_path / "bad", check=False)
+    assert bad.returncode != 0
+    assert "[data] repeat has 1 entries for 2 datasets" in bad.stderr, bad.stderr
+    assert not (tmp_path / "bad").exists()
+
+
 def test_the_same_seed_trains_the_same_network_with_or_without_an_interruption(
     trained, tiny_dataset, boxpose_bin, tmp_path
 ):

@@ -22,9 +22,13 @@ pub struct RunArgs {
     /// with a checkpoint of the same config is resumed.
     #[arg(long)]
     out: PathBuf,
-    /// Train on these dataset folders instead of the config's [data] datasets.
+    /// Train on these dataset folders instead of the config's [data] datasets (and its repeat).
     #[arg(long = "dataset")]
     datasets: Vec<PathBuf>,
+    /// Copies of each dataset's training scenes per epoch, one count per dataset in order
+    /// (e.g. `--repeat 16,1`): the mix of a small set beside a large one. Overrides [data] repeat.
+    #[arg(long, value_delimiter = ',', value_name = "K,K,…")]
+    repeat: Vec<usize>,
     /// Override [optimizer] steps.
     #[arg(long)]
     steps: Option<usize>,
@@ -71,6 +75,10 @@ impl RunArgs {
     fn override_config(&self, data: &mut DataConfig, o: &mut OptimizerConfig) {
         if !self.datasets.is_empty() {
             data.datasets = self.datasets.clone();
+            data.repeat.clear();
+        }
+        if !self.repeat.is_empty() {
+            data.repeat = self.repeat.clone();
         }
         o.steps = self.steps.unwrap_or(o.steps);
         o.batch_size = self.batch_size.unwrap_or(o.batch_size);
@@ -263,8 +271,13 @@ fn print_splits(
             ),
             _ => String::new(),
         };
+        let copies = if split.repeat > 1 && train > 0 {
+            format!(" (×{} per epoch)", split.repeat)
+        } else {
+            String::new()
+        };
         println!(
-            "  {}: {train} training / {held_out} held-out {unit}{remark}",
+            "  {}: {train} training{copies} / {held_out} held-out {unit}{remark}",
             split.path.display()
         );
     }

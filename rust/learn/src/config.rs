@@ -286,6 +286,11 @@ pub struct DataConfig {
     /// decoded once; a larger one is read again as needed instead of exhausting memory.
     #[serde(default = "default_frame_cache_mib")]
     pub frame_cache_mib: usize,
+    /// Copies of each dataset's training scenes per epoch, in `datasets` order (empty: one
+    /// each): a small set's weight in the mix, e.g. the bins of `train` beside the floors of a
+    /// set twenty times its size. Held-out scenes are never repeated.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub repeat: Vec<usize>,
 }
 
 /// 4 GiB: about 1500 decoded 640×480 frames (2.8 MB each without sensor depth).
@@ -317,6 +322,21 @@ impl DataConfig {
         if self.datasets.is_empty() {
             return Err(LearnError::Config(
                 "[data] datasets is empty: name at least one dataset folder".into(),
+            ));
+        }
+        if !self.repeat.is_empty() && self.repeat.len() != self.datasets.len() {
+            return Err(LearnError::Config(format!(
+                "[data] repeat has {} entries for {} datasets: give one per dataset, in order \
+                 (--repeat with --dataset)",
+                self.repeat.len(),
+                self.datasets.len()
+            )));
+        }
+        if self.repeat.contains(&0) {
+            return Err(LearnError::Config(
+                "[data] repeat: every dataset is repeated at least once (leave a dataset out \
+                 instead of repeating it 0 times)"
+                    .into(),
             ));
         }
         // A run records its configuration as TOML, which holds only UTF-8 text.

@@ -546,6 +546,8 @@ pub struct DatasetSplit {
     pub held_out_frames: usize,
     pub train_instances: usize,
     pub held_out_instances: usize,
+    /// Copies of its training items per epoch ([`DataConfig::repeat`]).
+    pub repeat: usize,
 }
 
 /// Whether a box is one the network learns and is judged on: at least `min_visible_fraction`
@@ -575,6 +577,7 @@ impl InstanceSet {
             frames.extend(index);
             splits.push(DatasetSplit {
                 path: path.clone(),
+                repeat: data.repeat.get(d).copied().unwrap_or(1),
                 ..DatasetSplit::default()
             });
         }
@@ -583,11 +586,12 @@ impl InstanceSet {
         for (f, frame) in frames.iter().enumerate() {
             let held_out = is_held_out(frame.scene_id, val_modulus);
             let split = &mut splits[dataset_of_frame[f]];
+            let copies = split.repeat;
             if held_out {
                 val_frames.push(f);
                 split.held_out_frames += 1;
             } else {
-                train_frames.push(f);
+                train_frames.extend(std::iter::repeat_n(f, copies));
                 split.train_frames += 1;
             }
             for (i, instance) in frame.instances.iter().enumerate() {
@@ -598,7 +602,7 @@ impl InstanceSet {
                     val.push((f, i));
                     split.held_out_instances += 1;
                 } else {
-                    train.push((f, i));
+                    train.extend(std::iter::repeat_n((f, i), copies));
                     split.train_instances += 1;
                 }
             }
