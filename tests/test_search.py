@@ -260,6 +260,26 @@ def failing_run(spaces, boxpose_bin, tmp_path_factory) -> Path:
     return out
 
 
+def test_the_report_shows_each_counterexample_s_parameters_and_every_predicate_s_count(
+    failing_run,
+):
+    """What a reader of the report needs without opening the tables: the worst samples'
+    parameter values and rotation errors, and how many samples each predicate would flag."""
+    html = (failing_run / "report" / "index.html").read_text()
+    samples = pd.read_parquet(failing_run / "samples.parquet")
+    run = json.loads((failing_run / "run.json").read_text())
+    row = samples.iloc[0]
+    d = run["dimensions"].index("camera.distance_m")
+    assert "<code>camera.distance_m</code>" in html
+    assert f"<td>{row.params[d]:.4f}</td>" in html
+    assert f"<td>{row.rotation_error_deg:.1f}°</td>" in html
+    valid = samples[samples.valid]
+    exact = int(((valid.mssd_over_diameter > 0.1) | (valid.detected == False)).sum())  # noqa: E712
+    assert f"exact MSSD &gt; 0.1 d (orientation-aware): {exact}." in html
+    # a Monte Carlo run carries no weights: no weight diagnostics in its table
+    assert "<td>—</td><td>—</td><td>—</td></tr></table>" in html
+
+
 def test_counterexamples_re_render_exactly(failing_run, boxpose_bin, tmp_path):
     mc_run = failing_run
     samples = pd.read_parquet(mc_run / "samples.parquet")

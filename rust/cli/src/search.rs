@@ -18,7 +18,9 @@ use boxpose_search::run::{
 };
 use boxpose_search::space::SearchSpace;
 use boxpose_search::sut::{self, Crops, Predicate, SystemUnderTest};
-use boxpose_search_stats::{CeConfig, ImportanceEstimate, SplittingConfig, clopper_pearson};
+use boxpose_search_stats::{
+    CeConfig, CiMethod, EstimatorKind, ImportanceEstimate, SplittingConfig, clopper_pearson,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -788,9 +790,17 @@ fn print_estimate(run: &Path, e: &ImportanceEstimate, spent: usize) {
     } else {
         format!("{:.3} ± {:.3}", e.p_valid, e.p_valid_std_error)
     };
+    // weight diagnostics only where the samples carry importance weights
+    let weights = match (e.ci_method, e.estimator) {
+        (CiMethod::ClopperPearson, _) | (_, EstimatorKind::Splitting) => String::new(),
+        _ => format!(
+            "; ESS {:.0}, failure ESS {:.1}, largest weight share {:.2}",
+            e.kish_ess, e.failure_ess, e.max_weight_share
+        ),
+    };
     println!(
-        "P(fail | valid) = {:.3e}  {ci}\n  {} samples in the estimate ({} valid, {} failing), {spent} spent in all; P(valid) = {p_valid}; ESS {:.0}, failure ESS {:.1}, largest weight share {:.2}",
-        e.p_hat, e.samples, e.valid, e.failures, e.kish_ess, e.failure_ess, e.max_weight_share
+        "P(fail | valid) = {:.3e}  {ci}\n  {} samples in the estimate ({} valid, {} failing), {spent} spent in all; P(valid) = {p_valid}{weights}",
+        e.p_hat, e.samples, e.valid, e.failures
     );
     // counterexamples/ exists once a sample failed
     let counterexamples = if run.join("counterexamples").is_dir() {

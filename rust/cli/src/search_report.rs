@@ -208,6 +208,57 @@ fn estimate_curve(rows: &[SampleRow], run: &Run) -> anyhow::Result<Vec<(f64, f64
     Ok(curve)
 }
 
+/// The worst counterexamples' parameter values, one row per scalar parameter (orientation
+/// blocks are raw normals, left out) and one column per sample: what each failure was.
+fn parameter_table(h: &mut String, names: &[String], failing: &[&SampleRow]) -> anyhow::Result<()> {
+    writeln!(
+        h,
+        "<h3>Their parameters</h3><table><tr><th>parameter</th>{}</tr>",
+        failing
+            .iter()
+            .map(|r| format!("<th>sample {}</th>", r.sample_id))
+            .collect::<String>()
+    )?;
+    for (d, name) in names.iter().enumerate() {
+        if name.contains(".orientation.") {
+            continue;
+        }
+        writeln!(
+            h,
+            "<tr><td style=\"text-align:left\"><code>{}</code></td>{}</tr>",
+            escape(name),
+            failing
+                .iter()
+                .map(|r| format!(
+                    "<td>{}</td>",
+                    r.params.get(d).map_or("–".into(), |v| format!("{v:.4}"))
+                ))
+                .collect::<String>()
+        )?;
+    }
+    writeln!(h, "</table>")?;
+    Ok(())
+}
+
+/// How many valid samples each predicate flags, whatever the run's: the paper's predicate
+/// misses most quarter turns of near-square boxes that the MSSDs see, and the reverse.
+fn predicate_counts(rows: &[SampleRow]) -> String {
+    let scored: Vec<&SampleRow> = rows.iter().filter(|r| r.valid).collect();
+    let count = |above: &dyn Fn(&SampleRow) -> bool| {
+        scored
+            .iter()
+            .filter(|r| r.detected == Some(false) || r.fit_error.is_some() || above(r))
+            .count()
+    };
+    let paper = count(&|r| r.paper_error_normalized.is_some_and(|e| e > 0.005));
+    let cube = count(&|r| r.cube_mssd_over_diameter.is_some_and(|e| e > 0.1));
+    let exact = count(&|r| r.mssd_over_diameter.is_some_and(|e| e > 0.1));
+    format!(
+        "Of the {} valid samples, each predicate's failures (a box not found or not fitted counts in each): the paper's error &gt; 0.005: {paper}; cube-group corner MSSD &gt; 0.1 d (the primary metric): {cube}; exact MSSD &gt; 0.1 d (orientation-aware): {exact}.",
+        scored.len()
+    )
+}
+
 fn escape(text: &str) -> String {
     text.replace('&', "&amp;")
         .replace('<', "&lt;")
@@ -262,10 +313,13 @@ fn page(
                     )
                 },
             );
+            // weight diagnostics mean something only where samples carry weights
+            let weighted = s.sampler == Sampler::Ce;
+            let diagnostics = |text: String| if weighted { text } else { "—".into() };
             writeln!(
                 h,
                 "<h2>Estimate</h2><table><tr><th>P(fail | valid)</th><th>95% CI</th><th>method</th><th>samples in estimate</th><th>valid</th><th>failing</th><th>spent in all</th><th>P(valid)</th><th>ESS</th><th>failure ESS</th><th>largest weight share</th></tr>\
-                 <tr><td>{:.3e}</td><td>{ci}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3}</td><td>{:.0}</td><td>{:.1}</td><td>{:.2}</td></tr></table>",
+                 <tr><td>{:.3e}</td><td>{ci}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3}</td><td>{}</td><td>{}</td><td>{}</td></tr></table>",
                 f("p_hat"),
                 e.get("ci_method").and_then(|v| v.as_str()).unwrap_or(""),
                 f("samples"),
@@ -277,10 +331,11 @@ fn page(
                 } else {
                     f("p_valid")
                 },
-                f("kish_ess"),
-                f("failure_ess"),
-                f("max_weight_share"),
+                diagnostics(format!("{:.0}", f("kish_ess"))),
+                diagnostics(format!("{:.1}", f("failure_ess"))),
+                diagnostics(format!("{:.2}", f("max_weight_share"))),
             )?;
+            writeln!(h, "<p>{}</p>", predicate_counts(rows))?;
         }
         None => writeln!(
             h,
@@ -345,24 +400,29 @@ fn page(
         )?;
         writeln!(
             h,
-            "<table><tr><th>sample</th><th>stage</th><th>score</th><th>paper err. (norm.)</th><th>cube MSSD/d</th><th>MSSD/d</th><th>detected</th><th>fit error</th></tr>"
+            "<table><tr><th>sample</th><th>stage</th><th>score</th><th>paper err. (norm.)</th><th>cube MSSD/d</th><th>MSSD/d</th><th>rotation error</th><th>fit confidence</th><th>detected</th><th>fit error</th></tr>"
         )?;
         let opt = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.3e}"));
         for r in failing {
             writeln!(
                 h,
-                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
+                "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td></tr>",
                 r.sample_id,
                 r.stage,
                 r.score.map_or("∞".into(), |v| format!("{v:.2}")),
                 opt(r.paper_error_normalized),
                 opt(r.cube_mssd_over_diameter),
                 opt(r.mssd_over_diameter),
+                r.rotation_error_deg
+                    .map_or("–".to_string(), |v| format!("{v:.1}°")),
+                r.fit_confidence
+                    .map_or("–".to_string(), |v| format!("{v:.2}")),
                 r.detected.map_or("–", |d| if d { "yes" } else { "no" }),
                 escape(r.fit_error.as_deref().unwrap_or(""))
             )?;
         }
         writeln!(h, "</table>")?;
+        parameter_table(&mut h, &run.record.dimensions, failing)?;
         for (id, file) in drawn {
             let view = file.replace(".png", "-3d.png");
             writeln!(
