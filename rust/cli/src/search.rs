@@ -17,7 +17,7 @@ use boxpose_search::run::{
     IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler, SplittingSummary,
 };
 use boxpose_search::space::SearchSpace;
-use boxpose_search::sut::{self, Crops, Predicate, SystemUnderTest};
+use boxpose_search::sut::{self, Crops, Evaluate, Predicate, SystemUnderTest};
 use boxpose_search_stats::{
     CeConfig, CiMethod, EstimatorKind, ImportanceEstimate, SplittingConfig, clopper_pearson,
 };
@@ -563,7 +563,7 @@ fn variants(
                 .collect();
             let parameters = space.parameters(&z, failure.stratum as u32)?;
             let scene_seed = failure.seed.wrapping_add(k as i64);
-            let outcome = sut.run(&space, &parameters, scene_id, scene_seed)?;
+            let outcome = sut.evaluate(&space, &parameters, scene_id, scene_seed)?;
             // a scene that did not settle is not rendered, and is not training data
             let Some((frame, frame_instances)) = outcome.rendered else {
                 continue;

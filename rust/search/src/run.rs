@@ -405,6 +405,24 @@ pub struct Run {
     pub record: RunRecord,
 }
 
+/// The JSON file `path` of the run folder, `None` while it does not exist yet; `what` names it
+/// in the error when it cannot be read.
+fn read_json_if_present<T: serde::de::DeserializeOwned>(
+    path: PathBuf,
+    what: &str,
+) -> Result<Option<T>> {
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, e))?;
+    serde_json::from_str(&text)
+        .map(Some)
+        .map_err(|e| SearchError::Run {
+            path,
+            problem: format!("unreadable {what}: {e}"),
+        })
+}
+
 fn io_error(path: &Path, e: impl std::fmt::Display) -> SearchError {
     SearchError::Io {
         path: path.to_path_buf(),
@@ -624,17 +642,7 @@ impl Run {
                 },
             }));
         }
-        let path = self.plan_path(iteration);
-        if !path.exists() {
-            return Ok(None);
-        }
-        let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, e))?;
-        serde_json::from_str(&text)
-            .map(Some)
-            .map_err(|e| SearchError::Run {
-                path,
-                problem: format!("unreadable proposal: {e}"),
-            })
+        read_json_if_present(self.plan_path(iteration), "proposal")
     }
 
     /// Every iteration's plan, in order, as far as known.
@@ -891,17 +899,7 @@ impl Run {
 
     /// The end of a subset simulation (`splitting.json`), once its last barrier is passed.
     pub fn splitting_result(&self) -> Result<Option<SplittingRun>> {
-        let path = self.splitting_path();
-        if !path.exists() {
-            return Ok(None);
-        }
-        let text = std::fs::read_to_string(&path).map_err(|e| io_error(&path, e))?;
-        serde_json::from_str(&text)
-            .map(Some)
-            .map_err(|e| SearchError::Run {
-                path,
-                problem: format!("unreadable splitting result: {e}"),
-            })
+        read_json_if_present(self.splitting_path(), "splitting result")
     }
 
     fn iteration_rows(&self, iteration: u32, batches: usize) -> Result<Vec<SampleRow>> {

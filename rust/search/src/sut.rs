@@ -250,18 +250,6 @@ pub trait Evaluate {
     ) -> Result<Outcome>;
 }
 
-impl Evaluate for SystemUnderTest {
-    fn evaluate(
-        &mut self,
-        space: &SearchSpace,
-        parameters: &crate::space::Parameters,
-        scene_id: i64,
-        seed: i64,
-    ) -> Result<Outcome> {
-        self.run(space, parameters, scene_id, seed)
-    }
-}
-
 /// Everything loaded once for a search: the renderer (one per process), the networks, the fit.
 pub struct SystemUnderTest {
     pub physics: RecipePhysics,
@@ -302,9 +290,11 @@ impl SystemUnderTest {
             whole_frames: false,
         })
     }
+}
 
+impl Evaluate for SystemUnderTest {
     /// Runs one sample: `parameters` (from z), scene `scene_id` with nuisance seed `seed`.
-    pub fn run(
+    fn evaluate(
         &mut self,
         space: &SearchSpace,
         parameters: &crate::space::Parameters,
@@ -366,7 +356,9 @@ impl SystemUnderTest {
         outcome.peaks = peaks;
         Ok(outcome)
     }
+}
 
+impl SystemUnderTest {
     /// Renders the loaded scene: the whole frame for the segmenter; for ground-truth crops only
     /// the region the network's window reaches. That region is first the window of an unoccluded
     /// target (its projected box × the crop margin); when occlusion moves the visible box so that
