@@ -888,7 +888,7 @@ def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings
         "--model", str(tiny_network), "--config", str(REPO / "configs" / "tiny.toml"),
         "--rounds", "2", "--search-samples", "2", "--eval-samples", "2", "--batch-size", "2",
         "--per-failure", "1", "--steps", "1", "--batch-size-train", "1",
-        "--fail-when", "mssd:0.000001", "--threads", "1",
+        "--fail-when", "mssd:0.000001", "--threads", "1", "--learnt-repeat", "2",
     ]  # fmt: skip
     loop = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     first_network = out / "round-00" / "train" / "model" / "network.toml"
@@ -913,6 +913,9 @@ def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings
     for network in range(3):
         assert (out / "eval" / f"model-{network}" / "summary.json").is_file()
     assert (out / "round-01" / "train" / "model" / "network.toml").is_file()
+    # round 1 learns from both rounds' counterexamples and variants, each twice per epoch
+    trained = tomllib.loads((out / "round-01" / "train" / "config.toml").read_text())
+    assert trained["data"]["repeat"] == [2, 2, 2, 2], trained["data"]
     for row in rounds.itertuples():
         c = json.loads((out / f"round-{row.round:02d}" / "compare.json").read_text())
         assert (c["pairs"], len(c["fixed"]), len(c["new"])) == (row.pairs, row.fixed, row.new)

@@ -32,7 +32,7 @@ const EVALUATION_SEED_OFFSET: u64 = 1_000_000;
         Each round: (1) `search SPACE` with the current network (--search-samples, a seed of its own per \
         round); (2) `search variants` around every failure (--per-failure scenes, --sigma); (3) `train \
         --init` from the current network on the counterexamples and variants of this and every earlier \
-        round plus --dataset (the original data; the mix is instance by instance); (4) a Monte Carlo \
+        round plus --dataset (the original data; the mix is instance by instance, or --learnt-repeat copies of the learnt sets); (4) a Monte Carlo \
         evaluation of the new network on --eval-samples fresh samples whose seed no round searched with, \
         the same for every network, paired with the previous network's (`search compare`: p̂ before and \
         after with their intervals, fixed and new failures, McNemar's exact p). A round without failures \
@@ -89,6 +89,10 @@ pub struct Args {
     /// Original training data, mixed into every fine-tuning (repeatable).
     #[arg(long = "dataset")]
     datasets: Vec<PathBuf>,
+    /// The mix: copies per epoch of every counterexample and variant set against one of each
+    /// --dataset (`train --repeat`); 1 mixes them instance by instance.
+    #[arg(long, default_value_t = 1)]
+    learnt_repeat: usize,
     /// Fine-tuning steps per round.
     #[arg(long, default_value_t = 2000)]
     steps: usize,
@@ -109,7 +113,7 @@ pub struct Args {
 impl Args {
     /// Everything that shapes the loop's results, as recorded in `improve.json`.
     fn settings(&self) -> serde_json::Value {
-        serde_json::json!({
+        let mut settings = serde_json::json!({
             "space": self.space,
             "model": self.model,
             "segmenter": self.segmenter,
@@ -128,12 +132,21 @@ impl Args {
             "learning_rate": self.learning_rate,
             "batch_size_train": self.batch_size_train,
             "seed": self.seed,
-        })
+        });
+        // recorded only when set, so that loops started before the option resume
+        if self.learnt_repeat != 1 {
+            settings["learnt_repeat"] = self.learnt_repeat.into();
+        }
+        settings
     }
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     anyhow::ensure!(args.rounds >= 1, "--rounds must be at least 1");
+    anyhow::ensure!(
+        args.learnt_repeat >= 1,
+        "--learnt-repeat must be at least 1 (one copy of each learnt set per epoch)"
+    );
     anyhow::ensure!(
         args.model.join("network.toml").is_file(),
         "--model {}: not a keypoint network folder (no network.toml)",
@@ -329,6 +342,15 @@ fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path)
     }
     for dataset in args.datasets.iter().chain(learnt_from) {
         command.extend(["--dataset".into(), path_arg(dataset)]);
+    }
+    if args.learnt_repeat != 1 {
+        let counts: Vec<String> = std::iter::repeat_n("1".to_string(), args.datasets.len())
+            .chain(std::iter::repeat_n(
+                args.learnt_repeat.to_string(),
+                learnt_from.len(),
+            ))
+            .collect();
+        command.extend(["--repeat".into(), counts.join(",")]);
     }
     command
 }
