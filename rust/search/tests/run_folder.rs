@@ -307,3 +307,46 @@ fn subset_simulation_in_a_run_folder_is_the_in_memory_run_and_resumes() {
     // interrupted inside its second stage's chains, resumed: the same run
     check_resume(Sampler::Splitting, 500, 60, p, 700);
 }
+
+#[test]
+fn two_shards_of_a_subset_simulation_meet_at_its_barriers_and_merge_to_the_single_run() {
+    let p = 1e-3;
+    let root = tempfile::tempdir().unwrap();
+    let s = settings(Sampler::Splitting, 200, 10);
+    let single = root.path().join("single");
+    run(&single, &s, &mut ClosedForm::new(p)).unwrap();
+    let sharded = root.path().join("sharded");
+    let space = space();
+    Run::create(&sharded, RunRecord::new(&space, s.clone()).unwrap()).unwrap();
+    // two processes' worth: each its own Run and evaluator, meeting at every barrier
+    let calls: Vec<usize> = std::thread::scope(|scope| {
+        let shards: Vec<_> = (0..2)
+            .map(|shard| {
+                let (space, sharded) = (&space, &sharded);
+                scope.spawn(move || {
+                    let folder = Run::open(sharded).unwrap();
+                    let mut evaluator = ClosedForm::new(p);
+                    folder
+                        .sample(space, &mut evaluator, shard, 2, &mut Quiet)
+                        .unwrap();
+                    evaluator.calls
+                })
+            })
+            .collect();
+        shards.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    let folder = Run::open(&sharded).unwrap();
+    assert!(folder.complete().unwrap());
+    assert!(
+        calls.iter().all(|&c| c > 0),
+        "both shards worked: {calls:?}"
+    );
+    folder.merge().unwrap();
+    for name in ["samples.parquet", "splitting.json"] {
+        assert_eq!(
+            read(&single.join(name)),
+            read(&sharded.join(name)),
+            "{name}"
+        );
+    }
+}
