@@ -379,26 +379,22 @@ mod tests {
     use super::*;
 
     #[test]
-    fn every_shipped_config_loads() {
+    fn every_shipped_keypoint_config_loads() {
         let configs = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
         let mut loaded = Vec::new();
         for entry in std::fs::read_dir(&configs).unwrap() {
             let path = entry.unwrap().path();
             let name = path.file_name().unwrap().to_string_lossy().into_owned();
-            if !name.ends_with(".toml") {
-                continue;
-            }
-            if name.starts_with("segmenter") {
-                crate::segmentation::SegmenterTrainConfig::load(&path)
-                    .unwrap_or_else(|e| panic!("{name}: {e}"));
-            } else {
+            // the segmenters' configs are segmentation.rs's to load (its tests)
+            if name.ends_with(".toml") && !name.starts_with("segmenter") {
                 TrainConfig::load(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+                loaded.push(name);
             }
-            loaded.push(name);
         }
-        for shipped in ["keypoint-wide.toml", "segmenter-wide.toml"] {
-            assert!(loaded.contains(&shipped.to_string()), "{loaded:?}");
-        }
+        assert!(
+            loaded.contains(&"keypoint-wide.toml".to_string()),
+            "{loaded:?}"
+        );
     }
 
     #[test]

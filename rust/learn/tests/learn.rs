@@ -488,3 +488,22 @@ fn a_segmenter_may_be_fine_tuned_with_other_loss_settings_and_thresholds_but_not
         assert!(!other.can_fine_tune_from(&trained), "{other:?}");
     }
 }
+
+#[test]
+fn every_shipped_segmenter_config_loads() {
+    let configs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+    let mut loaded = Vec::new();
+    for entry in std::fs::read_dir(&configs).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        if name.starts_with("segmenter") && name.ends_with(".toml") {
+            boxpose_learn::segmentation::SegmenterTrainConfig::load(&path)
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            loaded.push(name);
+        }
+    }
+    assert!(
+        loaded.contains(&"segmenter-wide.toml".to_string()),
+        "{loaded:?}"
+    );
+}
