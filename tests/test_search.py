@@ -278,6 +278,14 @@ def test_the_report_shows_each_counterexample_s_parameters_and_every_predicate_s
     assert f"exact MSSD &gt; 0.1 d (orientation-aware): {exact}." in html
     # a Monte Carlo run carries no weights: no weight diagnostics in its table
     assert "<td>—</td><td>—</td><td>—</td></tr></table>" in html
+    # each drawn counterexample's caption is its exact re-render command, crop included
+    frames = pd.read_parquet(failing_run / "counterexamples" / "frames")
+    for scene_id, settings in zip(frames.scene_id, frames.render_settings, strict=True):
+        crop = ",".join(map(str, json.loads(settings)["crop"]))
+        command = (
+            f"boxpose render {failing_run / 'counterexamples'} --scene {scene_id} --crop {crop}"
+        )
+        assert f"<code>{command}</code>" in html, command
 
 
 def test_counterexamples_re_render_exactly(failing_run, boxpose_bin, tmp_path):

@@ -124,6 +124,7 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
     let mut drawn = Vec::new();
     if !failing.is_empty() && counterexamples.is_dir() {
         let dataset = Dataset::open(&counterexamples)?;
+        let crops = render_crops(&dataset)?;
         for frame in dataset.frames()? {
             let frame = frame?;
             let Some(row) = failing.iter().find(|r| r.sample_id == frame.scene_id) else {
@@ -168,10 +169,18 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
                     fitted.as_ref(),
                 )?;
             }
-            drawn.push((row.sample_id, name));
+            let crop = crops
+                .get(&row.sample_id)
+                .map_or(String::new(), |c| format!(" --crop {c}"));
+            let command = format!(
+                "boxpose render {} --scene {}{crop}",
+                counterexamples.display(),
+                row.sample_id
+            );
+            drawn.push((row.sample_id, name, command));
         }
     }
-    drawn.sort_by_key(|(id, _)| failing.iter().position(|r| r.sample_id == *id));
+    drawn.sort_by_key(|(id, _, _)| failing.iter().position(|r| r.sample_id == *id));
 
     let html = page(&run, &rows, &figures, &failing, &drawn)?;
     std::fs::write(tmp.join("index.html"), html).with_context(|| tmp.display().to_string())?;
@@ -206,6 +215,34 @@ fn estimate_curve(rows: &[SampleRow], run: &Run) -> anyhow::Result<Vec<(f64, f64
         curve.push(((before + n) as f64, e.p_hat, lo, hi));
     }
     Ok(curve)
+}
+
+/// Each counterexample frame's rendered region as `boxpose render --crop` takes it (`x0,y0,x1,y1`),
+/// from its `render_settings`; frames rendered whole have none.
+fn render_crops(dataset: &Dataset) -> anyhow::Result<std::collections::HashMap<i64, String>> {
+    use arrow::array::{AsArray, Int64Array};
+    let mut crops = std::collections::HashMap::new();
+    for shard in dataset.read_table(&boxpose_data::schema::FRAMES)? {
+        let batch = &shard.batch;
+        let (Some(ids), Some(settings)) = (
+            batch.column_by_name("scene_id"),
+            batch.column_by_name("render_settings"),
+        ) else {
+            continue;
+        };
+        let ids: &Int64Array = ids.as_primitive();
+        let settings = settings.as_string::<i32>();
+        for i in 0..batch.num_rows() {
+            let crop = serde_json::from_str::<serde_json::Value>(settings.value(i))
+                .ok()
+                .and_then(|v| v.get("crop").and_then(|c| c.as_array()).cloned());
+            if let Some(crop) = crop.filter(|c| c.len() == 4) {
+                let values: Vec<String> = crop.iter().map(|x| x.to_string()).collect();
+                crops.insert(ids.value(i), values.join(","));
+            }
+        }
+    }
+    Ok(crops)
 }
 
 /// The worst counterexamples' parameter values, one row per scalar parameter (orientation
@@ -270,7 +307,7 @@ fn page(
     rows: &[SampleRow],
     figures: &[(&str, &str)],
     failing: &[&SampleRow],
-    drawn: &[(i64, String)],
+    drawn: &[(i64, String, String)],
 ) -> anyhow::Result<String> {
     let s = &run.record.settings;
     let mut h = String::new();
@@ -395,7 +432,7 @@ fn page(
     } else {
         writeln!(
             h,
-            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID</code> re-renders it (with ground-truth crops, add <code>--crop</code> with the region its frame's <code>render_settings</code> record), <code>boxpose search replay {0} --sample ID</code> runs it again end to end. True box white, the network's NMS peaks black, the fitted box grey.</p>",
+            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID</code> re-renders it (each figure's caption has the command, with the <code>--crop</code> of a region render), <code>boxpose search replay {0} --sample ID</code> runs it again end to end. True box white, the network's NMS peaks black, the fitted box grey.</p>",
             escape(&run.dir.display().to_string())
         )?;
         writeln!(
@@ -423,12 +460,13 @@ fn page(
         }
         writeln!(h, "</table>")?;
         parameter_table(&mut h, &run.record.dimensions, failing)?;
-        for (id, file) in drawn {
+        for (id, file, command) in drawn {
             let view = file.replace(".png", "-3d.png");
             writeln!(
                 h,
-                "<div><figure style=\"display:inline-block;width:48%\"><img src=\"{file}\" style=\"width:100%;image-rendering:pixelated\"><figcaption>sample {id}</figcaption></figure>\
-                 <figure style=\"display:inline-block;width:48%\"><img src=\"{view}\"><figcaption>sample {id} in 3D (camera frame): true box black, NMS peaks red, fitted box grey</figcaption></figure></div>"
+                "<div><figure style=\"display:inline-block;width:48%\"><img src=\"{file}\" style=\"width:100%;image-rendering:pixelated\"><figcaption>sample {id}: <code>{}</code></figcaption></figure>\
+                 <figure style=\"display:inline-block;width:48%\"><img src=\"{view}\"><figcaption>sample {id} in 3D (camera frame): true box black, NMS peaks red, fitted box grey</figcaption></figure></div>",
+                escape(command)
             )?;
         }
     }
