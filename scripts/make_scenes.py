@@ -177,6 +177,8 @@ def run_scene_stage(args, shard: int, log: Path) -> None:
         "--num-shards",
         str(args.num_shards),
         "--no-progress",
+        "--boxpose",
+        str(args.boxpose),
     ]
     if args.num_scenes is not None:
         cmd += ["--num-scenes", str(args.num_scenes)]
@@ -563,7 +565,8 @@ def main(argv: list[str] | None = None) -> int:
         "--boxpose",
         type=Path,
         default=REPO / "target" / "release" / "boxpose",
-        help="boxpose binary for the final `inspect`",
+        help="boxpose binary: the final `inspect`, and the settle of a recipe whose settle.engine "
+        'is "mujoco"',
     )
     ap.add_argument("--no-inspect", action="store_true", help="skip `boxpose inspect` at the end")
     ap.add_argument(

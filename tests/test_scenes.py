@@ -413,3 +413,82 @@ def test_the_wide_training_recipe_settles_large_boxes_on_its_floor(tmp_path):
     assert sizes.max() > 0.2, "no box larger than the training recipes' before train_wide"
     z = np.stack(objects.world_box_translation_m)[:, 2]
     assert (z > 0).all() and (z < sizes.max(axis=1)).all()  # resting on the floor, not stacked high
+
+
+def test_the_mujoco_engine_settles_the_same_drops_under_the_same_rules(tmp_path, tiny, recipe):
+    """`[settle] engine = "mujoco"`: the same sampled and projected drops as Drake's (only the
+    simulator differs), settled by `boxpose settle-drops`, certified under the recipe's rules and
+    recorded as such in `scenes.physics_backend` and `tool_versions`."""
+    path = tiny_variant(tmp_path, "tiny", time_step_s='engine = "mujoco"\ntime_step_s = 0.001')
+    mujoco = Recipe.load(path)
+    assert mujoco.settle.engine == "mujoco" and recipe.settle.engine == "drake"
+    result = run_cli("--recipe", path, "--out", tmp_path / "out", "--no-progress")
+    assert result.returncode == 0, result.stderr
+    scenes, objects = (read(tmp_path / "out", t).to_pandas() for t in TABLES)
+    assert list(scenes.scene_id) == list(tiny["scenes"].scene_id)
+    assert (scenes.physics_backend == "mujoco").all() and (
+        tiny["scenes"].physics_backend == "drake"
+    ).all()
+    assert all("mujoco" in json.loads(v) for v in scenes.tool_versions)
+    assert scenes.stable.all()
+    s = mujoco.settle
+    assert (scenes.settle_time_s <= s.max_time_s).all()
+    assert (scenes.max_linear_speed_mps <= s.max_linear_speed_mps).all()
+    assert (scenes.max_angular_speed_radps <= s.max_angular_speed_radps).all()
+    assert (scenes.min_signed_distance_m >= -s.max_penetration_m).all()
+    for column in ("size_m", "initial_world_box_quat_wxyz", "initial_world_box_translation_m"):
+        np.testing.assert_array_equal(np.stack(objects[column]), np.stack(tiny["objects"][column]))
+    # settled: every box fell from its drop height onto the floor (its centre below the start)
+    z0 = np.stack(objects.initial_world_box_translation_m)[:, 2]
+    z = np.stack(objects.world_box_translation_m)[:, 2]
+    assert (z < z0).all() and (z > 0).all()
+    # Drake's independent check of the settled poses: nothing interpenetrates beyond the recipe
+    for scene_id, rows in objects.groupby("scene_id"):
+        distance = signed_distance_of(box_bodies(rows, "settled"), recipe)
+        assert distance >= -s.max_penetration_m, (scene_id, distance)
+
+
+@pytest.mark.parametrize("value", ['"MuJoCo"', '"bullet"', "1", '["drake"]'])
+def test_an_unknown_settle_engine_is_refused_by_every_reader(tmp_path, boxpose_bin, value):
+    path = tiny_variant(tmp_path, "tiny", time_step_s=f"engine = {value}\ntime_step_s = 0.001")
+    with pytest.raises(RecipeError, match=r"settle\.engine.*\"drake\" or \"mujoco\""):
+        Recipe.load(path)
+    # MuJoCo's reader (rust/physics) says the same when it is handed the recipe
+    line = json.dumps({"recipe_toml": path.read_text(), "boxes": []})
+    r = subprocess.run(
+        [boxpose_bin, "settle-drops"], input=line + "\n", capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr
+    answer = json.loads(r.stdout)
+    assert "settle.engine" in answer["error"] and '"drake" or "mujoco"' in answer["error"]
+
+
+def test_settle_drops_answers_every_line_and_names_what_is_wrong(boxpose_bin, tiny):
+    """A bad line gets an error line naming the line and the field; the next drop is still
+    settled: a box dropped 5 cm above the floor comes to rest on it."""
+    good = {
+        "recipe_toml": TINY.read_text(),
+        "boxes": [
+            {
+                "size_m": [0.1, 0.08, 0.06],
+                "mass_kg": 0.5,
+                "friction": 0.7,
+                "quat_wxyz": [1.0, 0.0, 0.0, 0.0],
+                "translation_m": [0.0, 0.0, 0.08],
+            }
+        ],
+    }
+    bad = {**good, "boxes": [{**good["boxes"][0], "size_m": [0.1, 0.08]}]}
+    lines = ["not json", json.dumps(bad), json.dumps(good)]
+    r = subprocess.run(
+        [boxpose_bin, "settle-drops"], input="\n".join(lines) + "\n", capture_output=True, text=True
+    )
+    assert r.returncode == 0, r.stderr
+    answers = [json.loads(line) for line in r.stdout.splitlines()]
+    assert len(answers) == 3
+    assert answers[0]["error"].startswith("line 1: not a JSON object")
+    assert answers[1]["error"].startswith("line 2: boxes[0]") and "size_m" in answers[1]["error"]
+    settled = answers[2]
+    assert settled["stable"] and settled["rejection"] is None
+    z = settled["poses"][0]["translation_m"][2]
+    assert abs(z - 0.03) < 2e-3, z  # resting on its 6 cm face

@@ -23,12 +23,14 @@ BIN_WALL_THICKNESS_M: float = SUPPORT["bin_wall_thickness_m"]
 SUPPORT_FRICTION: float = SUPPORT["friction"]
 
 # What a scene recipe may hold (rust/data/src/recipe.rs): its keys, dotted by section; the
-# support kinds; the values of materials.tape_along and the one a recipe without it means; the
-# most simulation steps one settle may take.
+# support kinds; the values of materials.tape_along and settle.engine and the ones a recipe
+# without them means; the most simulation steps one settle may take.
 RECIPE_KEYS: frozenset[str] = frozenset(_CONTRACT["recipe"]["keys"])
 SUPPORT_KINDS: tuple[str, ...] = tuple(_CONTRACT["recipe"]["support_kinds"])
 TAPE_ALONG: tuple[str, ...] = tuple(_CONTRACT["recipe"]["tape_along"])
 TAPE_ALONG_DEFAULT: str = _CONTRACT["recipe"]["tape_along_default"]
+SETTLE_ENGINES: tuple[str, ...] = tuple(_CONTRACT["recipe"]["settle_engines"])
+SETTLE_ENGINE_DEFAULT: str = _CONTRACT["recipe"]["settle_engine_default"]
 MAX_SETTLE_STEPS: float = _CONTRACT["recipe"]["max_settle_steps"]
 
 

@@ -7,6 +7,7 @@ counted under its rejection reason.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import platform
 import time
@@ -19,6 +20,7 @@ import numpy as np
 from tqdm import tqdm
 
 import boxpose_io
+from drake_scenes.mujoco import MujocoSettler
 from drake_scenes.projection import SOLVER_FAILURE, project
 from drake_scenes.recipe import Recipe
 from drake_scenes.sampling import SceneSample, bounding_radius, sample_scene
@@ -30,11 +32,13 @@ REJECTION_REASONS = (SOLVER_FAILURE, NOT_SETTLED, PENETRATION, LEFT_SUPPORT)
 MAX_CONSECUTIVE_SOLVER_FAILURES = 10
 
 
-def tool_versions() -> str:
-    return json.dumps(
-        {"drake": version("drake"), "python": platform.python_version(), "numpy": np.__version__},
-        sort_keys=True,
-    )
+def tool_versions(engine: str = "drake") -> str:
+    versions = {"drake": version("drake"), "python": platform.python_version()}
+    versions["numpy"] = np.__version__
+    if engine == "mujoco":
+        # the library boxpose-physics links: the pinned wheel's (docs/design.md)
+        versions["mujoco"] = version("mujoco")
+    return json.dumps(versions, sort_keys=True)
 
 
 @dataclass
@@ -73,8 +77,14 @@ def check_feasible(recipe: Recipe) -> None:
 
 
 def generate_scene(
-    recipe: Recipe, scene_id: int, tool_versions_json: str, num_boxes: int | None = None
+    recipe: Recipe,
+    scene_id: int,
+    tool_versions_json: str,
+    num_boxes: int | None = None,
+    mujoco: MujocoSettler | None = None,
 ) -> SceneOutcome:
+    """Samples, projects, drops and settles scene `scene_id`: with Drake, or with `mujoco` (an
+    open `MujocoSettler`) when the recipe's `settle.engine` is "mujoco"."""
     sample = sample_scene(recipe, scene_id, num_boxes)
     # The jitter of retried solves has its own stream, derived from the scene seed only.
     jitter_rng = np.random.default_rng(np.random.SeedSequence([sample.seed, 1]))
@@ -87,7 +97,12 @@ def generate_scene(
         outcome.rejection = SOLVER_FAILURE
         return outcome
 
-    settled: SettleResult = settle(projection.boxes, recipe)
+    if recipe.settle.engine == "mujoco":
+        if mujoco is None:
+            raise RuntimeError('a recipe with settle.engine = "mujoco" needs a MujocoSettler')
+        settled: SettleResult = mujoco.settle(projection.boxes, recipe)
+    else:
+        settled = settle(projection.boxes, recipe)
     outcome.settle_s = settled.wall_time_s
     cert = settled.certificate
     outcome.rejection = cert.rejection
@@ -97,7 +112,7 @@ def generate_scene(
         "recipe": recipe.name,
         "recipe_toml": recipe.toml_text,
         "tool_versions": tool_versions_json,
-        "physics_backend": "drake",
+        "physics_backend": recipe.settle.engine,
         "support": recipe.support.kind,
         "num_objects": len(sample.boxes),
         "solver": projection.solver,
@@ -181,9 +196,12 @@ def run_shard(
     num_shards: int = 1,
     num_scenes: int | None = None,
     progress: bool = True,
+    boxpose: Path | None = None,
 ) -> ShardSummary:
     """Generates the scenes of one shard and writes its `scenes` and `objects` shards, both or
-    none: a RecipeError (impossible recipe) leaves nothing behind."""
+    none: a RecipeError (impossible recipe) leaves nothing behind. `boxpose`: the binary that
+    settles the drops of a recipe whose `settle.engine` is "mujoco" (default: the repository's
+    release build, then PATH)."""
     out = Path(out)
     num_scenes = recipe.num_scenes if num_scenes is None else num_scenes
     summary = ShardSummary(
@@ -195,21 +213,43 @@ def run_shard(
         return summary
 
     check_feasible(recipe)
-    versions = tool_versions()
+    with contextlib.ExitStack() as stack:
+        mujoco = None
+        if recipe.settle.engine == "mujoco":
+            mujoco = stack.enter_context(MujocoSettler(boxpose))
+        scene_rows, object_rows = _generate(recipe, summary, mujoco, progress)
+
+    # Build both tables (validating every row) before writing either.
+    tables = {
+        "scenes": boxpose_io.table_from_rows("scenes", scene_rows),
+        "objects": boxpose_io.table_from_rows("objects", object_rows),
+    }
+    for table_name, table in tables.items():
+        boxpose_io.write_shard(paths[table_name], table)
+        summary.rows[table_name] = table.num_rows
+    summary.paths = paths
+    return summary
+
+
+def _generate(
+    recipe: Recipe, summary: ShardSummary, mujoco: MujocoSettler | None, progress: bool
+) -> tuple[list[dict], list[dict]]:
+    """The rows of `summary`'s scenes (accepted ones), counting the rest in `summary`."""
+    versions = tool_versions(recipe.settle.engine)
     scene_rows, object_rows = [], []
     consecutive_failures = 0
     give_up_after = min(MAX_CONSECUTIVE_SOLVER_FAILURES, len(summary.scene_ids))
     start = time.perf_counter()
     bar = tqdm(
         summary.scene_ids,
-        desc=f"{recipe.name} {shard}/{num_shards}",
+        desc=f"{recipe.name} {summary.shard}/{summary.num_shards}",
         unit="scene",
         disable=not progress,
         mininterval=1.0,
         dynamic_ncols=True,
     )
     for scene_id in bar:
-        outcome = generate_scene(recipe, scene_id, versions)
+        outcome = generate_scene(recipe, scene_id, versions, mujoco=mujoco)
         summary.projection_s += outcome.projection_s
         summary.settle_s += outcome.settle_s
         if outcome.rejection is None:
@@ -233,14 +273,4 @@ def run_shard(
         )
     bar.close()
     summary.wall_s = time.perf_counter() - start
-
-    # Build both tables (validating every row) before writing either.
-    tables = {
-        "scenes": boxpose_io.table_from_rows("scenes", scene_rows),
-        "objects": boxpose_io.table_from_rows("objects", object_rows),
-    }
-    for table_name, table in tables.items():
-        boxpose_io.write_shard(paths[table_name], table)
-        summary.rows[table_name] = table.num_rows
-    summary.paths = paths
-    return summary
+    return scene_rows, object_rows

@@ -15,6 +15,7 @@ mod render;
 mod search;
 mod search_report;
 mod settle;
+mod settle_drops;
 mod train;
 
 use std::io::{BufWriter, ErrorKind, Write};
@@ -68,6 +69,7 @@ enum Command {
     /// exact search, robust fit, pose-and-size fit) and scores them against the true pose.
     EvalGeometry(eval_geometry::Args),
     Settle(settle::Args),
+    SettleDrops(settle_drops::Args),
     Render(render::Args),
     /// Train the keypoint network on rendered datasets (resumes an interrupted run folder).
     ///
@@ -177,6 +179,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Dump { dataset } => dump::run(&dataset)?,
         Command::EvalGeometry(args) => eval_geometry::run(&args)?,
         Command::Settle(args) => settle::run(&args)?,
+        Command::SettleDrops(args) => settle_drops::run(&args)?,
         Command::Render(args) => render::run(&args)?,
         Command::Train(args) => train::run(&args)?,
         Command::TrainSegmenter(args) => train::run_segmenter(&args)?,

@@ -239,7 +239,7 @@ impl RecipePhysics {
     /// Like the Python stages' readers, it refuses keys that are not recipe keys
     /// ([`boxpose_data::recipe::RECIPE_KEYS`]), though it reads only these two sections.
     pub fn from_toml(text: &str) -> Result<Self> {
-        let table: toml::Table =
+        let mut table: toml::Table =
             toml::from_str(text).map_err(|e| PhysicsError::Recipe(e.to_string()))?;
         let unknown = boxpose_data::recipe::unknown_keys(&table);
         if !unknown.is_empty() {
@@ -247,6 +247,13 @@ impl RecipePhysics {
                 "unknown keys {unknown:?} (misspelt? docs/recipes.md lists every recipe key with its \
                  type, range and default, as does `boxpose schema` under \"recipe\")"
             )));
+        }
+        // `settle.engine` says which simulator settles the scene stage's drops, not how: this
+        // crate is the "mujoco" one, and it settles any recipe's drops (the search's, the
+        // benchmark's re-settles of Drake scenes) under the same rules.
+        boxpose_data::recipe::settle_engine(&table).map_err(PhysicsError::Recipe)?;
+        if let Some(toml::Value::Table(settle)) = table.get_mut("settle") {
+            settle.remove("engine");
         }
         let recipe: Self = toml::Value::Table(table)
             .try_into()
