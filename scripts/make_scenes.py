@@ -503,7 +503,7 @@ class Generation:
         n = self.args.num_shards
         parts = []
         for kind, shard, *_ in self.running.values():
-            what = "scenes (Drake)" if kind == "scenes" else "render"
+            what = f"scenes ({self.args.engine})" if kind == "scenes" else "render"
             part = f"shard {shard + 1}/{n}: {what}"
             if part not in parts:
                 parts.append(part)
@@ -741,6 +741,12 @@ def run(args) -> int:
         scene_recipe = Recipe.from_toml(text, str(args.recipe_path))
     except RecipeError as e:
         raise DriverError(str(e)) from e
+    args.engine = {"drake": "Drake", "mujoco": "MuJoCo"}[scene_recipe.settle.engine]
+    if scene_recipe.settle.engine == "mujoco" and not args.boxpose.is_file():
+        raise DriverError(
+            f'recipe {args.recipe_path}: settle.engine = "mujoco" settles with {args.boxpose}, '
+            "which is missing: build it with `make rust` (or pass --boxpose PATH)"
+        )
     num_scenes = scene_recipe.num_scenes if args.num_scenes is None else args.num_scenes
     args.dataset = (
         args.dataset or REPO / "datasets" / "generated" / args.recipe_path.stem

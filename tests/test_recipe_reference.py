@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 import boxpose_io.schema
-from blender_scripts.recipe import LightingSpec, RenderSpec, parse_render_recipe
+from blender_scripts.recipe import CameraSpec, LightingSpec, RenderSpec, parse_render_recipe
 from drake_scenes.recipe import Recipe, RecipeError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -148,11 +148,18 @@ def test_not_checked_keys_are_not_checked(key, wild):
 
 
 def test_documented_defaults_are_the_blender_readers():
-    for spec, section in ((RenderSpec, "render"), (LightingSpec, "lighting")):
+    for spec, section in (
+        (RenderSpec, "render"),
+        (LightingSpec, "lighting"),
+        (CameraSpec, "camera"),
+    ):
         for field in fields(spec):
             ref = REFERENCE[f"{section}.{field.name}"]
             if field.default is MISSING:
                 assert ref["required"], ref["key"]
+                continue
+            if ref["default_toml"] is None:  # optional, absent means "not used"
+                assert field.default is None and not ref["required"], ref["key"]
                 continue
             documented = tomllib.loads(f"v = {ref['default_toml']}")["v"]
             expected = list(field.default) if isinstance(field.default, tuple) else field.default

@@ -702,6 +702,37 @@ def test_tape_along_long_reaches_the_render(session):
         assert np.allclose(label_u_in_box(instance), long_side_unit(instance["size_m"]))
 
 
+def test_a_box_region_recipe_renders_each_frame_as_the_region_around_one_box(session, clutter):
+    """`camera.region = "box"`: frame f is the region around the (f mod n)-th box, the same
+    pixels, depth and masks as that region of the whole frame, its intrinsics shifted to it, the
+    box whole inside it; `render_settings` record the region, so `crop` re-renders it."""
+    scene, objects, renders = clutter
+    text = scene["recipe_toml"].replace("[camera]\n", '[camera]\nregion = "box"\n')
+    assert parse_render_recipe(text).camera.region == "box"
+    session.load({**scene, "recipe_toml": text}, objects)
+    object_ids = sorted(int(o["object_id"]) for o in objects)
+    for frame_id, (full, _) in enumerate(renders):
+        frame, instances = session.render(frame_id)
+        x0, y0, x1, y1 = json.loads(frame["render_settings"])["crop"]
+        assert (frame["width"], frame["height"]) == (x1 - x0, y1 - y0)
+        assert frame["width"] * frame["height"] < CLUTTER_SIZE**2
+        assert (frame["cx"], frame["cy"]) == (full["cx"] - x0, full["cy"] - y0)
+        rgb, depth, mask = decode(frame)
+        _, full_depth, full_mask = decode(full)
+        assert np.array_equal(mask, full_mask[y0:y1, x0:x1])
+        assert np.allclose(depth, full_depth[y0:y1, x0:x1], atol=1e-6)
+        target = object_ids[frame_id % len(object_ids)]
+        corners = np.array(instances[object_ids.index(target)]["corners_px"]).reshape(8, 2)
+        inside = (corners >= -0.5) & (corners <= [x1 - x0 - 0.5, y1 - y0 - 0.5])
+        assert inside.all(), (frame_id, target, corners)
+        # the region is 1.75 × the box's projected extent (the default margin), clipped to the image
+        extent = (corners.max(axis=0) - corners.min(axis=0)).max()
+        assert max(x1 - x0, y1 - y0) <= 1.75 * extent + 6
+        again, _ = session.render(frame_id, crop=(x0, y0, x1, y1))
+        assert again["rgb_png"] == frame["rgb_png"]
+    session.load(scene, objects)  # the shared session as the other tests expect it
+
+
 @pytest.mark.parametrize("support", ["bin", "pallet"])
 def test_other_supports_render(session, support):
     text = (

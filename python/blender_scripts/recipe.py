@@ -12,6 +12,7 @@ import tomllib
 from dataclasses import asdict, dataclass
 
 from boxpose_io.recipe_keys import unknown_keys_problem
+from boxpose_io.schema import CAMERA_REGION_DEFAULT, CAMERA_REGIONS
 
 # [support] and [materials] are defined, read and checked once, by the scene stage that owns them
 # (no pydrake import).
@@ -20,6 +21,7 @@ from drake_scenes.recipe import (
     RecipeError,
     SupportSpec,
     materials_problems,
+    read_choice,
     read_support,
     read_tape_along,
     support_problems,
@@ -38,6 +40,10 @@ class CameraSpec:
     look_at_jitter_m: float
     # Optional: aim at this box's centre instead of the boxes' centroid (the search's target box).
     look_at_object: int | None = None
+    # Optional: "frame" renders the whole image; "box" only the region around one box per frame
+    # (the keypoint network's crop), region_margin × the box's projected extent.
+    region: str = CAMERA_REGION_DEFAULT
+    region_margin: float = 1.75
 
 
 @dataclass(frozen=True)
@@ -129,11 +135,19 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         elevation_deg=p("camera.elevation_deg"),
         azimuth_deg=p("camera.azimuth_deg"),
         look_at_jitter_m=g("camera.look_at_jitter_m", float),
-        **(
-            {"look_at_object": g("camera.look_at_object", int)}
-            if "look_at_object" in data.get("camera", {})
-            else {}
+        region=read_choice(
+            data,
+            source,
+            "camera.region",
+            CAMERA_REGIONS,
+            CAMERA_REGION_DEFAULT,
+            '"frame" renders whole images; "box" the region around one box per frame',
         ),
+        **{
+            k: g(f"camera.{k}", kind)
+            for k, kind in (("look_at_object", int), ("region_margin", float))
+            if k in data.get("camera", {})
+        },
     )
     lighting = LightingSpec(
         sun_strength=p("lighting.sun_strength"),
@@ -177,6 +191,8 @@ def parse_render_recipe(text: str, source: str = "<recipe>") -> RenderRecipe:
         problems.append("camera.elevation_deg must lie in (-90, 90)")
     if camera.look_at_object is not None and camera.look_at_object < 0:
         problems.append("camera.look_at_object must be an object_id >= 0")
+    if not camera.region_margin >= 1:
+        problems.append(f"camera.region_margin must be >= 1, got {camera.region_margin}")
     if not (-90 <= lighting.sun_elevation_deg[0] and lighting.sun_elevation_deg[1] <= 90):
         problems.append("lighting.sun_elevation_deg must lie in [-90, 90]")
     if lighting.area_lights[0] < 0:

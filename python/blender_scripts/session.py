@@ -200,7 +200,9 @@ class Session:
         `crop_object` = (object_id, margin) renders only the region around that box: the square
         of side max(margin, 1) × the longer side of its projected corners' bounding box, centred
         on that box, plus 2 pixels (the search's ground-truth crops; the frame's
-        `render_settings` record the region, so `crop` re-renders it exactly)."""
+        `render_settings` record the region, so `crop` re-renders it exactly). Without either, a
+        recipe with `camera.region = "box"` renders frame f as the region around the scene's
+        (f mod box count)-th box in object_id order, with its `camera.region_margin`."""
         if self.scene_row is None:
             raise RenderInputError("no scene loaded")
         spec = self.recipe.render
@@ -214,6 +216,10 @@ class Session:
 
         seed, full_camera, camera_draw, lighting = self.frame_draw(frame_id)
         world_boxes = {oid: poses.get(oid, m) for oid, m in self.world_boxes.items()}
+        if crop is None and crop_object is None and self.recipe.camera.region == "box":
+            object_ids = sorted(self.world_boxes)
+            target = object_ids[int(frame_id) % len(object_ids)]
+            crop_object = (target, self.recipe.camera.region_margin)
         if crop_object is not None:
             if crop is not None:
                 raise RenderInputError("give crop or crop_object, not both")

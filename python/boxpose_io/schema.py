@@ -23,14 +23,16 @@ BIN_WALL_THICKNESS_M: float = SUPPORT["bin_wall_thickness_m"]
 SUPPORT_FRICTION: float = SUPPORT["friction"]
 
 # What a scene recipe may hold (rust/data/src/recipe.rs): its keys, dotted by section; the
-# support kinds; the values of materials.tape_along and settle.engine and the ones a recipe
-# without them means; the most simulation steps one settle may take.
+# support kinds; the values of materials.tape_along, settle.engine and camera.region and the ones
+# a recipe without them means; the most simulation steps one settle may take.
 RECIPE_KEYS: frozenset[str] = frozenset(_CONTRACT["recipe"]["keys"])
 SUPPORT_KINDS: tuple[str, ...] = tuple(_CONTRACT["recipe"]["support_kinds"])
 TAPE_ALONG: tuple[str, ...] = tuple(_CONTRACT["recipe"]["tape_along"])
 TAPE_ALONG_DEFAULT: str = _CONTRACT["recipe"]["tape_along_default"]
 SETTLE_ENGINES: tuple[str, ...] = tuple(_CONTRACT["recipe"]["settle_engines"])
 SETTLE_ENGINE_DEFAULT: str = _CONTRACT["recipe"]["settle_engine_default"]
+CAMERA_REGIONS: tuple[str, ...] = tuple(_CONTRACT["recipe"]["camera_regions"])
+CAMERA_REGION_DEFAULT: str = _CONTRACT["recipe"]["camera_region_default"]
 MAX_SETTLE_STEPS: float = _CONTRACT["recipe"]["max_settle_steps"]
 
 

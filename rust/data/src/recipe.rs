@@ -428,6 +428,22 @@ pub const RECIPE_REFERENCE: &[RecipeKey] = {
             "the look-at point moves uniformly by up to this much along each axis (≤ 0: not at all)",
         ),
         key(
+            "camera.region",
+            String,
+            Accepted::OneOf(&CAMERA_REGIONS),
+            Value("\"frame\""),
+            "",
+            "what a frame renders: \"frame\", the whole image; \"box\", only the square region around one box (frame f: the scene's boxes in object_id order, cyclically) at the image's own pixel density — the keypoint network's crop without the rest of the frame (docs/dataset.md, \"Recipes\")",
+        ),
+        key(
+            "camera.region_margin",
+            Float,
+            within(Bound::Inclusive(1.0), Bound::Unbounded),
+            Value("1.75"),
+            "",
+            "with `camera.region = \"box\"`: the region's side over the longer side of the box's projected bounding box (1.75 holds the keypoint loader's 1.25 crop, shifted and scaled by its augmentation)",
+        ),
+        key(
             "camera.look_at_object",
             Integer,
             NON_NEGATIVE,
@@ -583,6 +599,15 @@ pub fn tape_along(recipe: &toml::Table) -> Result<&'static str, String> {
          \"random\", the default, draws them as the existing datasets do",
     )
 }
+
+/// The values of `camera.region`: `"frame"` renders each frame whole (the default, and every
+/// dataset written before the key existed); `"box"` renders only the region around one box per
+/// frame (the Blender stage's `crop_object`), so that keypoint-training data costs the pixels the
+/// network reads rather than a whole 640×480 image per frame.
+pub const CAMERA_REGIONS: [&str; 2] = ["frame", "box"];
+
+/// `camera.region` when a recipe does not give it.
+pub const CAMERA_REGION_DEFAULT: &str = "frame";
 
 /// The values of `settle.engine` (and of the `scenes.physics_backend` column of the scenes they
 /// settle): `"drake"`, the scene stage's certified simulation (the default, and what every
@@ -818,6 +843,8 @@ pub fn to_json() -> serde_json::Value {
         "tape_along_default": TAPE_ALONG_DEFAULT,
         "settle_engines": SETTLE_ENGINES,
         "settle_engine_default": SETTLE_ENGINE_DEFAULT,
+        "camera_regions": CAMERA_REGIONS,
+        "camera_region_default": CAMERA_REGION_DEFAULT,
         "max_settle_steps": MAX_SETTLE_STEPS,
     })
 }
