@@ -184,8 +184,13 @@ bench-settle: setup ## Drake vs MuJoCo settle time on the same 5- and 20-box dro
 bench-render: setup ## Cycles seconds per 640×480 frame by samples and denoising; 128×128 crop re-render from Rust, scene reused vs rebuilt
 	$(PY) scripts/bench_render.py
 
-bench-scenes: setup ## make scenes images/s per recipe (Drake, Blender, ground truth, Parquet) with --jobs 1 and 2, one run
+bench-scenes: setup ## make scenes images/s per recipe with --jobs 1 and 2; then box instances per CPU-second of train_large as shipped, settled by MuJoCo, at 320×256, and as box regions
 	$(PY) scripts/bench_scenes.py
+	$(PY) scripts/bench_scenes.py --recipes train_large --scenes 8 --shards 2 --variants \
+	  'settle.engine="mujoco"' \
+	  'settle.engine="mujoco",camera.width=320,camera.height=256' \
+	  'settle.engine="mujoco",camera.region="box"' \
+	  'settle.engine="mujoco",camera.region="box",camera.frames_per_scene=16'
 
 bench-render-quality: setup ## PSNR/SSIM against a 1024-sample reference and CPU-seconds per image over samples × denoiser × bounces, Kubric's defaults as a row
 	$(PY) scripts/bench_render_quality.py --recipes single_box --scenes 3

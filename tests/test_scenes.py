@@ -492,3 +492,22 @@ def test_settle_drops_answers_every_line_and_names_what_is_wrong(boxpose_bin, ti
     assert settled["stable"] and settled["rejection"] is None
     z = settled["poses"][0]["translation_m"][2]
     assert abs(z - 0.03) < 2e-3, z  # resting on its 6 cm face
+
+
+def test_the_pallet_training_recipe_settles_its_boxes_on_the_deck_with_mujoco(tmp_path):
+    """train_pallet (the segmenter's pallets, settled by MuJoCo) at three scenes: every box
+    rests on the EUR pallet's deck, inside the deck and the recipe's ranges."""
+    recipe = Recipe.load(RECIPES / "train_pallet.toml")
+    assert recipe.settle.engine == "mujoco" and recipe.support.kind == "pallet"
+    summary = run_shard(recipe, tmp_path / "out", num_scenes=3, progress=False)
+    assert summary.accepted >= 2, summary.report()
+    scenes, objects = (read(tmp_path / "out", t).to_pandas() for t in TABLES)
+    assert (scenes.physics_backend == "mujoco").all() and (scenes.support == "pallet").all()
+    sizes = np.stack(objects.size_m)
+    assert (sizes >= np.asarray(recipe.boxes.size_min_m) - 1e-9).all()
+    assert (sizes <= np.asarray(recipe.boxes.size_max_m) + 1e-9).all()
+    centres = np.stack(objects.world_box_translation_m)
+    hx, hy = recipe.support.half_extent_m
+    assert (np.abs(centres[:, 0]) <= hx).all() and (np.abs(centres[:, 1]) <= hy).all()
+    deck = boxpose_io.schema.PALLET_HEIGHT_M
+    assert (centres[:, 2] > deck).all() and (centres[:, 2] < deck + sizes.max(axis=1)).all()

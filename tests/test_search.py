@@ -288,6 +288,40 @@ def test_the_report_shows_each_counterexample_s_parameters_and_every_predicate_s
         assert f"<code>{command}</code>" in html, command
 
 
+def test_view_draws_a_counterexample_with_its_peaks_fit_and_parameters(
+    failing_run, boxpose_bin, tmp_path
+):
+    """`boxpose view RUN --sample ID`: the counterexample's frame with the network's peaks (red)
+    where the sample's peaks project, and its errors and parameters written beside it."""
+    samples = pd.read_parquet(failing_run / "samples.parquet")
+    row = samples[samples.failed & samples.peaks_camera_m.notna()].iloc[0]
+    out = tmp_path / "sample.png"
+    r = subprocess.run(
+        [boxpose_bin, "view", failing_run, "--sample", str(row.sample_id), "--out", out],
+        capture_output=True,
+        text=True,
+    )
+    assert r.returncode == 0, r.stderr
+    frame = pd.read_parquet(failing_run / "counterexamples" / "frames")
+    frame = frame[frame.scene_id == row.sample_id].iloc[0]
+    sheet = np.asarray(Image.open(out).convert("RGB")).astype(int)
+    # beside three panels, a text column: wider than the panels alone
+    assert sheet.shape[1] > 3 * frame.width + 16 + 200
+    left = sheet[56 : 56 + frame.height, : frame.width]
+    red = (np.abs(left - (214, 39, 40)).max(axis=2) <= 30).sum()
+    peaks = np.asarray(row.peaks_camera_m).reshape(-1, 3)
+    assert red >= 5 * len(peaks) > 0
+    u = frame.fx * peaks[:, 0] / peaks[:, 2] + frame.cx
+    v = frame.fy * peaks[:, 1] / peaks[:, 2] + frame.cy
+    inside = (u >= 0) & (u < frame.width) & (v >= 0) & (v < frame.height)
+    for x, y in zip(u[inside].round().astype(int), v[inside].round().astype(int), strict=True):
+        assert np.abs(left[y, x] - (214, 39, 40)).max() <= 30, (x, y, left[y, x])
+    r = subprocess.run(
+        [boxpose_bin, "view", failing_run, "--scene", "0"], capture_output=True, text=True
+    )
+    assert r.returncode != 0 and "give --sample ID" in r.stderr, r.stderr
+
+
 def test_counterexamples_re_render_exactly(failing_run, boxpose_bin, tmp_path):
     mc_run = failing_run
     samples = pd.read_parquet(mc_run / "samples.parquet")

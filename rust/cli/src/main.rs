@@ -17,6 +17,7 @@ mod search_report;
 mod settle;
 mod settle_drops;
 mod train;
+mod view;
 
 use std::io::{BufWriter, ErrorKind, Write};
 use std::path::PathBuf;
@@ -70,6 +71,7 @@ enum Command {
     EvalGeometry(eval_geometry::Args),
     Settle(settle::Args),
     SettleDrops(settle_drops::Args),
+    View(view::Args),
     Render(render::Args),
     /// Train the keypoint network on rendered datasets (resumes an interrupted run folder).
     ///
@@ -180,6 +182,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::EvalGeometry(args) => eval_geometry::run(&args)?,
         Command::Settle(args) => settle::run(&args)?,
         Command::SettleDrops(args) => settle_drops::run(&args)?,
+        Command::View(args) => view::run(&args)?,
         Command::Render(args) => render::run(&args)?,
         Command::Train(args) => train::run(&args)?,
         Command::TrainSegmenter(args) => train::run_segmenter(&args)?,

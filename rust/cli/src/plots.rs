@@ -4,7 +4,7 @@
 use std::path::Path;
 
 use anyhow::Context;
-use boxpose_data::Intrinsics;
+use boxpose_data::{Frame, Intrinsics, Visibility};
 use nalgebra::Point3;
 use plotters::prelude::*;
 use plotters::style::FontStyle;
@@ -19,6 +19,12 @@ fn register_font() {
             .unwrap_or_else(|_| panic!("the bundled font parses"));
     });
 }
+
+/// The colours of one box's three sets of corners, the same in every picture (the report's
+/// frames, its 3D views and `boxpose view`): the true box, the network's NMS peaks, the fit.
+pub const TRUTH_COLOR: RGBColor = RGBColor(44, 160, 44);
+pub const PEAKS_COLOR: RGBColor = RGBColor(214, 39, 40);
+pub const FITTED_COLOR: RGBColor = RGBColor(31, 119, 180);
 
 const SERIES_COLORS: [RGBColor; 3] = [
     RGBColor(214, 39, 40),
@@ -123,8 +129,8 @@ pub struct OverlayBox {
     pub fitted: Option<[Point3<f64>; 8]>,
 }
 
-/// The frame with, per box, the true box white, the NMS peaks black and the fitted box grey
-/// (the paper's Fig. 5), as PNG.
+/// The frame with, per box, the true box ([`TRUTH_COLOR`]), the NMS peaks ([`PEAKS_COLOR`]) and
+/// the fitted box ([`FITTED_COLOR`]) (the paper's Fig. 5), as PNG.
 pub fn overlay(
     path: &Path,
     rgb: &[u8],
@@ -137,42 +143,62 @@ pub fn overlay(
     {
         let root = BitMapBackend::with_buffer(&mut buffer, (width as u32, height as u32))
             .into_drawing_area();
-        let project = |p: &Point3<f64>| -> (i32, i32) {
-            (
-                (k.fx * p.x / p.z + k.cx).round() as i32,
-                (k.fy * p.y / p.z + k.cy).round() as i32,
-            )
-        };
-        let grey = RGBColor(150, 150, 150);
-        let draw_box = |corners: &[Point3<f64>; 8], color: RGBColor| -> anyhow::Result<()> {
-            for a in 0..8usize {
-                for bit in [1usize, 2, 4] {
-                    let b = a | bit;
-                    if b != a {
-                        root.draw(&PathElement::new(
-                            vec![project(&corners[a]), project(&corners[b])],
-                            color.stroke_width(1),
-                        ))?;
-                    }
-                }
-                root.draw(&Circle::new(project(&corners[a]), 3, color.filled()))?;
-            }
-            Ok(())
-        };
-        for b in boxes {
-            if let Some(truth) = &b.truth {
-                draw_box(truth, WHITE)?;
-            }
-            if let Some(fitted) = &b.fitted {
-                draw_box(fitted, grey)?;
-            }
-            for p in &b.peaks {
-                root.draw(&Circle::new(project(p), 3, BLACK.filled()))?;
-            }
-        }
+        draw_overlay(&root, k, boxes)?;
         root.present()?;
     }
     save_png(path, &buffer, width as u32, height as u32)
+}
+
+/// Pixel of a camera-frame point.
+fn project(k: &Intrinsics, p: &Point3<f64>) -> (i32, i32) {
+    (
+        (k.fx * p.x / p.z + k.cx).round() as i32,
+        (k.fy * p.y / p.z + k.cy).round() as i32,
+    )
+}
+
+/// The twelve edges of a box (corner bit 0 → x, 1 → y, 2 → z), as pairs of corner indices.
+fn box_edges() -> impl Iterator<Item = (usize, usize)> {
+    (0..8usize).flat_map(|a| {
+        [1usize, 2, 4]
+            .into_iter()
+            .filter(move |bit| a & bit == 0)
+            .map(move |bit| (a, a | bit))
+    })
+}
+
+fn draw_overlay<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    k: &Intrinsics,
+    boxes: &[OverlayBox],
+) -> anyhow::Result<()>
+where
+    DB::ErrorType: 'static,
+{
+    let draw_box = |corners: &[Point3<f64>; 8], color: RGBColor| -> anyhow::Result<()> {
+        for (a, b) in box_edges() {
+            area.draw(&PathElement::new(
+                vec![project(k, &corners[a]), project(k, &corners[b])],
+                color.stroke_width(1),
+            ))?;
+        }
+        for corner in corners {
+            area.draw(&Circle::new(project(k, corner), 3, color.filled()))?;
+        }
+        Ok(())
+    };
+    for b in boxes {
+        if let Some(truth) = &b.truth {
+            draw_box(truth, TRUTH_COLOR)?;
+        }
+        if let Some(fitted) = &b.fitted {
+            draw_box(fitted, FITTED_COLOR)?;
+        }
+        for p in &b.peaks {
+            area.draw(&Circle::new(project(k, p), 3, PEAKS_COLOR.filled()))?;
+        }
+    }
+    Ok(())
 }
 
 /// Writes 8-bit RGB pixels as a PNG, atomically (a kill never leaves half a picture).
@@ -353,8 +379,9 @@ pub fn parameter_map(
     save_png(path, &buffer, width, height)
 }
 
-/// A 3D view of one box in the camera frame: true corners and edges white-on-dark as black, the
-/// NMS peaks red, the fitted box grey — where the peaks lie that the frame cannot show (depth).
+/// A 3D view of one box in the camera frame, in the frames' colours (the true box
+/// [`TRUTH_COLOR`], the NMS peaks [`PEAKS_COLOR`], the fitted box [`FITTED_COLOR`]): where the
+/// peaks lie that the frame cannot show (depth).
 pub fn view_3d(
     path: &Path,
     title: &str,
@@ -395,37 +422,217 @@ pub fn view_3d(
         });
         chart.configure_axes().draw()?;
         let edges = |corners: &[Point3<f64>; 8]| -> Vec<Vec<(f64, f64, f64)>> {
-            let mut out = Vec::new();
-            for a in 0..8usize {
-                for bit in [1usize, 2, 4] {
-                    if a & bit == 0 {
-                        let b = a | bit;
-                        out.push(vec![
-                            (corners[a].x, corners[a].y, corners[a].z),
-                            (corners[b].x, corners[b].y, corners[b].z),
-                        ]);
-                    }
-                }
-            }
-            out
+            box_edges()
+                .map(|(a, b)| {
+                    vec![
+                        (corners[a].x, corners[a].y, corners[a].z),
+                        (corners[b].x, corners[b].y, corners[b].z),
+                    ]
+                })
+                .collect()
         };
         for edge in edges(truth) {
-            chart.draw_series(LineSeries::new(edge, BLACK.stroke_width(2)))?;
+            chart.draw_series(LineSeries::new(edge, TRUTH_COLOR.stroke_width(2)))?;
         }
         if let Some(fitted) = fitted {
             for edge in edges(fitted) {
-                chart.draw_series(LineSeries::new(
-                    edge,
-                    RGBColor(150, 150, 150).stroke_width(1),
-                ))?;
+                chart.draw_series(LineSeries::new(edge, FITTED_COLOR.stroke_width(1)))?;
             }
         }
         chart.draw_series(
             peaks
                 .iter()
-                .map(|p| Circle::new((p.x, p.y, p.z), 4, SERIES_COLORS[0].filled())),
+                .map(|p| Circle::new((p.x, p.y, p.z), 4, PEAKS_COLOR.filled())),
         )?;
         root.present()?;
     }
     save_png(path, &buffer, width, height)
+}
+
+/// The corner colours of `boxpose view` by visibility (`instances.corner_visibility`).
+pub const VISIBILITY_COLORS: [(Visibility, RGBColor, &str); 4] = [
+    (Visibility::Visible, TRUTH_COLOR, "visible"),
+    (
+        Visibility::OccludedByOther,
+        RGBColor(255, 127, 14),
+        "occluded by another box",
+    ),
+    (
+        Visibility::SelfOccluded,
+        RGBColor(148, 103, 189),
+        "self-occluded",
+    ),
+    (
+        Visibility::OutsideImage,
+        RGBColor(127, 127, 127),
+        "outside the image",
+    ),
+];
+
+/// What `boxpose view` shows beside a frame: a title line, and for a search sample the network's
+/// peaks and fit of the target box and the sample's parameters.
+pub struct SheetExtras {
+    pub title: String,
+    pub overlay: Option<OverlayBox>,
+    pub text: Vec<String>,
+}
+
+/// One frame as a sheet of three panels: the RGB image with every box's true edges and its
+/// corners coloured by visibility (and a search sample's peaks and fit), the depth (near bright,
+/// no surface black) and the instance masks (a colour per box, its object_id at its centre); a
+/// legend above, `extras.text` on the right.
+pub fn frame_sheet(path: &Path, frame: &Frame, extras: &SheetExtras) -> anyhow::Result<()> {
+    register_font();
+    let (w, h) = (frame.width as u32, frame.height as u32);
+    let header = 56u32;
+    let gap = 8u32;
+    let text_width = if extras.text.is_empty() { 0 } else { 320 };
+    let width = (3 * w + 2 * gap + text_width).max(560);
+    let height = (h + header).max(header + 16 * extras.text.len() as u32 + 8);
+    let mut buffer = vec![255u8; (width * height * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buffer, (width, height)).into_drawing_area();
+        let font = ("sans-serif", 14).into_font();
+        root.draw(&Text::new(extras.title.clone(), (6, 4), font.clone()))?;
+        let mut x = 6;
+        for (_, color, name) in VISIBILITY_COLORS {
+            root.draw(&Circle::new((x + 5, 32), 5, color.filled()))?;
+            root.draw(&Text::new(name, (x + 14, 25), font.clone()))?;
+            x += 24 + 8 * name.len() as i32;
+        }
+        if extras.overlay.is_some() {
+            for (color, name) in [(PEAKS_COLOR, "NMS peaks"), (FITTED_COLOR, "fitted box")] {
+                root.draw(&Circle::new((x + 5, 32), 5, color.filled()))?;
+                root.draw(&Text::new(name, (x + 14, 25), font.clone()))?;
+                x += 24 + 8 * name.len() as i32;
+            }
+        }
+        let panels = root.margin(header, 0, 0, 0);
+        let panel = |i: u32| {
+            let x0 = (i * (w + gap)) as i32;
+            panels.clone().shrink((x0, 0), (w, h))
+        };
+        let pixels = |colour: &dyn Fn(usize) -> RGBColor| -> Vec<((i32, i32), RGBColor)> {
+            (0..frame.width * frame.height)
+                .map(|i| {
+                    (
+                        ((i % frame.width) as i32, (i / frame.width) as i32),
+                        colour(i),
+                    )
+                })
+                .collect()
+        };
+        let rgb = panel(0);
+        for (xy, c) in
+            pixels(&|i| RGBColor(frame.rgb[3 * i], frame.rgb[3 * i + 1], frame.rgb[3 * i + 2]))
+        {
+            rgb.draw_pixel(xy, &c)?;
+        }
+        for instance in &frame.instances {
+            let px = |c: [f64; 2]| (c[0].round() as i32, c[1].round() as i32);
+            for (a, b) in box_edges() {
+                rgb.draw(&PathElement::new(
+                    vec![px(instance.corners_px[a]), px(instance.corners_px[b])],
+                    WHITE.mix(0.6).stroke_width(1),
+                ))?;
+            }
+            for (corner, visibility) in instance.corners_px.iter().zip(instance.visibility) {
+                let color = VISIBILITY_COLORS
+                    .iter()
+                    .find(|(v, _, _)| *v == visibility)
+                    .map_or(BLACK, |(_, c, _)| *c);
+                rgb.draw(&Circle::new(px(*corner), 3, color.filled()))?;
+            }
+        }
+        if let Some(overlay) = &extras.overlay {
+            let only_fit = OverlayBox {
+                truth: None,
+                peaks: overlay.peaks.clone(),
+                fitted: overlay.fitted,
+            };
+            draw_overlay(&rgb, &frame.intrinsics, std::slice::from_ref(&only_fit))?;
+        }
+        // the 2nd to 98th percentile of the surfaces' depths: a far floor or wall does not
+        // flatten the boxes into one grey
+        let mut surfaces: Vec<f32> = frame.depth.iter().copied().filter(|d| *d > 0.0).collect();
+        surfaces.sort_by(f32::total_cmp);
+        let percentile = |q: f64| surfaces[((surfaces.len() - 1) as f64 * q).round() as usize];
+        let (near, far) = if surfaces.is_empty() {
+            (0.0, 0.0)
+        } else {
+            (percentile(0.02), percentile(0.98))
+        };
+        let depth = panel(1);
+        for (xy, c) in pixels(&|i| {
+            let d = frame.depth[i];
+            if d <= 0.0 {
+                return BLACK;
+            }
+            let t = if far > near {
+                ((far - d) / (far - near)).clamp(0.0, 1.0)
+            } else {
+                1.0
+            };
+            let v = (40.0 + 215.0 * t) as u8;
+            RGBColor(v, v, v)
+        }) {
+            depth.draw_pixel(xy, &c)?;
+        }
+        if !surfaces.is_empty() {
+            depth.draw(&Text::new(
+                format!("depth {near:.2}–{far:.2} m"),
+                (4, 4),
+                font.clone().color(&RED),
+            ))?;
+        }
+        let masks = panel(2);
+        let mask_color = |label: u16| -> RGBColor {
+            if label == 0 {
+                return BLACK;
+            }
+            // golden-angle hues: neighbouring ids far apart
+            let hue = (f64::from(label) * 0.618_034).fract();
+            let (r, g, b) = hsl_to_rgb(hue, 0.65, 0.55);
+            RGBColor(r, g, b)
+        };
+        for (xy, c) in pixels(&|i| mask_color(frame.instance_mask[i])) {
+            masks.draw_pixel(xy, &c)?;
+        }
+        for instance in &frame.instances {
+            if let Some([x0, y0, x1, y1]) = instance.visible_bbox {
+                masks.draw(&Text::new(
+                    instance.object_id.to_string(),
+                    ((x0 + x1) / 2 - 4, (y0 + y1) / 2 - 7),
+                    font.clone().color(&WHITE),
+                ))?;
+            }
+        }
+        let text_x = (3 * w + 2 * gap + 10) as i32;
+        for (line, text) in extras.text.iter().enumerate() {
+            root.draw(&Text::new(
+                text.clone(),
+                (text_x, header as i32 + 16 * line as i32),
+                ("sans-serif", 12).into_font(),
+            ))?;
+        }
+        root.present()?;
+    }
+    save_png(path, &buffer, width, height)
+}
+
+/// RGB bytes of a hue, saturation and lightness in [0, 1].
+fn hsl_to_rgb(h: f64, s: f64, l: f64) -> (u8, u8, u8) {
+    let c = (1.0 - (2.0 * l - 1.0).abs()) * s;
+    let x = c * (1.0 - ((h * 6.0) % 2.0 - 1.0).abs());
+    let (r, g, b) = match (h * 6.0) as u32 {
+        0 => (c, x, 0.0),
+        1 => (x, c, 0.0),
+        2 => (0.0, c, x),
+        3 => (0.0, x, c),
+        4 => (x, 0.0, c),
+        _ => (c, 0.0, x),
+    };
+    let m = l - c / 2.0;
+    let byte = |v: f64| ((v + m) * 255.0).round().clamp(0.0, 255.0) as u8;
+    (byte(r), byte(g), byte(b))
 }

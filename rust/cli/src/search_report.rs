@@ -432,7 +432,7 @@ fn page(
     } else {
         writeln!(
             h,
-            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID</code> re-renders it (each figure's caption has the command, with the <code>--crop</code> of a region render), <code>boxpose search replay {0} --sample ID</code> runs it again end to end. True box white, the network's NMS peaks black, the fitted box grey.</p>",
+            "<p>Each is a scene of <code>counterexamples/</code> (scene_id = sample id): <code>boxpose render {0}/counterexamples --scene ID</code> re-renders it (each figure's caption has the command, with the <code>--crop</code> of a region render), <code>boxpose search replay {0} --sample ID</code> runs it again end to end. True box green, the network's NMS peaks red, the fitted box blue (as in the 3D views and <code>boxpose view</code>, which draws a sample's whole ground truth: <code>boxpose view {0} --sample ID</code>).</p>",
             escape(&run.dir.display().to_string())
         )?;
         writeln!(
@@ -465,7 +465,7 @@ fn page(
             writeln!(
                 h,
                 "<div><figure style=\"display:inline-block;width:48%\"><img src=\"{file}\" style=\"width:100%;image-rendering:pixelated\"><figcaption>sample {id}: <code>{}</code></figcaption></figure>\
-                 <figure style=\"display:inline-block;width:48%\"><img src=\"{view}\"><figcaption>sample {id} in 3D (camera frame): true box black, NMS peaks red, fitted box grey</figcaption></figure></div>",
+                 <figure style=\"display:inline-block;width:48%\"><img src=\"{view}\"><figcaption>sample {id} in 3D (camera frame): true box green, NMS peaks red, fitted box blue</figcaption></figure></div>",
                 escape(command)
             )?;
         }
