@@ -94,7 +94,7 @@ TRAIN_LARGE_SHARDS ?= 0,1,2,3,4,5
 TRAIN_LARGE_STAGE3_SHARDS ?= 6,7,8,9
 # Stages 2 and 3 read both sets (held-out scenes of each are never trained on).
 TRAIN_SETS := --dataset datasets/generated/train --dataset datasets/generated/train_large
-train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (BACKEND=flex|tch|wgpu|cuda): render `train` and 6 shards of `train_large`, stage 1 from random weights on `train`, stage 2 from stage 1 on both, render 4 more shards, stage 3 from stage 2, keypoint-wide and segmenter-wide from stage 3 on `train_wide` too (all resumable), copy to models/
+train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (BACKEND=flex|tch|wgpu|cuda): render `train` and 6 shards of `train_large`, stage 1 from random weights on `train`, stage 2 from stage 1 on both, render 4 more shards, stage 3 from stage 2, keypoint-wide and segmenter-wide from stage 3 on `train_wide` too, segmenter-wide then on `train_pallet` (all resumable), copy to models/
 	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
 	$(PY) scripts/make_scenes.py --recipe train_large --dataset datasets/generated/train_large \
 	  --num-shards 50 --shards $(TRAIN_LARGE_SHARDS) --no-inspect
@@ -126,10 +126,15 @@ train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (
 	$(TRAIN_BOXPOSE) train --config configs/keypoint-wide.toml --init runs/keypoint-slim-stage3/model \
 	  --out runs/keypoint-wide --backend $(BACKEND)
 	$(call publish_model,runs/keypoint-wide,models/keypoint-wide)
-	# segmenter-wide: stage 3 fine-tuned on the bins (repeated) and the wider world
+	# segmenter-wide: stage 3 fine-tuned on the bins (repeated) and the wider world, then on the
+	# pallets of train_pallet too (MuJoCo scenes at the segmenter's 320×256)
 	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-wide.toml --init runs/segmenter-slim-stage3/model \
 	  --out runs/segmenter-wide --backend $(BACKEND)
-	$(call publish_model,runs/segmenter-wide,models/segmenter-wide)
+	$(PY) scripts/make_scenes.py --recipe train_pallet --dataset datasets/generated/train_pallet \
+	  --num-shards 8 --boxpose $(BOXPOSE) --no-inspect
+	$(TRAIN_BOXPOSE) train-segmenter --config configs/segmenter-pallet.toml --init runs/segmenter-wide/model \
+	  --out runs/segmenter-pallet --backend $(BACKEND)
+	$(call publish_model,runs/segmenter-pallet,models/segmenter-wide)
 
 # Copies a trained run's model, history and config into a model folder as a whole: assembled
 # beside it (keeping its card.md and plots), then swapped in by two renames, so that a killed copy
@@ -186,10 +191,10 @@ bench-render: setup ## Cycles seconds per 640×480 frame by samples and denoisin
 
 bench-scenes: setup ## make scenes images/s per recipe with --jobs 1 and 2; then box instances per CPU-second of train_large as shipped, settled by MuJoCo, at 320×256, and as box regions
 	$(PY) scripts/bench_scenes.py
-	$(PY) scripts/bench_scenes.py --recipes train_large --scenes 8 --shards 2 --variants \
+	$(PY) scripts/bench_scenes.py --recipes train_large --scenes 24 --shards 2 --variants \
 	  'settle.engine="mujoco"' \
 	  'settle.engine="mujoco",camera.width=320,camera.height=256' \
-	  'settle.engine="mujoco",camera.region="box"' \
+	  'settle.engine="mujoco",camera.width=320,camera.height=256,camera.frames_per_scene=16' \
 	  'settle.engine="mujoco",camera.region="box",camera.frames_per_scene=16'
 
 bench-render-quality: setup ## PSNR/SSIM against a 1024-sample reference and CPU-seconds per image over samples × denoiser × bounces, Kubric's defaults as a row
