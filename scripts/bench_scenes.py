@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import resource
 import subprocess
 import sys
@@ -50,7 +51,8 @@ def with_keys(text: str, variant: str) -> str:
     """Recipe TOML `text` with the keys of `variant` ("section.key=value,…") set: a key's line
     is replaced in its section, or added at the section's top when the recipe does not set it."""
     lines = text.splitlines()
-    for assignment in filter(None, variant.split(",")):
+    # commas inside a list value ("boxes.count=[3, 20]") do not separate keys
+    for assignment in filter(None, re.split(r",(?![^\[]*\])", variant)):
         dotted, value = (part.strip() for part in assignment.split("=", 1))
         section, key = dotted.split(".")
         start = lines.index(f"[{section}]")
