@@ -1,8 +1,9 @@
 """One scene from sample to contract rows, and one shard of scenes from a recipe.
 
 A scene is: sampled (sampling.py) → projected to non-penetration (projection.py) → dropped and
-settled (settle.py) → certified. Only certified scenes become rows; every other scene is
-counted under its rejection reason.
+settled (settle.py, or MuJoCo through mujoco.py when the recipe's `settle.engine` says so) →
+certified. Only certified scenes become rows; every other scene is counted under its rejection
+reason.
 """
 
 from __future__ import annotations
@@ -33,8 +34,11 @@ MAX_CONSECUTIVE_SOLVER_FAILURES = 10
 
 
 def tool_versions(engine: str = "drake") -> str:
-    versions = {"drake": version("drake"), "python": platform.python_version()}
-    versions["numpy"] = np.__version__
+    versions = {
+        "drake": version("drake"),
+        "python": platform.python_version(),
+        "numpy": np.__version__,
+    }
     if engine == "mujoco":
         # the library boxpose-physics links: the pinned wheel's (docs/design.md)
         versions["mujoco"] = version("mujoco")

@@ -8,6 +8,7 @@ its answer is read back before the next one is sent.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shutil
 import subprocess
@@ -59,7 +60,9 @@ class MujocoSettler:
 
     def __exit__(self, *exc) -> None:
         if self.process is not None:
-            self.process.stdin.close()
+            # end of input ends the process; one that already died has nothing left to read
+            with contextlib.suppress(BrokenPipeError):
+                self.process.stdin.close()
             self.process.wait(timeout=30)
             self.process.stdout.close()
             self.process = None

@@ -18,7 +18,7 @@ use serde_json::{Value, json};
         `[settle] engine = \"mujoco\"`, and a line goes out as soon as its drop is settled. A line in is \
         {\"recipe_toml\": TEXT, \"boxes\": [{\"size_m\": [dx, dy, dz], \"mass_kg\": M, \"friction\": MU, \
         \"quat_wxyz\": [w, x, y, z], \"translation_m\": [x, y, z]}, …]} (the recipe's [support] and [settle] \
-        sections apply; the boxes start at rest at those poses). A line out is {\"settled\", \"stable\", \
+        sections apply; each box is dropped from its pose with zero velocity). A line out is {\"settled\", \"stable\", \
         \"rejection\" (null or the Drake stage's reason), \"poses\": [{\"quat_wxyz\", \"translation_m\"}, …], \
         \"settle_time_s\", \"max_linear_speed_mps\", \"max_angular_speed_radps\", \"min_signed_distance_m\", \
         \"wall_time_s\", \"steps\"}, or {\"error\": MESSAGE} for a line that cannot be settled; the next lines \
