@@ -511,3 +511,19 @@ def test_the_pallet_training_recipe_settles_its_boxes_on_the_deck_with_mujoco(tm
     assert (np.abs(centres[:, 0]) <= hx).all() and (np.abs(centres[:, 1]) <= hy).all()
     deck = boxpose_io.schema.PALLET_HEIGHT_M
     assert (centres[:, 2] > deck).all() and (centres[:, 2] < deck + sizes.max(axis=1)).all()
+
+
+def test_the_dense_bin_training_recipe_settles_its_piles_inside_the_bin_with_mujoco(tmp_path):
+    """train_bins (the segmenter's dense bins, settled by MuJoCo) at two scenes: 3–20 boxes per
+    scene, every box inside the bin's walls and on or above its floor."""
+    recipe = Recipe.load(RECIPES / "train_bins.toml")
+    assert recipe.settle.engine == "mujoco" and recipe.support.kind == "bin"
+    summary = run_shard(recipe, tmp_path / "out", num_scenes=2, progress=False)
+    assert summary.accepted >= 1, summary.report()
+    scenes, objects = (read(tmp_path / "out", t).to_pandas() for t in TABLES)
+    assert (scenes.physics_backend == "mujoco").all() and scenes.stable.all()
+    assert objects.groupby("scene_id").size().between(*recipe.boxes.count).all()
+    centres = np.stack(objects.world_box_translation_m)
+    hx, hy = recipe.support.half_extent_m
+    assert (np.abs(centres[:, 0]) < hx).all() and (np.abs(centres[:, 1]) < hy).all()
+    assert (centres[:, 2] > 0).all()
