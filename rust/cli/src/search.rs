@@ -5,7 +5,7 @@
 
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use boxpose_data::{Object, Scene, schema, shard_file_name, write_shard};
@@ -13,6 +13,7 @@ use boxpose_learn::backend::BackendKind;
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_render::Renderer;
+use boxpose_search::external::{self, ExternalSut};
 use boxpose_search::run::{
     IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler, SplittingSummary,
 };
@@ -151,6 +152,21 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Serve this project's pipeline (keypoint network and fit, ground-truth crops) as an external
+    /// system under test on stdin and stdout, protocol boxpose-sut/1: the protocol's reference,
+    /// whose samples equal the built-in path's (`--whole-frames`). Not for a terminal.
+    #[command(after_help = "Example:
+          boxpose search single_box --samples 50 --sut 'exec:boxpose search serve --fit robust' --out results/via-protocol")]
+    Serve {
+        /// Keypoint network folder.
+        #[arg(long, default_value = "models/keypoint-slim")]
+        model: PathBuf,
+        /// The pose fit: paper, fast, robust or size.
+        #[arg(long, default_value = "paper", value_parser = ["paper", "fast", "robust", "size"])]
+        fit: String,
+        #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
+        backend: BackendKind,
+    },
 }
 
 #[derive(clap::Args)]
@@ -194,6 +210,17 @@ struct RunArgs {
     /// Keypoint network folder.
     #[arg(long, default_value = "models/keypoint-slim")]
     model: PathBuf,
+    /// Test another perception system instead of this project's networks and fit:
+    /// `exec:COMMAND` (a long-lived process speaking boxpose-sut/1 on stdin and stdout) or
+    /// `python:MODULE:CALLABLE` (a Python function of one request, served by `python3 -m
+    /// boxpose_io.sut`). It gets each sample's whole frame (RGB, depth, intrinsics, the target's
+    /// true size; with --crops gt its visible box and mask) and answers a pose (docs/search.md).
+    /// A crash or timeout is counted apart, never scored; the process is started again.
+    #[arg(long, value_name = "SPEC", conflicts_with_all = ["fit", "whole_frames"])]
+    sut: Option<String>,
+    /// Seconds the --sut process may take to answer one sample (or to start).
+    #[arg(long, default_value_t = 60.0, value_name = "SECONDS", requires = "sut")]
+    sut_timeout: f64,
     /// Segmenter folder (with --crops predicted).
     #[arg(long, default_value = "models/segmenter-slim")]
     segmenter: PathBuf,
@@ -310,8 +337,30 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             after,
             json,
         }) => compare(before, after, json.as_deref()),
+        Some(Command::Serve {
+            model,
+            fit,
+            backend,
+        }) => serve(model, fit, *backend),
         None => search(&args.run),
     }
+}
+
+/// `search serve`: the own pipeline behind the protocol, until stdin ends.
+fn serve(model: &Path, fit: &str, backend: BackendKind) -> anyhow::Result<()> {
+    let method = sut::method_named(fit).map_err(anyhow::Error::msg)?;
+    let network = KeypointModel::load(model, backend.device()?)
+        .with_context(|| format!("--model {}", model.display()))?;
+    let name = format!(
+        "boxpose {} ({}, fit {fit})",
+        env!("CARGO_PKG_VERSION"),
+        model.display()
+    );
+    let stdin = std::io::stdin().lock();
+    external::serve(&name, stdin, std::io::stdout().lock(), |request| {
+        sut::own_answer(&network, method, request)
+    })?;
+    Ok(())
 }
 
 fn compare(before: &Path, after: &Path, json: Option<&Path>) -> anyhow::Result<()> {
@@ -366,8 +415,11 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         batch_size: args.batch_size,
         seed: args.seed,
         crops,
-        whole_frames: args.whole_frames,
-        fit: args.fit.clone(),
+        whole_frames: args.whole_frames || args.sut.is_some(),
+        fit: match args.sut {
+            Some(_) => EXTERNAL_FIT.into(),
+            None => args.fit.clone(),
+        },
         predicate: args.fail_when,
         ce: CeConfig {
             samples_per_iteration: args.ce_samples_per_iteration,
@@ -387,29 +439,51 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
             initial_rho: args.splitting_initial_rho,
             max_levels: args.splitting_max_levels,
         }),
-        model: args.model.display().to_string(),
-        segmenter: (crops == Crops::Predicted).then(|| args.segmenter.display().to_string()),
+        // with another system under test, the networks and the fit are its own
+        model: match args.sut {
+            Some(_) => String::new(),
+            None => args.model.display().to_string(),
+        },
+        segmenter: (crops == Crops::Predicted && args.sut.is_none())
+            .then(|| args.segmenter.display().to_string()),
+        sut: args.sut.clone(),
     };
     // everything that can be refused is checked before run.json is written (a refused command
     // leaves no run behind to refuse the corrected one) and before the networks and Blender load
     let record = RunRecord::new(&space, settings)?;
-    let method = sut::method_named(&args.fit).map_err(anyhow::Error::msg)?;
     boxpose_search::run::check_shard(args.shard, args.num_shards)?;
-    KeypointModel::check_folder(&args.model)
-        .with_context(|| format!("--model {}", args.model.display()))?;
-    if crops == Crops::Predicted {
-        SegmenterModel::check_folder(&args.segmenter)
-            .with_context(|| format!("--segmenter {}", args.segmenter.display()))?;
+    if let Some(spec) = &args.sut {
+        external::command_of(spec).map_err(anyhow::Error::msg)?;
+        anyhow::ensure!(
+            args.sut_timeout.is_finite() && args.sut_timeout > 0.0,
+            "--sut-timeout {} must be a positive number of seconds",
+            args.sut_timeout
+        );
+    } else {
+        KeypointModel::check_folder(&args.model)
+            .with_context(|| format!("--model {}", args.model.display()))?;
+        if crops == Crops::Predicted {
+            SegmenterModel::check_folder(&args.segmenter)
+                .with_context(|| format!("--segmenter {}", args.segmenter.display()))?;
+        }
     }
     boxpose_render::check_recipe(&space.recipe_toml, &space.file.recipe)
         .context("the search space's base recipe")?;
+    // another system under test starts (and introduces itself) before the run folder is made
+    let mut external = match (&args.sut, args.pending) {
+        (Some(spec), false) => Some(ExternalSut::start(
+            spec,
+            Duration::from_secs_f64(args.sut_timeout),
+        )?),
+        _ => None,
+    };
     let run = Run::create(out, record)?;
     if args.pending {
         println!("{}", serde_json::to_string(&run.pending()?)?);
         return Ok(());
     }
     if let Some((iteration, batch)) = args.batch {
-        let mut sut = system_under_test(args, &space, crops, method)?;
+        let mut sut = system_under_test(args, &space, crops, external.take())?;
         let ran = run.sample_batch(&space, &mut sut, iteration, batch, &mut Silent)?;
         let what = if ran { "done" } else { "was already done" };
         println!("batch {iteration}:{batch} {what}");
@@ -422,7 +496,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
             return Ok(()); // shard 0 merges
         }
     } else {
-        let mut sut = system_under_test(args, &space, crops, method)?;
+        let mut sut = system_under_test(args, &space, crops, external.take())?;
         let mut progress = Progress::new();
         run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
         progress.bar.finish_and_clear();
@@ -447,14 +521,27 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The networks, the embedded Blender and the fit under test, as the arguments ask (models and
-/// Blender load here: everything that can be refused is checked before).
+/// What `fit` records for a run of another system under test (its fit is its own).
+const EXTERNAL_FIT: &str = "external";
+
+/// The networks, the embedded Blender and the fit under test, or the external system (started
+/// before the run folder was made), as the arguments ask (models and Blender load here:
+/// everything that can be refused is checked before).
 fn system_under_test(
     args: &RunArgs,
     space: &SearchSpace,
     crops: Crops,
-    method: boxpose_geometry::pipeline::Method,
+    external: Option<ExternalSut>,
 ) -> anyhow::Result<SystemUnderTest> {
+    if let Some(system) = external {
+        return Ok(SystemUnderTest::external(
+            space,
+            Renderer::new(args.threads)?,
+            system,
+            crops,
+        )?);
+    }
+    let method = sut::method_named(&args.fit).map_err(anyhow::Error::msg)?;
     let device = args.backend.device()?;
     let model = KeypointModel::load(&args.model, device.clone())?;
     let segmenter = match crops {
@@ -481,6 +568,17 @@ fn system_of(
         run.record.pile.clone(),
     )?;
     let settings = &run.record.settings;
+    if let Some(spec) = &settings.sut {
+        anyhow::ensure!(
+            model.is_none(),
+            "{}: the run tested another system (--sut {spec}); --model does not apply",
+            run.dir.display()
+        );
+        let system = ExternalSut::start(spec, Duration::from_secs(60))?;
+        let renderer = Renderer::new(threads)?;
+        let sut = SystemUnderTest::external(&space, renderer, system, settings.crops)?;
+        return Ok((space, sut));
+    }
     let device = backend.device()?;
     let model_dir = model.map_or_else(|| PathBuf::from(&settings.model), Path::to_path_buf);
     let network = KeypointModel::load(&model_dir, device.clone())?;

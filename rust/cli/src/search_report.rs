@@ -326,7 +326,7 @@ fn page(
     )?;
     writeln!(
         h,
-        "<h1>Counterexample search</h1><p>Run <code>{}</code>: sampler <b>{}</b>, {} crops, fit <b>{}</b>; a sample fails when {}.</p>",
+        "<h1>Counterexample search</h1><p>Run <code>{}</code>: sampler <b>{}</b>, {} crops, {}; a sample fails when {}.</p>",
         escape(&run.dir.display().to_string()),
         s.sampler.name(),
         if s.crops == boxpose_search::sut::Crops::Gt {
@@ -334,7 +334,10 @@ fn page(
         } else {
             "segmenter"
         },
-        escape(&s.fit),
+        match &s.sut {
+            Some(spec) => format!("system under test <code>{}</code>", escape(spec)),
+            None => format!("fit <b>{}</b>", escape(&s.fit)),
+        },
         escape(&s.predicate.to_string())
     )?;
     match summary.as_ref().and_then(|v| v.get("estimate")) {

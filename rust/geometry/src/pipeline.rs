@@ -119,6 +119,42 @@ impl Fitted {
         }
     }
 
+    /// A pose another system reported (`boxpose search --sut`): its box (of the true size, or of
+    /// the size it fitted) and its own confidence, NaN when it gave none; no per-point detail.
+    pub fn reported(
+        model: BoxModel,
+        pose: Isometry3<f64>,
+        fits_size: bool,
+        confidence: f64,
+    ) -> Self {
+        Self {
+            model,
+            pose,
+            fits_size,
+            own_confidence: Some(FitConfidence {
+                confidence,
+                margin_nats: f64::NAN,
+                inliers: 0,
+                noise_scale_m: f64::NAN,
+                mirror_ambiguous: false,
+            }),
+            inlier_corners: None,
+            residuals: None,
+        }
+    }
+
+    /// How far this fit is from the truth ([`Scores`]), `points` the peaks it was fitted to (for
+    /// the confidence of the fits that do not assess themselves).
+    pub fn score(
+        &self,
+        fit_time_us: f64,
+        model: &BoxModel,
+        truth: &Isometry3<f64>,
+        points: &[Point3<f64>],
+    ) -> FitOutcome {
+        score_fitted(self, fit_time_us, model, truth, points).into()
+    }
+
     /// Per point, whether the fit counts it as an inlier; None for the fits that do not say.
     pub fn inliers(&self) -> Option<Vec<bool>> {
         let corners = self.inlier_corners.as_ref()?;
@@ -447,11 +483,10 @@ impl FitRun {
         truth: &Isometry3<f64>,
         points: &[Point3<f64>],
     ) -> FitOutcome {
-        let fitted = match &self.fitted {
-            Ok(fitted) => fitted,
-            Err(e) => return FitOutcome::Failed(e.to_string()),
-        };
-        score_fitted(fitted, self.fit_time_us, model, truth, points).into()
+        match &self.fitted {
+            Ok(fitted) => fitted.score(self.fit_time_us, model, truth, points),
+            Err(e) => FitOutcome::Failed(e.to_string()),
+        }
     }
 }
 

@@ -102,6 +102,10 @@ pub struct RunSettings {
     /// The networks, as given (their files are not hashed).
     pub model: String,
     pub segmenter: Option<String>,
+    /// An external system under test (`exec:COMMAND` or `python:MODULE:CALLABLE`), instead of
+    /// the networks; as given (what it runs is not hashed).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sut: Option<String>,
 }
 
 /// `run.json`.
@@ -1197,7 +1201,10 @@ impl Run {
             warnings: match &splitting {
                 Some(run) => splitting_warnings(run, &headline),
                 None => warnings(&headline),
-            },
+            }
+            .into_iter()
+            .chain(system_errors_warning(samples))
+            .collect(),
             strata: match &splitting {
                 Some(_) => vec![StratumSummary::whole(&headline)],
                 None => self
@@ -1292,6 +1299,26 @@ pub fn warnings(e: &ImportanceEstimate) -> Vec<String> {
         ));
     }
     out
+}
+
+/// Samples an external system under test did not answer (crashed, timed out, broke the
+/// protocol): not scored, so p̂ holds only the samples it answered — if its errors come with hard
+/// inputs, p̂ is too low.
+fn system_errors_warning(samples: &[SampleRow]) -> Option<String> {
+    let errors = samples
+        .iter()
+        .filter(|r| {
+            r.invalid_reason
+                .as_deref()
+                .is_some_and(|reason| reason.starts_with("system under test"))
+        })
+        .count();
+    (errors > 0).then(|| {
+        format!(
+            "the system under test did not answer {errors} of {} samples (crash, timeout or a broken answer; see invalid_reason): they are not scored, so p̂ is over the samples it answered",
+            samples.len()
+        )
+    })
 }
 
 /// Why a subset simulation's interval may not be trusted: few lineages behind the final
@@ -1573,7 +1600,7 @@ fn sample_row(
             row.rotation_error_deg = Some(m.rotation_error_deg);
             row.translation_error_m = Some(m.translation_error_m);
             row.score = Some(score);
-            row.fit_confidence = Some(m.confidence);
+            row.fit_confidence = m.confidence;
             row.fitted_corners_camera_m =
                 Some(m.fitted_corners.iter().flatten().copied().collect());
             row.failed = score > 0.0;
@@ -1840,6 +1867,7 @@ mod tests {
                 splitting: None,
                 model: "models/keypoint-slim".into(),
                 segmenter: None,
+                sut: None,
             },
             space_toml: "name = \"single_box\"".into(),
             recipe_toml: String::new(),

@@ -1,6 +1,7 @@
 //! The system under test, one sample end to end in one process: sampled inputs → scene rows →
 //! MuJoCo settle → render (embedded Blender) → perception (keypoint network on a ground-truth or
-//! segmenter crop) → pose fit → metrics → the failure predicate.
+//! segmenter crop, and a pose fit; or another system's process, [`crate::external`]) → metrics →
+//! the failure predicate.
 
 use std::time::Instant;
 
@@ -8,16 +9,17 @@ use arrow::record_batch::RecordBatch;
 use boxpose_data::{Frame, Instance, Object, Scene};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
-use boxpose_geometry::pipeline::{FitOutcome, Method, Scores};
+use boxpose_geometry::pipeline::{FitOutcome, FitRun, Fitted, Method, Scores};
 use boxpose_learn::data;
 use boxpose_learn::evaluation::{self, CropSource};
-use boxpose_learn::inference::{self, BoxQuery, KeypointModel};
+use boxpose_learn::inference::{self, BoxQuery, CropRequest, KeypointModel};
 use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_physics::RecipePhysics;
 use boxpose_render::{RenderRequest, Renderer};
 use nalgebra::{Point3, Vector3};
 
 use crate::error::{Result, SearchError};
+use crate::external::{self, Answer, ExternalSut};
 use crate::scene::{self, TARGET_OBJECT_ID};
 use crate::space::SearchSpace;
 
@@ -140,8 +142,9 @@ pub struct Metrics {
     pub add_s_m: f64,
     pub rotation_error_deg: f64,
     pub translation_error_m: f64,
-    /// The fit's own confidence (geometry `FitConfidence`).
-    pub confidence: f64,
+    /// The fit's own confidence (geometry `FitConfidence`); None when an external system gave
+    /// none.
+    pub confidence: Option<f64>,
     /// The fitted box's corners, camera frame.
     pub fitted_corners: [[f64; 3]; 8],
 }
@@ -157,7 +160,7 @@ impl Metrics {
             add_s_m: scores.add_s_m,
             rotation_error_deg: scores.rotation_error_deg,
             translation_error_m: scores.translation_error_m,
-            confidence: scores.confidence,
+            confidence: Some(scores.confidence),
             fitted_corners: scores.fitted_corners,
         }
     }
@@ -171,9 +174,9 @@ impl Metrics {
             self.add_s_m,
             self.rotation_error_deg,
             self.translation_error_m,
-            self.confidence,
         ]
         .iter()
+        .chain(self.confidence.iter())
         .chain(self.fitted_corners.iter().flatten())
         .all(|v| v.is_finite())
     }
@@ -186,6 +189,9 @@ pub enum Invalid {
     NotStable(String),
     /// The target box is less visible than the evaluation's minimum (occluded or out of view).
     NotVisible { visible_fraction: f32 },
+    /// An external system under test broke the protocol, crashed or timed out: neither a failure
+    /// of the pipeline nor a pass, counted apart.
+    SystemUnderTest(String),
 }
 
 impl std::fmt::Display for Invalid {
@@ -195,6 +201,7 @@ impl std::fmt::Display for Invalid {
             Invalid::NotVisible { visible_fraction } => {
                 write!(f, "target {:.0}% visible", 100.0 * visible_fraction)
             }
+            Invalid::SystemUnderTest(reason) => write!(f, "system under test: {reason}"),
         }
     }
 }
@@ -250,14 +257,28 @@ pub trait Evaluate {
     ) -> Result<Outcome>;
 }
 
-/// Everything loaded once for a search: the renderer (one per process), the networks, the fit.
+/// Who finds the target and its pose.
+// One per search process, never moved after it is made: boxing the networks would only add an
+// indirection.
+#[allow(clippy::large_enum_variant)]
+pub enum Perceiver {
+    /// This project's pipeline: the keypoint network on a ground-truth or segmenter crop, a fit.
+    Own {
+        model: KeypointModel,
+        segmenter: Option<SegmenterModel>,
+        method: Method,
+    },
+    /// Another system, a process speaking [`external::PROTOCOL`], on whole frames.
+    External(ExternalSut),
+}
+
+/// Everything loaded once for a search: the renderer (one per process), the networks and the fit
+/// or the external system.
 pub struct SystemUnderTest {
     pub physics: RecipePhysics,
     renderer: Renderer,
-    model: KeypointModel,
-    segmenter: Option<SegmenterModel>,
+    perceiver: Perceiver,
     pub crops: Crops,
-    pub method: Method,
     /// Targets less visible than this are not scored (as `boxpose eval`'s default).
     pub min_visible_fraction: f32,
     /// Render whole frames even for ground-truth crops (the reference the region renders are
@@ -282,12 +303,32 @@ impl SystemUnderTest {
         Ok(Self {
             physics: RecipePhysics::from_toml(&space.recipe_toml)?,
             renderer,
-            model,
-            segmenter,
+            perceiver: Perceiver::Own {
+                model,
+                segmenter,
+                method,
+            },
             crops,
-            method,
             min_visible_fraction: 0.25,
             whole_frames: false,
+        })
+    }
+
+    /// Another system under test: it gets whole frames (with ground-truth crops, the target's
+    /// visible box and mask too) and answers with a pose.
+    pub fn external(
+        space: &SearchSpace,
+        renderer: Renderer,
+        system: ExternalSut,
+        crops: Crops,
+    ) -> Result<Self> {
+        Ok(Self {
+            physics: RecipePhysics::from_toml(&space.recipe_toml)?,
+            renderer,
+            perceiver: Perceiver::External(system),
+            crops,
+            min_visible_fraction: 0.25,
+            whole_frames: true,
         })
     }
 }
@@ -351,8 +392,43 @@ impl Evaluate for SystemUnderTest {
             });
             return Ok(outcome);
         }
-        let (perceived, peaks) = self.perceive(&frame, instance, &mut outcome.seconds)?;
-        outcome.result = Ok(perceived);
+        let (perceived, peaks) = match &mut self.perceiver {
+            Perceiver::Own {
+                model,
+                segmenter,
+                method,
+            } => {
+                let crops = match segmenter {
+                    Some(segmenter) if self.crops == Crops::Predicted => {
+                        CropSource::Segmenter(segmenter)
+                    }
+                    _ => CropSource::GroundTruth,
+                };
+                let (perceived, peaks) = perceive(
+                    model,
+                    *method,
+                    crops,
+                    &frame,
+                    instance,
+                    &mut outcome.seconds,
+                )?;
+                (Ok(perceived), peaks)
+            }
+            Perceiver::External(system) => {
+                let crop = match self.crops {
+                    Crops::Gt => instance.visible_bbox,
+                    Crops::Predicted => None,
+                };
+                let start = Instant::now();
+                let answer = system.perceive(scene_id, &frame, instance, crop);
+                outcome.seconds.inference = start.elapsed().as_secs_f64();
+                match answer {
+                    Ok(answer) => score_answer(answer, instance)?,
+                    Err(reason) => (Err(Invalid::SystemUnderTest(reason)), Vec::new()),
+                }
+            }
+        };
+        outcome.result = perceived;
         outcome.peaks = peaks;
         Ok(outcome)
     }
@@ -365,9 +441,12 @@ impl SystemUnderTest {
     /// the window leaves it, the scene is rendered again with the region that holds any window
     /// (the projected box grown by the margin on every side).
     fn render_frame(&mut self, scene_id: i64) -> Result<(Frame, boxpose_render::Rendered)> {
-        let margin = self.model.config.crop_margin;
-        let mut margins: &[f64] = match self.crops {
-            Crops::Gt if !self.whole_frames => &[margin, 1.0 + margin],
+        let margin = match &self.perceiver {
+            Perceiver::Own { model, .. } => model.config.crop_margin,
+            Perceiver::External(_) => 0.0,
+        };
+        let mut margins: &[f64] = match (&self.perceiver, self.crops) {
+            (Perceiver::Own { .. }, Crops::Gt) if !self.whole_frames => &[margin, 1.0 + margin],
             _ => &[],
         };
         loop {
@@ -404,57 +483,146 @@ impl SystemUnderTest {
             margins = &margins[1..];
         }
     }
+}
 
-    /// The target through [`inference::perceive`], as `boxpose eval` and `boxpose predict` see
-    /// it, with the fit under test scored against its truth.
-    fn perceive(
-        &self,
-        frame: &Frame,
-        instance: &Instance,
-        seconds: &mut StageSeconds,
-    ) -> Result<(Perceived, Vec<[f64; 3]>)> {
-        let start = Instant::now();
-        let crops = match &self.segmenter {
-            Some(segmenter) if self.crops == Crops::Predicted => CropSource::Segmenter(segmenter),
-            _ => CropSource::GroundTruth,
-        };
-        let found = evaluation::instance_crops(&self.model.config, frame, &[instance], crops)?;
-        let Some(crop) = found.crops[0] else {
-            seconds.inference = start.elapsed().as_secs_f64();
-            return Ok((Perceived::NotDetected, Vec::new()));
-        };
-        let model = BoxModel::new(Vector3::from(instance.size))?;
-        let query = BoxQuery {
-            crop,
-            known_box: Some(model),
-        };
-        let perception =
-            inference::perceive(&self.model, frame, &[query], &[self.method], 1)?.remove(0);
-        let fit = &perception.fits[0];
-        seconds.inference = start.elapsed().as_secs_f64() - fit.fit_time_us / 1e6;
+/// The target through [`inference::perceive`], as `boxpose eval` and `boxpose predict` see it,
+/// with the fit under test scored against its truth.
+fn perceive(
+    model: &KeypointModel,
+    method: Method,
+    crops: CropSource,
+    frame: &Frame,
+    instance: &Instance,
+    seconds: &mut StageSeconds,
+) -> Result<(Perceived, Vec<[f64; 3]>)> {
+    let start = Instant::now();
+    let found = evaluation::instance_crops(&model.config, frame, &[instance], crops)?;
+    let Some(crop) = found.crops[0] else {
+        seconds.inference = start.elapsed().as_secs_f64();
+        return Ok((Perceived::NotDetected, Vec::new()));
+    };
+    let known = BoxModel::new(Vector3::from(instance.size))?;
+    let (fit, points) = perceive_crop(model, method, frame, crop, known)?;
+    seconds.inference = start.elapsed().as_secs_f64() - fit.fit_time_us / 1e6;
 
-        let start = Instant::now();
-        let outcome = fit.score(&model, &evaluation::true_pose(instance), &perception.points);
-        seconds.fit = fit.fit_time_us / 1e6 + start.elapsed().as_secs_f64();
-        let perceived = match outcome {
-            FitOutcome::Scored(s) => match Metrics::of(&s, instance.size) {
+    let start = Instant::now();
+    let outcome = fit.score(&known, &evaluation::true_pose(instance), &points);
+    seconds.fit = fit.fit_time_us / 1e6 + start.elapsed().as_secs_f64();
+    Ok((
+        perceived(outcome, instance.size, true),
+        corner_list(&points),
+    ))
+}
+
+/// This project's perception of one box on `crop`: the network, its NMS peaks back-projected
+/// (camera frame), and `method`'s fit of a box of `known` size, its mirror tie settled with the
+/// frame's depth ([`inference::perceive`]).
+fn perceive_crop(
+    model: &KeypointModel,
+    method: Method,
+    frame: &Frame,
+    crop: CropRequest,
+    known: BoxModel,
+) -> Result<(FitRun, Vec<Point3<f64>>)> {
+    let query = BoxQuery {
+        crop,
+        known_box: Some(known),
+    };
+    let mut perception = inference::perceive(model, frame, &[query], &[method], 1)?.remove(0);
+    Ok((perception.fits.remove(0), perception.points))
+}
+
+fn corner_list(points: &[Point3<f64>]) -> Vec<[f64; 3]> {
+    points.iter().map(|p| [p.x, p.y, p.z]).collect()
+}
+
+/// A fit's outcome for a box of true `size` as a sample's: scored metrics (a non-finite one is a fit that failed, named as
+/// such: a committed sample must read back), a failed fit, or no box. `with_confidence`: the
+/// fit's confidence is its own (false: an external system gave none).
+fn perceived(outcome: FitOutcome, size: [f64; 3], with_confidence: bool) -> Perceived {
+    match outcome {
+        FitOutcome::Scored(s) => {
+            let mut metrics = Metrics::of(&s, size);
+            if !with_confidence {
+                metrics.confidence = None;
+            }
+            match metrics {
                 m if m.is_finite() => Perceived::Fitted(m),
-                // a committed sample must read back: a NaN metric is a fit that failed, named as
-                // such
                 m => Perceived::FitFailed(format!("the fit's metrics are not finite: {m:?}")),
-            },
-            FitOutcome::Failed(e) => Perceived::FitFailed(e),
-            FitOutcome::NotDetected => Perceived::NotDetected,
-        };
-        Ok((
-            perceived,
-            perception
-                .points
-                .iter()
-                .map(|p: &Point3<f64>| [p.x, p.y, p.z])
-                .collect(),
-        ))
+            }
+        }
+        FitOutcome::Failed(e) => Perceived::FitFailed(e),
+        FitOutcome::NotDetected => Perceived::NotDetected,
     }
+}
+
+/// A sample's perception: scored (or failed), or not scored and why.
+type ScoredOrInvalid = std::result::Result<Perceived, Invalid>;
+
+/// An external system's answer scored against the target's truth, as the own pipeline's fit is.
+fn score_answer(answer: Answer, instance: &Instance) -> Result<(ScoredOrInvalid, Vec<[f64; 3]>)> {
+    let known = BoxModel::new(Vector3::from(instance.size))?;
+    Ok(match answer {
+        Answer::NotFound => (Ok(Perceived::NotDetected), Vec::new()),
+        Answer::FitFailed(reason) => (Ok(Perceived::FitFailed(reason)), Vec::new()),
+        Answer::Found {
+            pose,
+            size_m,
+            confidence,
+            peaks,
+        } => {
+            let estimate = match size_m {
+                Some(size) => BoxModel::new(Vector3::from(size))?,
+                None => known,
+            };
+            let fitted = Fitted::reported(
+                estimate,
+                pose,
+                size_m.is_some(),
+                confidence.unwrap_or(f64::NAN),
+            );
+            let outcome = fitted.score(0.0, &known, &evaluation::true_pose(instance), &[]);
+            (
+                Ok(perceived(outcome, instance.size, confidence.is_some())),
+                peaks,
+            )
+        }
+    })
+}
+
+/// The project's own pipeline as an external system (`boxpose sut-serve`, the protocol's
+/// reference): one request with a ground-truth crop answered as the search's own path answers it.
+pub fn own_answer(
+    model: &KeypointModel,
+    method: Method,
+    request: &external::Request,
+) -> Result<Answer> {
+    let header = &request.header;
+    let Some(bbox) = header.crop else {
+        return Err(SearchError::Sample(
+            "the own pipeline's server has no segmenter: run the search with --crops gt".into(),
+        ));
+    };
+    let frame = &request.frame;
+    let label = (header.target_object_id + 1) as u16;
+    let Some(crop) = CropRequest::around(frame, &model.config, bbox, |i| {
+        frame.instance_mask[i] == label
+    }) else {
+        return Ok(Answer::FitFailed(
+            "no visible pixel with a depth to crop".into(),
+        ));
+    };
+    let known = BoxModel::new(Vector3::from(header.box_size_m))?;
+    let (fit, points) = perceive_crop(model, method, frame, crop, known)?;
+    Ok(match fit.fitted {
+        Ok(fitted) => Answer::Found {
+            pose: fitted.pose,
+            size_m: fitted.fits_size.then(|| fitted.model.size().into()),
+            confidence: Some(fitted.confidence(&points)?.confidence),
+            peaks: corner_list(&points),
+        },
+        Err(e) => Answer::FitFailed(e.to_string()),
+    })
 }
 
 /// Whether the network's window around the visible `bbox` (crop-frame pixels) lies inside the

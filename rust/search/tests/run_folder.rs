@@ -72,7 +72,7 @@ impl Evaluate for ClosedForm {
                 add_s_m: error,
                 rotation_error_deg: 0.0,
                 translation_error_m: 0.0,
-                confidence: 1.0,
+                confidence: Some(1.0),
                 fitted_corners: [[0.0; 3]; 8],
             })),
             seconds: StageSeconds::default(),
@@ -137,6 +137,7 @@ fn settings(sampler: Sampler, samples: usize, batch_size: usize) -> RunSettings 
         }),
         model: "closed form".into(),
         segmenter: None,
+        sut: None,
     }
 }
 

@@ -1,0 +1,169 @@
+"""`boxpose search --sut`: another perception system under test, a process speaking
+boxpose-sut/1 — the project's own pipeline through the protocol (`boxpose search serve`) equals
+the built-in path sample for sample; a Python function (examples/sut/pca_baseline.py) is scored;
+a system that crashes, hangs or cannot fit is counted apart and started again; a system that
+cannot start is refused before any run folder is made. Real MuJoCo, the embedded Blender at 96²,
+real subprocesses."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import REPO, TINY_SEARCH_SPACE
+from test_search import recipe
+
+COMMON = ["--samples", 4, "--batch-size", 2, "--seed", 5, "--threads", 1]
+METRICS = [
+    "paper_error",
+    "paper_error_normalized",
+    "mssd_over_diameter",
+    "cube_mssd_over_diameter",
+    "add_s_m",
+    "translation_error_m",
+    "fit_confidence",
+]
+PYTHON_SUT = f"exec:{sys.executable} -m boxpose_io.sut"
+
+
+@pytest.fixture(scope="module")
+def space(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("space")
+    (root / "floor.toml").write_text(recipe("single_box"))
+    (root / "single.toml").write_text(TINY_SEARCH_SPACE.format(recipe=root / "floor.toml"))
+    return root / "single.toml"
+
+
+def search(boxpose_bin: Path, *args, check=True, env=None) -> subprocess.CompletedProcess:
+    r = subprocess.run(
+        [str(boxpose_bin), "search", *map(str, args)],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=600,
+        env=env,
+    )
+    if check:
+        assert r.returncode == 0, r.stdout + r.stderr
+    return r
+
+
+def test_the_own_pipeline_through_the_protocol_equals_the_built_in_path(
+    space, boxpose_bin, tmp_path
+):
+    built_in, protocol = tmp_path / "built_in", tmp_path / "protocol"
+    search(boxpose_bin, space, *COMMON, "--fit", "robust", "--whole-frames", "--out", built_in)
+    serve = f"exec:{boxpose_bin} search serve --fit robust"
+    search(boxpose_bin, space, *COMMON, "--sut", serve, "--out", protocol)
+
+    a = pd.read_parquet(built_in / "samples.parquet")
+    b = pd.read_parquet(protocol / "samples.parquet")
+    assert a.valid.sum() >= 2 and a.paper_error.notna().sum() >= 2, a.invalid_reason.tolist()
+    for column in ("sample_id", "valid", "invalid_reason", "detected", "fit_error", "failed"):
+        assert a[column].tolist() == b[column].tolist(), column
+    for column in METRICS:
+        np.testing.assert_allclose(a[column], b[column], rtol=1e-9, atol=1e-12, err_msg=column)
+    # the rotation error's arccos is steep near 0: the 4×4 text round trip moves it by < 1e-6°
+    np.testing.assert_allclose(a.rotation_error_deg, b.rotation_error_deg, atol=1e-6)
+    for x, y in zip(a.peaks_camera_m, b.peaks_camera_m, strict=True):
+        assert (x is None) == (y is None) and (x is None or np.array_equal(x, y))
+
+    record = json.loads((protocol / "run.json").read_text())["settings"]
+    assert record["sut"] == serve and record["fit"] == "external" and record["whole_frames"]
+    timings = pd.read_parquet(protocol / "timings.parquet")
+    assert (timings.inference_s[b.valid.to_numpy()] > 0).all()
+    page = (protocol / "report" / "index.html").read_text()
+    assert "system under test" in page and "search serve" in page
+
+
+def test_a_python_function_is_scored_through_the_protocol(space, boxpose_bin, tmp_path):
+    out = tmp_path / "pca"
+    # the `python:` form runs python3 from PATH: this interpreter's
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    search(
+        boxpose_bin,
+        space,
+        *COMMON,
+        "--sut",
+        "python:examples.sut.pca_baseline:perceive",
+        "--fail-when",
+        "cube-mssd:0.1",
+        "--out",
+        out,
+        env=env,
+    )
+    samples = pd.read_parquet(out / "samples.parquet")
+    fitted = samples[samples.valid & samples.detected]
+    assert len(fitted) >= 2, samples.invalid_reason.tolist()
+    assert fitted.cube_mssd_over_diameter.notna().all()
+    assert (fitted.failed == (fitted.cube_mssd_over_diameter > 0.1)).all()
+    # a baseline of no network still lands near the box: the translation is the mask's
+    assert (fitted.translation_error_m < 0.1).all(), fitted.translation_error_m.tolist()
+    assert fitted.fit_confidence.isna().all()  # it gives none
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["estimate"]["samples"] == 4 and not summary["warnings"]
+
+
+def test_a_system_that_crashes_hangs_or_cannot_fit_is_counted_apart(space, boxpose_bin, tmp_path):
+    out = tmp_path / "misbehaves"
+    r = search(
+        boxpose_bin,
+        space,
+        "--samples",
+        8,
+        "--batch-size",
+        4,
+        "--seed",
+        5,
+        "--threads",
+        1,
+        "--sut",
+        f"{PYTHON_SUT} tests.sut_fixtures:misbehaves",
+        "--sut-timeout",
+        5,
+        "--out",
+        out,
+    )
+    samples = pd.read_parquet(out / "samples.parquet")
+    reached = samples[
+        ~samples.invalid_reason.fillna("").str.match(r"not stable|target \d+% visible")
+    ]
+    kinds = {k: reached[reached.sample_id % 4 == k] for k in range(4)}
+    assert all(len(rows) > 0 for rows in kinds.values()), samples.invalid_reason.tolist()
+    # found nothing: a failure of the system; its print went to stderr, not into the protocol
+    assert (kinds[0].valid & kinds[0].failed & (kinds[0].detected == False)).all()  # noqa: E712
+    assert "must go to stderr" in r.stderr
+    # crashed or hung: not scored, named, and the process started again for the next sample
+    for k, said in ((1, "exited"), (2, "no answer within 5 s")):
+        rows = kinds[k]
+        assert (~rows.valid & ~rows.failed).all()
+        assert rows.invalid_reason.str.startswith("system under test").all()
+        assert rows.invalid_reason.str.contains(said).all(), rows.invalid_reason.tolist()
+    # cannot fit: a failure, with the system's reason
+    assert (kinds[3].failed & (kinds[3].fit_error == "too few points")).all()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["invalid_reasons"]["system under test"] == len(kinds[1]) + len(kinds[2])
+    assert any("did not answer" in w for w in summary["warnings"]), summary["warnings"]
+
+
+@pytest.mark.parametrize(
+    ("sut", "said"),
+    [
+        ("nonsense", "use exec:COMMAND"),
+        ("python:only_a_module", "python:MODULE:CALLABLE"),
+        ("exec:true", "did not introduce itself"),
+        ('exec:echo \'{"protocol": "boxpose-sut/0"}\'', "speaks boxpose-sut/0"),
+    ],
+)
+def test_a_system_that_cannot_start_is_refused_before_any_run_folder(
+    sut, said, space, boxpose_bin, tmp_path
+):
+    out = tmp_path / "run"
+    r = search(boxpose_bin, space, *COMMON, "--sut", sut, "--out", out, check=False)
+    assert r.returncode != 0 and said in r.stderr, r.stderr
+    assert not out.exists()
