@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use anyhow::Context;
+use boxpose_learn::backend::BackendKind;
 use boxpose_search::compare::{PairedComparison, compare};
 use boxpose_search::run::Run;
 
@@ -108,6 +109,11 @@ pub struct Args {
     /// Cycles threads of the renders (0 = all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Backend of every step's networks (searches, variants, fine-tuning; a binary built with
+    /// it, e.g. `make train BACKEND=tch`'s). Not part of the loop's identity: a resumed loop
+    /// may change it.
+    #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
+    backend: BackendKind,
 }
 
 impl Args {
@@ -278,6 +284,8 @@ fn search_command(args: &Args, model: &Path, samples: usize, seed: u64, out: &Pa
         args.fail_when.clone(),
         "--threads".into(),
         args.threads.to_string(),
+        "--backend".into(),
+        backend_arg(args.backend),
     ];
     if let Some(segmenter) = &args.segmenter {
         command.extend(["--segmenter".into(), path_arg(segmenter)]);
@@ -320,6 +328,8 @@ fn variants_command(args: &Args, round: usize, search: &Path, out: &Path) -> Vec
         (args.seed + round as u64).to_string(),
         "--threads".into(),
         args.threads.to_string(),
+        "--backend".into(),
+        backend_arg(args.backend),
     ]
 }
 
@@ -336,6 +346,8 @@ fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path)
         args.learning_rate.to_string(),
         "--out".into(),
         path_arg(out),
+        "--backend".into(),
+        backend_arg(args.backend),
     ];
     if let Some(batch) = args.batch_size_train {
         command.extend(["--batch-size".into(), batch.to_string()]);
@@ -353,6 +365,14 @@ fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path)
         command.extend(["--repeat".into(), counts.join(",")]);
     }
     command
+}
+
+/// The backend as the child commands' `--backend` spells it.
+fn backend_arg(backend: BackendKind) -> String {
+    clap::ValueEnum::to_possible_value(&backend)
+        .expect("every backend has a name")
+        .get_name()
+        .to_string()
 }
 
 fn path_arg(path: &Path) -> String {
