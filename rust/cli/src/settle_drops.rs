@@ -1,13 +1,12 @@
 //! `boxpose settle-drops`: the scene stage's MuJoCo engine. The Drake stage samples and projects
 //! a scene (python/drake_scenes) and hands its drop here as one JSON line; this answers with one
 //! JSON line: the settled poses and the certificate, under the Drake stage's stop rule and
-//! checks (`boxpose-physics`).
+//! checks (`boxpose_physics::settle_drop`).
 
 use std::io::{BufRead, Write};
 
 use anyhow::Context;
-use boxpose_physics::{BoxBody, Pose, RecipePhysics, SceneDescription, settle};
-use serde_json::{Value, json};
+use serde_json::json;
 
 /// Command-line options of `boxpose settle-drops`.
 #[derive(clap::Args)]
@@ -36,80 +35,11 @@ pub fn run(_args: &Args) -> anyhow::Result<()> {
         if line.trim().is_empty() {
             continue;
         }
-        let answer = settle_line(&line)
-            .unwrap_or_else(|e| json!({"error": format!("line {}: {e:#}", number + 1)}));
+        let answer = boxpose_physics::settle_drop(&line)
+            .unwrap_or_else(|e| json!({"error": format!("line {}: {e}", number + 1)}));
         // one line per drop, flushed: the caller waits for it before sending the next
         writeln!(stdout, "{answer}")?;
         stdout.flush()?;
     }
     Ok(())
-}
-
-fn settle_line(line: &str) -> anyhow::Result<Value> {
-    let drop: Value = serde_json::from_str(line).context("not a JSON object")?;
-    let recipe_toml = drop["recipe_toml"]
-        .as_str()
-        .context("\"recipe_toml\" must be the recipe's TOML text")?;
-    let recipe = RecipePhysics::from_toml(recipe_toml).context("recipe_toml")?;
-    let boxes = drop["boxes"]
-        .as_array()
-        .context("\"boxes\" must be a list")?
-        .iter()
-        .enumerate()
-        .map(|(i, b)| box_body(b).with_context(|| format!("boxes[{i}]")))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    let scene = SceneDescription {
-        support: recipe.support,
-        boxes,
-    };
-    let outcome = settle(&scene, &recipe.settle)?;
-    let c = &outcome.certificate;
-    Ok(json!({
-        "settled": outcome.settled,
-        "stable": outcome.stable,
-        "rejection": outcome.rejection.map(|r| r.as_str()),
-        "poses": outcome.poses.iter().map(|p| json!({
-            "quat_wxyz": p.quat_wxyz,
-            "translation_m": p.translation,
-        })).collect::<Vec<_>>(),
-        "settle_time_s": c.settle_time_s,
-        "max_linear_speed_mps": c.max_linear_speed_mps,
-        "max_angular_speed_radps": c.max_angular_speed_radps,
-        "min_signed_distance_m": c.min_signed_distance_m,
-        "wall_time_s": c.wall_time_s,
-        "steps": c.steps,
-    }))
-}
-
-fn numbers<const N: usize>(value: &Value, key: &str) -> anyhow::Result<[f64; N]> {
-    let list = value[key]
-        .as_array()
-        .filter(|l| l.len() == N)
-        .with_context(|| format!("\"{key}\" must be a list of {N} numbers"))?;
-    let mut out = [0.0; N];
-    for (slot, v) in out.iter_mut().zip(list) {
-        *slot = v
-            .as_f64()
-            .with_context(|| format!("\"{key}\" must be a list of {N} numbers, got {v}"))?;
-    }
-    Ok(out)
-}
-
-fn number(value: &Value, key: &str) -> anyhow::Result<f64> {
-    value[key]
-        .as_f64()
-        .with_context(|| format!("\"{key}\" must be a number"))
-}
-
-fn box_body(value: &Value) -> anyhow::Result<BoxBody> {
-    Ok(BoxBody {
-        size: numbers(value, "size_m")?,
-        mass_kg: number(value, "mass_kg")?,
-        friction: number(value, "friction")?,
-        initial: Pose {
-            quat_wxyz: numbers(value, "quat_wxyz")?,
-            translation: numbers(value, "translation_m")?,
-        },
-        at_rest: false,
-    })
 }

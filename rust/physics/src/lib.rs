@@ -10,12 +10,14 @@
 //! at z = 0 (see [`Support`]). Poses are `T_world_box` as in the dataset contract: unit quaternion (w, x, y, z)
 //! and the box centre.
 
+mod drops;
 mod error;
 mod mjcf;
 mod scene;
 mod settle;
 
 pub use boxpose_data::Pose;
+pub use drops::settle_drop;
 pub use error::{PhysicsError, Result};
 pub use mjcf::{
     CONTACT_SOLIMP, CONTACT_SOLREF, CREEP_CURE, Cone, CreepCure, IMPRATIO, Integrator,
