@@ -285,7 +285,7 @@ fn search_command(args: &Args, model: &Path, samples: usize, seed: u64, out: &Pa
         "--threads".into(),
         args.threads.to_string(),
         "--backend".into(),
-        backend_arg(args.backend),
+        args.backend.name().into(),
     ];
     if let Some(segmenter) = &args.segmenter {
         command.extend(["--segmenter".into(), path_arg(segmenter)]);
@@ -329,7 +329,7 @@ fn variants_command(args: &Args, round: usize, search: &Path, out: &Path) -> Vec
         "--threads".into(),
         args.threads.to_string(),
         "--backend".into(),
-        backend_arg(args.backend),
+        args.backend.name().into(),
     ]
 }
 
@@ -347,7 +347,7 @@ fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path)
         "--out".into(),
         path_arg(out),
         "--backend".into(),
-        backend_arg(args.backend),
+        args.backend.name().into(),
     ];
     if let Some(batch) = args.batch_size_train {
         command.extend(["--batch-size".into(), batch.to_string()]);
@@ -365,14 +365,6 @@ fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path)
         command.extend(["--repeat".into(), counts.join(",")]);
     }
     command
-}
-
-/// The backend as the child commands' `--backend` spells it.
-fn backend_arg(backend: BackendKind) -> String {
-    clap::ValueEnum::to_possible_value(&backend)
-        .expect("every backend has a name")
-        .get_name()
-        .to_string()
 }
 
 fn path_arg(path: &Path) -> String {

@@ -12,13 +12,13 @@ use boxpose_data::{Object, Scene, schema, shard_file_name, write_shard};
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::SegmenterModel;
-use boxpose_render::Renderer;
 use boxpose_search::external::{self, ExternalSut};
 use boxpose_search::run::{
     IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler, SplittingSummary,
 };
 use boxpose_search::space::SearchSpace;
-use boxpose_search::sut::{self, Crops, Evaluate, Predicate, SystemUnderTest};
+use boxpose_search::sut::{self, Crops, Evaluate, Predicate};
+use boxpose_search::system;
 use boxpose_search_stats::{
     CeConfig, CiMethod, EstimatorKind, ImportanceEstimate, SplittingConfig, clopper_pearson,
 };
@@ -483,7 +483,14 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         return Ok(());
     }
     if let Some((iteration, batch)) = args.batch {
-        let mut sut = system_under_test(args, &space, crops, external.take())?;
+        let mut sut = system::load(
+            &space,
+            &run.record.settings,
+            None,
+            external.take(),
+            args.threads,
+            args.backend,
+        )?;
         let ran = run.sample_batch(&space, &mut sut, iteration, batch, &mut Silent)?;
         let what = if ran { "done" } else { "was already done" };
         println!("batch {iteration}:{batch} {what}");
@@ -496,7 +503,14 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
             return Ok(()); // shard 0 merges
         }
     } else {
-        let mut sut = system_under_test(args, &space, crops, external.take())?;
+        let mut sut = system::load(
+            &space,
+            &run.record.settings,
+            None,
+            external.take(),
+            args.threads,
+            args.backend,
+        )?;
         let mut progress = Progress::new();
         run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
         progress.bar.finish_and_clear();
@@ -523,81 +537,6 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
 
 /// What `fit` records for a run of another system under test (its fit is its own).
 const EXTERNAL_FIT: &str = "external";
-
-/// The networks, the embedded Blender and the fit under test, or the external system (started
-/// before the run folder was made), as the arguments ask (models and Blender load here:
-/// everything that can be refused is checked before).
-fn system_under_test(
-    args: &RunArgs,
-    space: &SearchSpace,
-    crops: Crops,
-    external: Option<ExternalSut>,
-) -> anyhow::Result<SystemUnderTest> {
-    if let Some(system) = external {
-        return Ok(SystemUnderTest::external(
-            space,
-            Renderer::new(args.threads)?,
-            system,
-            crops,
-        )?);
-    }
-    let method = sut::method_named(&args.fit).map_err(anyhow::Error::msg)?;
-    let device = args.backend.device()?;
-    let model = KeypointModel::load(&args.model, device.clone())?;
-    let segmenter = match crops {
-        Crops::Predicted => Some(SegmenterModel::load(&args.segmenter, device)?),
-        Crops::Gt => None,
-    };
-    let renderer = Renderer::new(args.threads)?;
-    let mut sut = SystemUnderTest::new(space, renderer, model, segmenter, crops, method)?;
-    sut.whole_frames = args.whole_frames;
-    Ok(sut)
-}
-
-/// A run's search space and system under test, as the run ran it (with another keypoint network
-/// when `model` is given).
-fn system_of(
-    run: &Run,
-    model: Option<&Path>,
-    threads: usize,
-    backend: BackendKind,
-) -> anyhow::Result<(SearchSpace, SystemUnderTest)> {
-    let space = SearchSpace::from_texts(
-        &run.record.space_toml,
-        &run.record.recipe_toml,
-        run.record.pile.clone(),
-    )?;
-    let settings = &run.record.settings;
-    if let Some(spec) = &settings.sut {
-        anyhow::ensure!(
-            model.is_none(),
-            "{}: the run tested another system (--sut {spec}); --model does not apply",
-            run.dir.display()
-        );
-        let system = ExternalSut::start(spec, Duration::from_secs(60))?;
-        let renderer = Renderer::new(threads)?;
-        let sut = SystemUnderTest::external(&space, renderer, system, settings.crops)?;
-        return Ok((space, sut));
-    }
-    let device = backend.device()?;
-    let model_dir = model.map_or_else(|| PathBuf::from(&settings.model), Path::to_path_buf);
-    let network = KeypointModel::load(&model_dir, device.clone())?;
-    let segmenter = match (&settings.crops, &settings.segmenter) {
-        (Crops::Predicted, Some(dir)) => Some(SegmenterModel::load(Path::new(dir), device)?),
-        _ => None,
-    };
-    let method = sut::method_named(&settings.fit).map_err(anyhow::Error::msg)?;
-    let mut sut = SystemUnderTest::new(
-        &space,
-        Renderer::new(threads)?,
-        network,
-        segmenter,
-        settings.crops,
-        method,
-    )?;
-    sut.whole_frames = settings.whole_frames;
-    Ok((space, sut))
-}
 
 #[allow(clippy::too_many_arguments)]
 fn variants(
@@ -632,7 +571,8 @@ fn variants(
         run_dir.display()
     );
     claim_variants_folder(out, &run, per_failure, sigma, seed)?;
-    let (space, mut sut) = system_of(&run, None, threads, backend)?;
+    let space = system::space_of(&run)?;
+    let mut sut = system::load(&space, &run.record.settings, None, None, threads, backend)?;
     // Whole frames: a training frame shows every box, not only the target's region.
     sut.whole_frames = true;
     let bar = ProgressBar::new(failures.len() as u64).with_style(ProgressStyle::with_template(
@@ -763,7 +703,8 @@ fn replay(
                 rows.len()
             )
         })?;
-    let (space, mut sut) = system_of(&run, model, threads, backend)?;
+    let space = system::space_of(&run)?;
+    let mut sut = system::load(&space, &run.record.settings, model, None, threads, backend)?;
     let (replayed, outcome) = run.replay(&space, &mut sut, recorded)?;
     let describe = |r: &SampleRow| match (r.valid, r.score) {
         (false, _) => format!("invalid ({})", r.invalid_reason.as_deref().unwrap_or("")),

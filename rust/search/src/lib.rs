@@ -12,5 +12,6 @@ pub mod run;
 pub mod scene;
 pub mod space;
 pub mod sut;
+pub mod system;
 
 pub use error::{Result, SearchError};
