@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use boxpose_data::{Object, Scene, schema, shard_file_name, write_shard};
+use boxpose_data::schema;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::SegmenterModel;
@@ -17,15 +17,13 @@ use boxpose_search::run::{
     IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler, SplittingSummary,
 };
 use boxpose_search::space::SearchSpace;
-use boxpose_search::sut::{self, Crops, Evaluate, Predicate};
+use boxpose_search::sut::{self, Crops, Predicate};
 use boxpose_search::system;
+use boxpose_search::variants::VariantDraw;
 use boxpose_search_stats::{
     CeConfig, CiMethod, EstimatorKind, ImportanceEstimate, SplittingConfig, clopper_pearson,
 };
 use indicatif::{ProgressBar, ProgressStyle};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
-use rand_distr::Distribution;
 
 use crate::search_report;
 
@@ -578,46 +576,13 @@ fn variants(
     let bar = ProgressBar::new(failures.len() as u64).with_style(ProgressStyle::with_template(
         "rendering variants {bar:30} {pos}/{len} failures [{elapsed_precise}<{eta_precise}]",
     )?);
-    let noise = rand_distr::Normal::new(0.0, sigma)?;
-    let mut written = 0usize;
-    for (index, failure) in failures.iter().enumerate() {
-        let name = shard_file_name(index, failures.len());
-        // frames are written last: their shard marks a finished failure
-        if out.join(schema::FRAMES.name).join(&name).is_file() {
-            bar.inc(1);
-            continue;
-        }
-        let (mut scenes, mut objects, mut frames, mut instances) = (vec![], vec![], vec![], vec![]);
-        for k in 0..per_failure {
-            let scene_id = (index * per_failure + k) as i64;
-            let mut rng = ChaCha8Rng::seed_from_u64(
-                seed ^ (failure.sample_id as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
-                    ^ (k as u64).wrapping_mul(0xD1B5_4A32_D192_ED03),
-            );
-            let z: Vec<f64> = failure
-                .z
-                .iter()
-                .map(|z| z + noise.sample(&mut rng))
-                .collect();
-            let parameters = space.parameters(&z, failure.stratum as u32)?;
-            let scene_seed = failure.seed.wrapping_add(k as i64);
-            let outcome = sut.evaluate(&space, &parameters, scene_id, scene_seed)?;
-            // a scene that did not settle is not rendered, and is not training data
-            let Some((frame, frame_instances)) = outcome.rendered else {
-                continue;
-            };
-            scenes.push(outcome.scene);
-            objects.extend(outcome.objects);
-            frames.push(frame);
-            instances.push(frame_instances);
-        }
-        written += scenes.len();
-        write_shard(out, &schema::SCENES, &name, &[Scene::to_batch(&scenes)])?;
-        write_shard(out, &schema::OBJECTS, &name, &[Object::to_batch(&objects)])?;
-        write_shard(out, &schema::INSTANCES, &name, &instances)?;
-        write_shard(out, &schema::FRAMES, &name, &frames)?;
-        bar.inc(1);
-    }
+    let draw = VariantDraw {
+        per_failure,
+        sigma,
+        seed,
+    };
+    let written =
+        boxpose_search::variants::write(&space, &mut sut, &failures, &draw, out, || bar.inc(1))?;
     bar.finish_and_clear();
     println!(
         "{written} scenes rendered around {} failures of {} in {}",

@@ -13,5 +13,6 @@ pub mod scene;
 pub mod space;
 pub mod sut;
 pub mod system;
+pub mod variants;
 
 pub use error::{Result, SearchError};
