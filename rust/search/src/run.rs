@@ -382,6 +382,20 @@ pub struct SampleRow {
 }
 
 impl SampleRow {
+    /// Whether this sample fails under `predicate`, whichever predicate its run used: valid, and
+    /// not found, not fitted, or the predicate's error above its threshold.
+    pub fn fails_under(&self, predicate: &Predicate) -> bool {
+        let (error, threshold) = predicate.judge(
+            self.paper_error_normalized,
+            self.mssd_over_diameter,
+            self.cube_mssd_over_diameter,
+        );
+        self.valid
+            && (self.detected == Some(false)
+                || self.fit_error.is_some()
+                || error.is_some_and(|e| e > threshold))
+    }
+
     /// The score the cross-entropy levels use: NaN for an invalid sample (never an elite), +∞
     /// for a valid one with nothing fitted.
     pub fn level_score(&self) -> f64 {

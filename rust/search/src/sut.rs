@@ -108,12 +108,22 @@ impl Predicate {
     /// The continuous score the cross-entropy levels are set on: log10(metric / threshold), so
     /// that a sample fails exactly when its score is > 0; +∞ when nothing was fitted.
     pub fn score(&self, metrics: &Metrics) -> f64 {
-        let (value, threshold) = match *self {
-            Predicate::PaperError { threshold } => (metrics.paper_error_normalized, threshold),
-            Predicate::Mssd { fraction } => (metrics.mssd_over_diameter, fraction),
-            Predicate::CubeMssd { fraction } => (metrics.cube_mssd_over_diameter, fraction),
-        };
+        let (value, threshold) = self.judge(
+            metrics.paper_error_normalized,
+            metrics.mssd_over_diameter,
+            metrics.cube_mssd_over_diameter,
+        );
         (value.max(1e-300) / threshold).log10()
+    }
+
+    /// Which of a sample's three errors (normalised paper error, MSSD / d, cube MSSD / d) this
+    /// predicate judges, and its threshold.
+    pub fn judge<T>(&self, paper_normalized: T, mssd: T, cube_mssd: T) -> (T, f64) {
+        match *self {
+            Predicate::PaperError { threshold } => (paper_normalized, threshold),
+            Predicate::Mssd { fraction } => (mssd, fraction),
+            Predicate::CubeMssd { fraction } => (cube_mssd, fraction),
+        }
     }
 }
 
