@@ -23,9 +23,13 @@ use crate::plots;
 use crate::predict::Crops;
 
 #[derive(clap::Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct Args {
+    #[command(subcommand)]
+    command: Option<Command>,
     /// Dataset folder with rendered frames.
-    dataset: PathBuf,
+    #[arg(required = true)]
+    dataset: Option<PathBuf>,
     /// Trained model folder (network.toml + model.bpk), e.g. a run's model/ or models/<name>.
     #[arg(long, default_value = "models/keypoint-slim")]
     model: PathBuf,
@@ -56,7 +60,104 @@ pub struct Args {
     backend: BackendKind,
 }
 
+#[derive(clap::Subcommand)]
+enum Command {
+    /// Pair two `eval` runs of the same held-out frames box by box: each run's success rate
+    /// (cube MSSD < FRACTION × diameter; a box not found or not fitted fails) with its 95 %
+    /// interval, the boxes fixed and newly failing, and McNemar's exact p — as `search compare`
+    /// does for search samples.
+    #[command(after_help = "Example:
+          boxpose eval datasets/generated/train_large --held-out 10 --model models/keypoint-slim --out results/before
+          boxpose eval datasets/generated/train_large --held-out 10 --model runs/tuned/model --out results/after
+          boxpose eval compare results/before results/after")]
+    Compare {
+        /// The `eval --out` folder before the change.
+        before: PathBuf,
+        /// The one after it.
+        after: PathBuf,
+        /// The fit compared: paper_exact, fast_exact, robust, size_and_pose, …
+        #[arg(long, default_value = "robust")]
+        method: String,
+        /// A box succeeds when its cube MSSD is below this fraction of its diameter.
+        #[arg(long, default_value_t = 0.1)]
+        fraction: f64,
+        /// Also write the comparison (with the fixed and new boxes) to this JSON file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
+}
+
+/// `eval compare`.
+fn compare(
+    before: &Path,
+    after: &Path,
+    method: &str,
+    fraction: f64,
+    json: Option<&Path>,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        fraction.is_finite() && fraction > 0.0,
+        "--fraction {fraction} must be a positive number"
+    );
+    let outcomes = |folder: &Path| {
+        boxpose_search::compare::eval_outcomes(&folder.join("eval.parquet"), method, fraction)
+            .with_context(|| {
+                format!(
+                    "{}: give the --out folder of a `boxpose eval` run",
+                    folder.display()
+                )
+            })
+    };
+    let c = boxpose_search::compare::pair(&outcomes(before)?, &outcomes(after)?);
+    anyhow::ensure!(
+        c.pairs > 0,
+        "{} and {} share no box: were they run on the same dataset and --held-out?",
+        before.display(),
+        after.display()
+    );
+    let rate = |r: &boxpose_search::compare::Rate| {
+        let succeeded = r.samples - r.failures;
+        let (lo, hi) = clopper_pearson(succeeded, r.samples, 0.95);
+        format!(
+            "{:.1} % [{:.1}, {:.1}] ({succeeded} of {})",
+            100.0 * succeeded as f64 / r.samples as f64,
+            100.0 * lo,
+            100.0 * hi,
+            r.samples
+        )
+    };
+    println!(
+        "{} boxes paired ({} unpaired); success (cube MSSD < {fraction} d, {method}):",
+        c.pairs, c.unpaired
+    );
+    println!("  before {}  {}", rate(&c.before), before.display());
+    println!("  after  {}  {}", rate(&c.after), after.display());
+    println!(
+        "  fixed {} (failed before only), new {} (failed after only), failed both {}",
+        c.fixed.len(),
+        c.new.len(),
+        c.failed_both
+    );
+    println!("  McNemar exact p = {:.3e}", c.mcnemar_p);
+    if let Some(path) = json {
+        boxpose_data::write_file_atomically(path, serde_json::to_string_pretty(&c)?.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
 pub fn run(args: &Args) -> anyhow::Result<()> {
+    if let Some(Command::Compare {
+        before,
+        after,
+        method,
+        fraction,
+        json,
+    }) = &args.command
+    {
+        return compare(before, after, method, *fraction, json.as_deref());
+    }
+    let dataset_path = args.dataset.as_deref().context("give a dataset folder")?;
     // its own earlier output is rewritten (its stale files removed below)
     crate::output_folder::refuse_foreign(&args.out, "--out", "eval", &["eval.parquet"])?;
     let mut model = KeypointModel::load(&args.model, args.backend.device()?)?;
@@ -70,7 +171,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         )?),
         Crops::Gt => None,
     };
-    let dataset = Dataset::open(&args.dataset)?;
+    let dataset = Dataset::open(dataset_path)?;
     crate::inspect::warn_if_incomplete(&dataset);
     let evaluated = |scene_id: i64| {
         args.held_out
@@ -122,7 +223,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     anyhow::ensure!(
         !evals.is_empty(),
         "{}: no instance is visible enough to evaluate",
-        args.dataset.display()
+        dataset_path.display()
     );
 
     std::fs::create_dir_all(&args.out)
@@ -156,7 +257,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     if plotted {
         let title = format!(
             "paper's error on {} ({} instances)",
-            args.dataset
+            dataset_path
                 .file_name()
                 .unwrap_or_default()
                 .to_string_lossy(),
@@ -177,7 +278,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     println!(
         "keypoint network {} on {} ({} instances, {crops})",
         args.model.display(),
-        args.dataset.display(),
+        dataset_path.display(),
         evals.len()
     );
     if segmenter.is_some() {

@@ -1,5 +1,6 @@
-//! Two Monte Carlo runs of one search on the same inputs, compared sample by sample: the paired
-//! evaluation of a change to the pipeline (new networks, another fit). With common random numbers
+//! Two Monte Carlo runs of one search on the same inputs, compared sample by sample, or two
+//! `boxpose eval` tables of one dataset, box by box: the paired evaluation of a change to the
+//! pipeline (new networks, another fit). With common random numbers
 //! (the same space, recipe and seed), sample i is the same scene in both runs, so each sample is a
 //! pair (failed before, failed after); McNemar's exact test on the discordant pairs says whether
 //! the failure rate moved, and the pairs name which scenes the change fixed and which it broke.
@@ -35,9 +36,10 @@ impl Rate {
     }
 }
 
-/// The paired comparison of two runs (see the module documentation).
+/// The paired comparison of two runs (see the module documentation); `K` names a pair (a search
+/// sample's id, or a box of an evaluated dataset).
 #[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct PairedComparison {
+pub struct PairedComparison<K = i64> {
     /// Samples valid (settled and scored) in both runs: the pairs.
     pub pairs: u64,
     /// Samples of one run's sample ids that the other has not drawn yet or did not record as
@@ -48,11 +50,47 @@ pub struct PairedComparison {
     /// Failed in both.
     pub failed_both: u64,
     /// Sample ids that failed before and not after.
-    pub fixed: Vec<i64>,
+    pub fixed: Vec<K>,
     /// Sample ids that failed after and not before.
-    pub new: Vec<i64>,
+    pub new: Vec<K>,
     /// McNemar's exact two-sided p-value of the discordant pairs.
     pub mcnemar_p: f64,
+}
+
+/// Pairs two runs' outcomes (each a key and whether it failed; keys are unique within a run):
+/// the keys in both are the pairs.
+pub fn pair<K: Eq + std::hash::Hash + Clone>(
+    before: &[(K, bool)],
+    after: &[(K, bool)],
+) -> PairedComparison<K> {
+    let after_by_key: std::collections::HashMap<&K, bool> =
+        after.iter().map(|(k, failed)| (k, *failed)).collect();
+    let (mut pairs, mut failed_before, mut failed_after, mut failed_both) = (0, 0, 0, 0);
+    let (mut fixed, mut new) = (Vec::new(), Vec::new());
+    for (key, b) in before {
+        let Some(&a) = after_by_key.get(key) else {
+            continue;
+        };
+        pairs += 1;
+        failed_before += u64::from(*b);
+        failed_after += u64::from(a);
+        match (*b, a) {
+            (true, true) => failed_both += 1,
+            (true, false) => fixed.push(key.clone()),
+            (false, true) => new.push(key.clone()),
+            (false, false) => {}
+        }
+    }
+    PairedComparison {
+        pairs,
+        unpaired: (before.len() + after.len()) as u64 - 2 * pairs,
+        before: Rate::new(failed_before, pairs),
+        after: Rate::new(failed_after, pairs),
+        failed_both,
+        mcnemar_p: mcnemar_exact(fixed.len() as u64, new.len() as u64),
+        fixed,
+        new,
+    }
 }
 
 /// Pairs the samples of `before` and `after`, two Monte Carlo runs of one search (space, recipe,
@@ -92,35 +130,89 @@ pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
             ),
         });
     }
-    let (before_rows, _) = before.rows()?;
-    let (after_rows, _) = after.rows()?;
-    let after_by_id: std::collections::HashMap<i64, &crate::run::SampleRow> =
-        after_rows.iter().map(|r| (r.sample_id, r)).collect();
-    let (mut pairs, mut failed_before, mut failed_after, mut failed_both) = (0, 0, 0, 0);
-    let (mut fixed, mut new) = (Vec::new(), Vec::new());
-    for b in before_rows.iter().filter(|r| r.valid) {
-        let Some(a) = after_by_id.get(&b.sample_id).filter(|a| a.valid) else {
-            continue;
+    let outcomes = |run: &Run| -> Result<Vec<(i64, bool)>> {
+        let (rows, _) = run.rows()?;
+        Ok(rows
+            .iter()
+            .filter(|r| r.valid)
+            .map(|r| (r.sample_id, r.failed))
+            .collect())
+    };
+    Ok(pair(&outcomes(before)?, &outcomes(after)?))
+}
+
+/// A box of an evaluated dataset: (scene_id, frame_id, object_id).
+pub type BoxKey = (i64, i32, i32);
+
+/// Each box of a `boxpose eval` table (`eval.parquet`) and whether `method`'s fit failed it: its
+/// cube-group corner MSSD not below `fraction` × its diameter, or no pose (not found, not fitted).
+/// Only the six columns this needs are read (and checked): the table's `margin_nats` is +∞ where
+/// no other hypothesis exists, which the dataset reader's finite-values check refuses.
+pub fn eval_outcomes(
+    path: &std::path::Path,
+    method: &str,
+    fraction: f64,
+) -> Result<Vec<(BoxKey, bool)>> {
+    use arrow::array::{Array, AsArray, RecordBatch};
+    use arrow::datatypes::{Float64Type, Int32Type, Int64Type};
+    use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+    let bad = |message: String| SearchError::Io {
+        path: path.to_path_buf(),
+        message,
+    };
+    let file = std::fs::File::open(path).map_err(|e| bad(e.to_string()))?;
+    let reader = ParquetRecordBatchReaderBuilder::try_new(file)
+        .and_then(|b| b.build())
+        .map_err(|e| bad(format!("not a Parquet table: {e}")))?;
+    let mut outcomes = Vec::new();
+    let mut methods = std::collections::BTreeSet::new();
+    for batch in reader {
+        let batch: RecordBatch = batch.map_err(|e| bad(e.to_string()))?;
+        let column = |name: &str| {
+            batch
+                .column_by_name(name)
+                .cloned()
+                .ok_or_else(|| bad(format!("no column {name}: not an `eval` table")))
         };
-        pairs += 1;
-        failed_before += u64::from(b.failed);
-        failed_after += u64::from(a.failed);
-        match (b.failed, a.failed) {
-            (true, true) => failed_both += 1,
-            (true, false) => fixed.push(b.sample_id),
-            (false, true) => new.push(b.sample_id),
-            (false, false) => {}
+        let (scene, frame, object) = (
+            column("scene_id")?,
+            column("frame_id")?,
+            column("object_id")?,
+        );
+        let (method_column, diameter, cube) = (
+            column("method")?,
+            column("diameter_m")?,
+            column("cube_mssd_m")?,
+        );
+        let mistyped = || bad("a column of another type than `boxpose eval` writes".into());
+        let scene = scene.as_primitive_opt::<Int64Type>().ok_or_else(mistyped)?;
+        let frame = frame.as_primitive_opt::<Int32Type>().ok_or_else(mistyped)?;
+        let object = object
+            .as_primitive_opt::<Int32Type>()
+            .ok_or_else(mistyped)?;
+        let method_of = method_column.as_string_opt::<i32>().ok_or_else(mistyped)?;
+        let diameter = diameter
+            .as_primitive_opt::<Float64Type>()
+            .ok_or_else(mistyped)?;
+        let cube = cube
+            .as_primitive_opt::<Float64Type>()
+            .ok_or_else(mistyped)?;
+        for i in 0..batch.num_rows() {
+            methods.insert(method_of.value(i).to_string());
+            if method_of.value(i) != method {
+                continue;
+            }
+            let succeeded = cube.is_valid(i) && cube.value(i) < fraction * diameter.value(i);
+            outcomes.push((
+                (scene.value(i), frame.value(i), object.value(i)),
+                !succeeded,
+            ));
         }
     }
-    let valid = |rows: &[crate::run::SampleRow]| rows.iter().filter(|r| r.valid).count() as u64;
-    Ok(PairedComparison {
-        pairs,
-        unpaired: valid(&before_rows) + valid(&after_rows) - 2 * pairs,
-        before: Rate::new(failed_before, pairs),
-        after: Rate::new(failed_after, pairs),
-        failed_both,
-        mcnemar_p: mcnemar_exact(fixed.len() as u64, new.len() as u64),
-        fixed,
-        new,
-    })
+    if outcomes.is_empty() {
+        return Err(bad(format!(
+            "no rows of the fit '{method}' (it has {methods:?})"
+        )));
+    }
+    Ok(outcomes)
 }
