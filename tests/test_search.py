@@ -918,7 +918,7 @@ def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
 
 
 def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings(
-    tiny_network, spaces, boxpose_bin, tmp_path
+    tiny_network, failing_run, spaces, boxpose_bin, tmp_path
 ):
     """`boxpose improve` at tiny settings: two rounds of search, variants, fine-tuning and paired
     evaluation, killed once a round's network exists and resumed by the same command, which
@@ -931,6 +931,7 @@ def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings
         "--rounds", "2", "--search-samples", "2", "--eval-samples", "2", "--batch-size", "2",
         "--per-failure", "1", "--steps", "1", "--batch-size-train", "1",
         "--fail-when", "mssd:0.000001", "--threads", "1", "--learnt-repeat", "2",
+        "--held-out-dataset", str(failing_run / "counterexamples"), "--held-out", "2",
     ]  # fmt: skip
     loop = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     first_network = out / "round-00" / "train" / "model" / "network.toml"
@@ -965,7 +966,15 @@ def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings
         before = pd.read_parquet(out / "eval" / f"model-{row.round}" / "samples.parquet")
         after = pd.read_parquet(out / "eval" / f"model-{row.round + 1}" / "samples.parquet")
         assert (before.seed.to_numpy() == after.seed.to_numpy()).all()
-    assert "McNemar p" in r.stdout
+        # and the held-out nominal boxes, paired box by box between the same two networks
+        held = json.loads((out / f"round-{row.round:02d}" / "held-out-compare.json").read_text())
+        c = held["counterexamples"]
+        boxes = pd.read_parquet(
+            out / "eval" / f"model-{row.round}" / "held-out" / "counterexamples" / "eval.parquet"
+        )
+        assert c["pairs"] == len(boxes[boxes.method == "paper_exact"]) > 0
+        assert c["before"]["failures"] - len(c["fixed"]) + len(c["new"]) == c["after"]["failures"]
+    assert "McNemar p" in r.stdout and "held-out" in r.stdout
 
     changed = list(command)
     changed[changed.index("--steps") + 1] = "2"
