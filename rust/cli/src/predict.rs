@@ -23,7 +23,7 @@ use arrow::array::{
     ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, StringArray,
 };
 use arrow::datatypes::{Float32Type, Float64Type, Int32Type};
-use boxpose_data::{Dataset, Frame, Intrinsics, Pose};
+use boxpose_data::{Dataset, Frame, Intrinsics};
 use boxpose_geometry::adaptive::FitConfidence;
 use boxpose_geometry::pipeline::{Fitted, Method};
 use boxpose_geometry::{BoxModel, GeometryError};
@@ -507,31 +507,20 @@ fn frame_from_files(
         .map(|b| (f64::from(u16::from_be_bytes([b[0], b[1]])) * depth_scale / 1000.0) as f32)
         .collect();
     let (width, height) = (info.width as usize, info.height as usize);
-    Ok(Frame {
-        scene_id: -1,
-        frame_id: 0,
-        width,
-        height,
-        intrinsics: Intrinsics {
-            fx: k[0],
-            fy: k[1],
-            cx: k[2],
-            cy: k[3],
-        },
-        world_camera: Pose {
-            quat_wxyz: [1.0, 0.0, 0.0, 0.0],
-            translation: [0.0; 3],
-        },
-        samples: 0,
-        denoise: false,
-        render_seed: 0,
-        blender_version: String::new(),
+    let intrinsics = Intrinsics {
+        fx: k[0],
+        fy: k[1],
+        cx: k[2],
+        cy: k[3],
+    };
+    Ok(Frame::from_images(
+        -1,
+        (width, height),
+        intrinsics,
         rgb,
         depth,
-        instance_mask: vec![0; width * height],
-        sensor_depth: None,
-        instances: Vec::new(),
-    })
+        None,
+    ))
 }
 
 /// The JSON of every box. A fit's `confidence.margin_nats` is null when no other box hypothesis

@@ -480,15 +480,18 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         println!("{}", serde_json::to_string(&run.pending()?)?);
         return Ok(());
     }
-    if let Some((iteration, batch)) = args.batch {
-        let mut sut = system::load(
+    let load_system = |external| {
+        system::load(
             &space,
             &run.record.settings,
             None,
-            external.take(),
+            external,
             args.threads,
             args.backend,
-        )?;
+        )
+    };
+    if let Some((iteration, batch)) = args.batch {
+        let mut sut = load_system(external.take())?;
         let ran = run.sample_batch(&space, &mut sut, iteration, batch, &mut Silent)?;
         let what = if ran { "done" } else { "was already done" };
         println!("batch {iteration}:{batch} {what}");
@@ -501,14 +504,7 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
             return Ok(()); // shard 0 merges
         }
     } else {
-        let mut sut = system::load(
-            &space,
-            &run.record.settings,
-            None,
-            external.take(),
-            args.threads,
-            args.backend,
-        )?;
+        let mut sut = load_system(external.take())?;
         let mut progress = Progress::new();
         run.sample(&space, &mut sut, args.shard, args.num_shards, &mut progress)?;
         progress.bar.finish_and_clear();

@@ -326,6 +326,40 @@ impl Instance {
 pub const MAX_FRAME_PIXELS: u64 = 1 << 26;
 
 impl Frame {
+    /// A frame of images alone — a camera's RGB-D picture that is no dataset's render (`boxpose
+    /// predict` on PNG files, a frame sent to a system under test): scene id `scene_id`, frame 0,
+    /// the camera at the world's origin, no render settings, no instance (`instance_mask` as
+    /// given, or all background).
+    pub fn from_images(
+        scene_id: i64,
+        (width, height): (usize, usize),
+        intrinsics: Intrinsics,
+        rgb: Vec<u8>,
+        depth: Vec<f32>,
+        instance_mask: Option<Vec<u16>>,
+    ) -> Self {
+        Self {
+            scene_id,
+            frame_id: 0,
+            width,
+            height,
+            intrinsics,
+            world_camera: Pose {
+                quat_wxyz: [1.0, 0.0, 0.0, 0.0],
+                translation: [0.0; 3],
+            },
+            samples: 0,
+            denoise: false,
+            render_seed: 0,
+            blender_version: String::new(),
+            rgb,
+            depth,
+            instance_mask: instance_mask.unwrap_or_else(|| vec![0; width * height]),
+            sensor_depth: None,
+            instances: Vec::new(),
+        }
+    }
+
     /// Row `row` of `batch`, whose first row is row `first_row` of the shard at `path`.
     pub(crate) fn from_row(
         path: &Path,

@@ -24,7 +24,7 @@ use std::process::{Child, ChildStdin, Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
-use boxpose_data::{Frame, Instance, Intrinsics, Pose};
+use boxpose_data::{Frame, Instance, Intrinsics};
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -480,36 +480,24 @@ pub fn read_request(input: &mut impl BufRead) -> Result<Option<Request>> {
         .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
         .collect();
     let label = (header.target_object_id + 1) as u16;
-    let instance_mask = if header.crop.is_some() {
-        read(header.mask_bytes)?
-            .into_iter()
-            .map(|m| if m != 0 { label } else { 0 })
-            .collect()
-    } else {
-        vec![0; pixels]
+    let instance_mask = match header.crop {
+        Some(_) => Some(
+            read(header.mask_bytes)?
+                .into_iter()
+                .map(|m| if m != 0 { label } else { 0 })
+                .collect(),
+        ),
+        None => None,
     };
     let [fx, fy, cx, cy] = header.intrinsics;
-    let frame = Frame {
-        scene_id: header.scene_id,
-        frame_id: 0,
-        width: header.width,
-        height: header.height,
-        intrinsics: Intrinsics { fx, fy, cx, cy },
-        // not sent: perception works in the camera's frame
-        world_camera: Pose {
-            quat_wxyz: [1.0, 0.0, 0.0, 0.0],
-            translation: [0.0; 3],
-        },
-        samples: 0,
-        denoise: false,
-        render_seed: 0,
-        blender_version: String::new(),
+    let frame = Frame::from_images(
+        header.scene_id,
+        (header.width, header.height),
+        Intrinsics { fx, fy, cx, cy },
         rgb,
         depth,
         instance_mask,
-        sensor_depth: None,
-        instances: Vec::new(),
-    };
+    );
     Ok(Some(Request { header, frame }))
 }
 
@@ -538,6 +526,7 @@ pub fn serve(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use boxpose_data::Pose;
 
     #[test]
     fn an_answer_reads_back_as_written() {
@@ -692,31 +681,21 @@ mod tests {
             visible_pixels: 2,
             visible_fraction: 1.0,
         };
-        Frame {
-            scene_id: 0,
-            frame_id: 0,
-            width,
-            height,
-            intrinsics: Intrinsics {
+        let mut frame = Frame::from_images(
+            0,
+            (width, height),
+            Intrinsics {
                 fx: 10.0,
                 fy: 10.0,
                 cx: 2.0,
                 cy: 1.5,
             },
-            world_camera: Pose {
-                quat_wxyz: [1.0, 0.0, 0.0, 0.0],
-                translation: [0.0; 3],
-            },
-            samples: 1,
-            denoise: false,
-            render_seed: 0,
-            blender_version: String::new(),
-            rgb: (0..width * height * 3).map(|i| i as u8).collect(),
-            depth: vec![1.0; width * height],
-            instance_mask: vec![0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0],
-            sensor_depth: None,
-            instances: vec![instance],
-        }
+            (0..width * height * 3).map(|i| i as u8).collect(),
+            vec![1.0; width * height],
+            Some(vec![0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0]),
+        );
+        frame.instances.push(instance);
+        frame
     }
 
     #[test]
