@@ -975,6 +975,14 @@ def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings
         assert c["pairs"] == len(boxes[boxes.method == "paper_exact"]) > 0
         assert c["before"]["failures"] - len(c["fixed"]) + len(c["new"]) == c["after"]["failures"]
     assert "McNemar p" in r.stdout and "held-out" in r.stdout
+    # the rounds page: one row per round with its rates, each network's evaluation report linked
+    page = (out / "report.html").read_text()
+    assert page.count("<tr><td>") == len(rounds) and "counterexamples: " in page
+    for network in range(3):
+        link = f"eval/model-{network}/report/index.html"
+        assert link in page and (out / link).is_file()
+    for row in rounds.itertuples():
+        assert f"({row.failures_after} of {row.pairs})" in page
 
     changed = list(command)
     changed[changed.index("--steps") + 1] = "2"

@@ -39,7 +39,7 @@ const EVALUATION_SEED_OFFSET: u64 = 1_000_000;
         after with their intervals, fixed and new failures, McNemar's exact p). A round without failures \
         keeps its network.\n\n\
         RUN/round-NN/{search,variants,train}, RUN/eval/model-K (network K: 0 is --model), \
-        RUN/round-NN/compare.json and RUN/rounds.csv. Re-run the same command to resume; other \
+        RUN/round-NN/compare.json, RUN/rounds.csv and RUN/report.html (the rounds, linking each network's evaluation report). Re-run the same command to resume; other \
         settings are refused.",
     after_help = "Example:\n  \
         boxpose improve shift_camera_low --model models/keypoint-slim --dataset datasets/generated/train \\\n    \
@@ -191,6 +191,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let mut model = args.model.clone();
     let mut learnt_from: Vec<PathBuf> = Vec::new();
     let mut rows = Vec::new();
+    let mut held_out = Vec::new();
     evaluate(args, 0, &model)?;
     for round in 0..args.rounds {
         let dir = args.out.join(format!("round-{round:02}"));
@@ -221,12 +222,13 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             serde_json::to_string_pretty(&comparison)?.as_bytes(),
         )?;
         print_round(round, failures, learnt, &comparison);
-        compare_held_out(args, round, method.name(), &dir)?;
+        held_out.push(compare_held_out(args, round, method.name(), &dir)?);
         rows.push((round, failures, learnt, comparison));
     }
     write_rounds(&args.out.join("rounds.csv"), &rows)?;
+    write_rounds_page(args, &rows, &held_out)?;
     println!(
-        "{}: rounds.csv; the last network is {}",
+        "{}: rounds.csv, report.html; the last network is {}",
         args.out.display(),
         model.display()
     );
@@ -376,11 +378,20 @@ fn held_out_dir(args: &Args, network: usize, dataset: &Path) -> PathBuf {
         .join(held_out_name(dataset))
 }
 
+/// One held-out dataset's pairing of a round's two networks.
+type HeldOutComparison = (String, PairedComparison<boxpose_search::compare::BoxKey>);
+
 /// Round `round`'s networks paired box by box on every held-out dataset (`method`'s fit, cube
 /// MSSD < 0.1 d), printed and written to the round's `held-out-compare.json`.
-fn compare_held_out(args: &Args, round: usize, method: &str, dir: &Path) -> anyhow::Result<()> {
+fn compare_held_out(
+    args: &Args,
+    round: usize,
+    method: &str,
+    dir: &Path,
+) -> anyhow::Result<Vec<HeldOutComparison>> {
+    let mut comparisons = Vec::new();
     if args.held_out_datasets.is_empty() {
-        return Ok(());
+        return Ok(comparisons);
     }
     let mut all = serde_json::Map::new();
     for dataset in &args.held_out_datasets {
@@ -403,12 +414,100 @@ fn compare_held_out(args: &Args, round: usize, method: &str, dir: &Path) -> anyh
             c.mcnemar_p
         );
         all.insert(held_out_name(dataset), serde_json::to_value(&c)?);
+        comparisons.push((held_out_name(dataset), c));
     }
     boxpose_data::write_file_atomically(
         &dir.join("held-out-compare.json"),
         serde_json::to_string_pretty(&all)?.as_bytes(),
     )?;
-    Ok(())
+    Ok(comparisons)
+}
+
+/// `RUN/report.html`: the rounds at a glance — each round's failure rate before and after on the
+/// common evaluation inputs with its interval, the fixed and new failures and McNemar's p, the
+/// held-out pairings, and a link to each network's evaluation report (its worst remaining
+/// counterexamples, drawn).
+fn write_rounds_page(
+    args: &Args,
+    rows: &[(usize, usize, bool, PairedComparison)],
+    held_out: &[Vec<HeldOutComparison>],
+) -> anyhow::Result<()> {
+    use std::fmt::Write as _;
+    let escape = |t: &str| t.replace('&', "&amp;").replace('<', "&lt;");
+    let percent = |r: &boxpose_search::compare::Rate| {
+        format!(
+            "{:.2} % [{:.2}, {:.2}] ({} of {})",
+            100.0 * r.p_hat,
+            100.0 * r.ci95.0,
+            100.0 * r.ci95.1,
+            r.failures,
+            r.samples
+        )
+    };
+    let mut h = String::new();
+    writeln!(
+        h,
+        "<!doctype html><html><head><meta charset=\"utf-8\"><title>boxpose improve: {space}</title>\
+         <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}table{{border-collapse:collapse}}\
+         td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}</style></head><body>\
+         <h1>The loop on <code>{space}</code></h1><p>From <code>{model}</code>, fit {fit}, {crops} crops; a sample \
+         fails when {fail}. Each round is judged on the same {n} evaluation samples (seed {seed}), never searched.</p>",
+        space = escape(&args.space),
+        model = escape(&args.model.display().to_string()),
+        fit = escape(&args.fit),
+        crops = escape(&args.crops),
+        fail = escape(&args.fail_when),
+        n = args.eval_samples,
+        seed = args.seed + EVALUATION_SEED_OFFSET,
+    )?;
+    writeln!(
+        h,
+        "<table><tr><th>round</th><th>search failures</th><th>fine-tuned</th><th>p̂ before</th>\
+         <th>p̂ after</th><th>fixed</th><th>new</th><th>McNemar p</th><th>held out: success before → after (fixed / new, p)</th></tr>"
+    )?;
+    for ((round, failures, learnt, c), held) in rows.iter().zip(held_out) {
+        let held: Vec<String> = held
+            .iter()
+            .map(|(name, c)| {
+                let success = |r: &boxpose_search::compare::Rate| {
+                    100.0 * (r.samples - r.failures) as f64 / r.samples.max(1) as f64
+                };
+                format!(
+                    "{}: {:.1} → {:.1} % ({} / {}, {:.2e})",
+                    escape(name),
+                    success(&c.before),
+                    success(&c.after),
+                    c.fixed.len(),
+                    c.new.len(),
+                    c.mcnemar_p
+                )
+            })
+            .collect();
+        writeln!(
+            h,
+            "<tr><td>{round}</td><td>{failures}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3e}</td><td>{}</td></tr>",
+            if *learnt { "yes" } else { "no failure" },
+            percent(&c.before),
+            percent(&c.after),
+            c.fixed.len(),
+            c.new.len(),
+            c.mcnemar_p,
+            held.join("<br>")
+        )?;
+    }
+    writeln!(h, "</table><h2>Each network's evaluation</h2><ul>")?;
+    for network in 0..=rows.len() {
+        writeln!(
+            h,
+            "<li>network {network}: <a href=\"eval/model-{network}/report/index.html\">its evaluation report</a> \
+             (the worst remaining counterexamples, drawn)</li>"
+        )?;
+    }
+    writeln!(h, "</ul></body></html>")?;
+    Ok(boxpose_data::write_file_atomically(
+        &args.out.join("report.html"),
+        h.as_bytes(),
+    )?)
 }
 
 fn variants_command(args: &Args, round: usize, search: &Path, out: &Path) -> Vec<String> {
