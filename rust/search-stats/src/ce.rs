@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 use crate::proposal::{Proposal, ProposalError, log_nominal};
 use crate::rng::sample_rng;
 use crate::stats::{EstimateError, ImportanceEstimate, WeightedSample};
+use crate::tilt::{TiltChoice, choose_tilt, hold_at_nominal};
 
 /// The `iteration` that [`run_in_memory`] gives [`sample_rng`] for the final batch.
 pub const FINAL_ITERATION: u32 = u32::MAX;
@@ -173,17 +174,11 @@ pub fn ce_step(
     if !(config.min_std.is_finite() && config.min_std > 0.0) {
         return Err(bad("min_std", format!("{} must be > 0", config.min_std)));
     }
-    let mut finite: Vec<f64> = scores.iter().copied().filter(|s| !s.is_nan()).collect();
-    if finite.is_empty() {
-        return Err(CeError::Input("no finite score".into()));
-    }
-    finite.sort_by(f64::total_cmp);
-    let index = ((rho * finite.len() as f64).floor() as usize).min(finite.len() - 1);
-    let quantile = finite[index];
-    let level = quantile.min(failure_level);
-    let elite: Vec<usize> = (0..zs.len())
-        .filter(|&i| !scores[i].is_nan() && scores[i] >= level)
-        .collect();
+    let Elites {
+        quantile,
+        level,
+        indices: elite,
+    } = elites(scores, rho, failure_level)?;
     let log_w: Vec<f64> = elite
         .iter()
         .map(|&i| log_nominal(&zs[i]) - current.log_density(&zs[i]))
@@ -198,6 +193,39 @@ pub fn ce_step(
         quantile,
         reached: quantile >= failure_level,
         elites: elite.len(),
+    })
+}
+
+/// The elites of one tuning iteration (see [`ce_step`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Elites {
+    /// The ρ-quantile of the finite scores.
+    pub quantile: f64,
+    /// min(γ, quantile).
+    pub level: f64,
+    /// The samples with a finite score ≥ `level`, in order.
+    pub indices: Vec<usize>,
+}
+
+/// The elites of `scores` at quantile `rho` and failure level γ = `failure_level`: the ρ-quantile
+/// q is the ⌊ρ n⌋-th smallest of the n finite scores (0-based, clamped), the level min(γ, q);
+/// NaN scores (invalid samples) are never elites.
+pub fn elites(scores: &[f64], rho: f64, failure_level: f64) -> Result<Elites, CeError> {
+    let mut finite: Vec<f64> = scores.iter().copied().filter(|s| !s.is_nan()).collect();
+    if finite.is_empty() {
+        return Err(CeError::Input("no finite score".into()));
+    }
+    finite.sort_by(f64::total_cmp);
+    let index = ((rho * finite.len() as f64).floor() as usize).min(finite.len() - 1);
+    let quantile = finite[index];
+    let level = quantile.min(failure_level);
+    let indices = (0..scores.len())
+        .filter(|&i| !scores[i].is_nan() && scores[i] >= level)
+        .collect();
+    Ok(Elites {
+        quantile,
+        level,
+        indices,
     })
 }
 
@@ -248,18 +276,85 @@ pub fn run_in_memory_from(
     score: impl Fn(&[f64]) -> f64,
 ) -> Result<CeRun, CeError> {
     config.validate()?;
-    let mut proposal = start.clone();
+    tune_then_estimate(
+        config,
+        start.clone(),
+        seed,
+        failure_level,
+        &score,
+        None,
+        None,
+    )
+}
+
+/// [`run_in_memory`] with the tilted dimensions chosen from data, as `boxpose search --ce-tilt
+/// auto` does: iteration 0 draws from the nominal, [`choose_tilt`] tests its elites at
+/// family-wise level `tilt_alpha` (`rotation_blocks`: the orientation blocks' starts), and from
+/// then on every proposal holds the untilted dimensions at their nominal
+/// ([`hold_at_nominal`]); the chosen orientation blocks get angular central Gaussians.
+pub fn run_in_memory_auto_tilt(
+    config: &CeConfig,
+    dim: usize,
+    rotation_blocks: &[usize],
+    seed: u64,
+    failure_level: f64,
+    tilt_alpha: f64,
+    score: impl Fn(&[f64]) -> f64,
+) -> Result<(CeRun, TiltChoice), CeError> {
+    config.validate()?;
+    let start = Proposal::tuning_start(dim, config.components);
+    let zs = draw(&start, seed, 0, config.samples_per_iteration);
+    let scores: Vec<f64> = zs.iter().map(|z| score(z)).collect();
+    let chosen = elites(&scores, config.rho, failure_level)?;
+    let elite_zs: Vec<Vec<f64>> = chosen.indices.iter().map(|&i| zs[i].clone()).collect();
+    let choice = choose_tilt(&elite_zs, dim, rotation_blocks, tilt_alpha)?;
+    let mask = choice.mask(dim);
+    let start = start.with_rotation_blocks(&choice.tilted_blocks())?;
+    let run = tune_then_estimate(
+        config,
+        start,
+        seed,
+        failure_level,
+        &score,
+        Some(&mask),
+        Some((zs, scores)),
+    )?;
+    Ok((run, choice))
+}
+
+fn draw(proposal: &Proposal, seed: u64, iteration: u32, n: usize) -> Vec<Vec<f64>> {
+    (0..n as u64)
+        .map(|i| proposal.sample(&mut sample_rng(seed, iteration, i)))
+        .collect()
+}
+
+/// The tuning iterations from `proposal` (iteration 0's samples and scores given in `first`
+/// when they were already drawn), each fitted proposal held at the nominal outside `mask`, then
+/// the final batch and its estimate.
+fn tune_then_estimate(
+    config: &CeConfig,
+    mut proposal: Proposal,
+    seed: u64,
+    failure_level: f64,
+    score: &dyn Fn(&[f64]) -> f64,
+    mask: Option<&[bool]>,
+    mut first: Option<(Vec<Vec<f64>>, Vec<f64>)>,
+) -> Result<CeRun, CeError> {
     let mut levels = Vec::new();
     let mut reached = false;
     let mut tuning_evaluations = 0u64;
     for it in 0..config.max_iterations {
-        let zs: Vec<Vec<f64>> = (0..config.samples_per_iteration as u64)
-            .map(|i| proposal.sample(&mut sample_rng(seed, it, i)))
-            .collect();
-        let scores: Vec<f64> = zs.iter().map(|z| score(z)).collect();
+        let (zs, scores) = first.take().unwrap_or_else(|| {
+            let zs = draw(&proposal, seed, it, config.samples_per_iteration);
+            let scores = zs.iter().map(|z| score(z)).collect();
+            (zs, scores)
+        });
         tuning_evaluations += zs.len() as u64;
         let step = ce_step(&proposal, &zs, &scores, failure_level, config)?;
-        proposal = step.next;
+        proposal = match mask {
+            Some(mask) => hold_at_nominal(step.next, mask),
+            None => step.next,
+        };
         levels.push(step.level);
         if step.reached {
             reached = true;

@@ -18,6 +18,8 @@
 //!   conditioned on a level invariant (pCN, and small rotations on orientation blocks), the
 //!   estimate with an interval that accounts for the chains' correlation, and an in-memory
 //!   driver (not yet a sampler of `boxpose search`).
+//! - [`tilt`]: which dimensions of z a cross-entropy proposal tilts, chosen by testing the
+//!   first tuning iteration's elites against the nominal.
 //! - [`rng`]: per-sample random generators, so sample `i`'s z depends only on its id.
 
 pub mod acg;
@@ -26,8 +28,12 @@ pub mod proposal;
 pub mod rng;
 pub mod splitting;
 pub mod stats;
+pub mod tilt;
 
-pub use ce::{CeConfig, CeError, CeRun, CeStep, ce_step, run_in_memory, run_in_memory_from};
+pub use ce::{
+    CeConfig, CeError, CeRun, CeStep, Elites, ce_step, elites, run_in_memory,
+    run_in_memory_auto_tilt, run_in_memory_from,
+};
 pub use proposal::{Component, Proposal, ProposalError, RotationShape, log_nominal};
 pub use rng::sample_rng;
 pub use splitting::{
@@ -38,3 +44,4 @@ pub use stats::{
     CiMethod, EstimateError, EstimatorKind, ImportanceEstimate, WeightedSample, clopper_pearson,
     mcnemar_exact, normal_cdf, normal_quantile, wilson,
 };
+pub use tilt::{DimensionTest, TiltChoice, choose_tilt, hold_at_nominal};

@@ -32,7 +32,8 @@ use boxpose_data::schema::{self, SEARCH_SAMPLES, SEARCH_TIMINGS, Table};
 use boxpose_data::{Object, Scene};
 use boxpose_search_stats::{
     CeConfig, CeError, CeStep, ImportanceEstimate, Proposal, SplittingConfig, SplittingError,
-    SplittingRun, SplittingState, WeightedSample, ce_step, log_nominal, sample_rng,
+    SplittingRun, SplittingState, TiltChoice, WeightedSample, ce_step, choose_tilt, elites,
+    hold_at_nominal, log_nominal, sample_rng,
 };
 use rand::Rng;
 use serde::{Deserialize, Serialize};
@@ -93,7 +94,8 @@ pub struct RunSettings {
     pub ce: CeConfig,
     /// Cross-entropy: the parameters the proposal may tilt (names or prefixes of z's dimensions,
     /// e.g. `target.size_m`); the others stay at their nominal, so they add no weight variance.
-    /// Empty: all of them.
+    /// Empty: all of them. [`AUTO_TILT`] alone: chosen from the first tuning iteration's elites
+    /// ([`boxpose_search_stats::choose_tilt`]).
     #[serde(default)]
     pub ce_tilt: Vec<String>,
     /// Subset simulation's settings (`particles` is `samples`); only with that sampler.
@@ -181,7 +183,12 @@ impl RunRecord {
             (_, None) => {}
         }
         let names: Vec<&str> = space.dimensions.iter().map(|d| d.name.as_str()).collect();
-        for prefix in &settings.ce_tilt {
+        if settings.ce_tilt.iter().any(|t| t == AUTO_TILT) && settings.ce_tilt.len() > 1 {
+            return Err(SearchError::Sample(format!(
+                "--ce-tilt {AUTO_TILT} chooses the parameters itself: give it alone, or name them"
+            )));
+        }
+        for prefix in settings.ce_tilt.iter().filter(|t| *t != AUTO_TILT) {
             if !names.iter().any(|n| n.starts_with(prefix.as_str())) {
                 return Err(SearchError::Sample(format!(
                     "--ce-tilt {prefix}: no parameter of the space starts with it (they are: {})",
@@ -299,6 +306,13 @@ fn setting_flag(field: &str) -> String {
     format!("--{}", flag.replace(['_', '.'], "-"))
 }
 
+/// `--ce-tilt auto`: the tilted parameters are chosen from the first tuning iteration.
+pub const AUTO_TILT: &str = "auto";
+
+/// `--ce-tilt auto`'s family-wise level: with probability ≥ 99 % a parameter the failures do not
+/// depend on stays at its nominal.
+pub const AUTO_TILT_ALPHA: f64 = 0.01;
+
 /// What iteration K does: its stage, its number of samples, the proposal it draws from.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct IterationPlan {
@@ -313,6 +327,10 @@ pub struct IterationPlan {
     /// Subset simulation: the state whose candidates this iteration scores.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub splitting: Option<SplittingState>,
+    /// Cross-entropy with `--ce-tilt auto`: the tilt chosen after iteration 0, carried by every
+    /// later plan.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt: Option<TiltChoice>,
 }
 
 impl IterationPlan {
@@ -580,42 +598,35 @@ impl Run {
         }
     }
 
-    /// Where z's orientation blocks start (four normals normalised to a quaternion each): the
-    /// cross-entropy proposal gives them an angular central Gaussian, the rest a Gaussian.
+    /// Where the tuning start's orientation blocks start (four normals normalised to a quaternion
+    /// each): the cross-entropy proposal gives the tilted ones an angular central Gaussian, the
+    /// rest a Gaussian. With `--ce-tilt auto` every block, until the choice is made.
     fn rotation_blocks(&self) -> Vec<usize> {
-        let tilted = self.tilted();
-        self.record
-            .dimensions
-            .iter()
-            .enumerate()
-            .filter(|&(i, name)| name.ends_with(".orientation.q0") && tilted[i])
-            .map(|(i, _)| i)
+        let tilted = self.tilt_mask(None);
+        self.orientation_blocks()
+            .into_iter()
+            .filter(|&i| tilted[i])
             .collect()
     }
 
-    /// Per dimension of z: whether the cross-entropy proposal may move it (`--ce-tilt`).
-    fn tilted(&self) -> Vec<bool> {
+    fn auto_tilt(&self) -> bool {
+        self.settings().ce_tilt.iter().any(|t| t == AUTO_TILT)
+    }
+
+    /// Per dimension of z: whether the cross-entropy proposal may move it — the names and
+    /// prefixes of `--ce-tilt`, or with `--ce-tilt auto` the `chosen` tilt (every dimension
+    /// before it is made).
+    fn tilt_mask(&self, chosen: Option<&TiltChoice>) -> Vec<bool> {
+        let dim = self.record.dimensions.len();
+        if self.auto_tilt() {
+            return chosen.map_or_else(|| vec![true; dim], |c| c.mask(dim));
+        }
         let tilt = &self.settings().ce_tilt;
         self.record
             .dimensions
             .iter()
             .map(|name| tilt.is_empty() || tilt.iter().any(|p| name.starts_with(p.as_str())))
             .collect()
-    }
-
-    /// `proposal` with every untilted dimension back at N(0, 1) in every component: the
-    /// proposal then factorises into the nominal on those dimensions, and the weights do not
-    /// depend on them at all.
-    fn untilt(&self, mut proposal: Proposal) -> Proposal {
-        for (d, tilted) in self.tilted().into_iter().enumerate() {
-            if !tilted {
-                for c in &mut proposal.components {
-                    c.mean[d] = 0.0;
-                    c.std[d] = 1.0;
-                }
-            }
-        }
-        proposal
     }
 
     /// The plan of `iteration`, if it is known yet (written at the barrier before it).
@@ -630,20 +641,23 @@ impl Run {
                     proposal: Proposal::nominal(dim),
                     step: None,
                     splitting: None,
+                    tilt: None,
                 },
                 Sampler::Splitting => {
                     let config = s.splitting.as_ref().expect("checked by RunRecord::new");
-                    let state = SplittingState::new(config, dim, &self.splitting_blocks(), s.seed)
-                        .map_err(|e| SearchError::Run {
-                            path: self.dir.clone(),
-                            problem: format!("the splitting run: {e}"),
-                        })?;
+                    let state =
+                        SplittingState::new(config, dim, &self.orientation_blocks(), s.seed)
+                            .map_err(|e| SearchError::Run {
+                                path: self.dir.clone(),
+                                problem: format!("the splitting run: {e}"),
+                            })?;
                     IterationPlan {
                         stage: "split".into(),
                         samples: config.particles,
                         proposal: Proposal::nominal(dim),
                         step: None,
                         splitting: Some(state),
+                        tilt: None,
                     }
                 }
                 Sampler::Ce => IterationPlan {
@@ -657,6 +671,7 @@ impl Run {
                         })?,
                     step: None,
                     splitting: None,
+                    tilt: None,
                 },
             }));
         }
@@ -830,12 +845,28 @@ impl Run {
         let zs: Vec<Vec<f64>> = rows.iter().map(|r| r.z.clone()).collect();
         let scores: Vec<f64> = rows.iter().map(SampleRow::level_score).collect();
         let ce = &self.settings().ce;
-        let mut step =
-            ce_step(&plan.proposal, &zs, &scores, 0.0, ce).map_err(|e| SearchError::Run {
-                path: self.dir.clone(),
-                problem: format!("cross-entropy step after iteration {iteration}: {e}"),
-            })?;
-        step.next = self.untilt(step.next);
+        let step_error = |e: CeError| SearchError::Run {
+            path: self.dir.clone(),
+            problem: format!("cross-entropy step after iteration {iteration}: {e}"),
+        };
+        let (current, tilt) = if self.auto_tilt() && iteration == 0 {
+            // Iteration 0 drew from the nominal: its elites show what the failures depend on.
+            let chosen = elites(&scores, ce.rho, 0.0).map_err(step_error)?;
+            let elite_zs: Vec<Vec<f64>> = chosen.indices.iter().map(|&i| zs[i].clone()).collect();
+            let dim = self.record.dimensions.len();
+            let choice = choose_tilt(&elite_zs, dim, &self.orientation_blocks(), AUTO_TILT_ALPHA)
+                .map_err(step_error)?;
+            // The same density as iteration 0's (the nominal), with only the chosen blocks
+            // shaped as rotations.
+            let start = Proposal::tuning_start(dim, ce.components)
+                .with_rotation_blocks(&choice.tilted_blocks())
+                .map_err(|e| step_error(e.into()))?;
+            (start, Some(choice))
+        } else {
+            (plan.proposal.clone(), plan.tilt.clone())
+        };
+        let mut step = ce_step(&current, &zs, &scores, 0.0, ce).map_err(step_error)?;
+        step.next = hold_at_nominal(step.next, &self.tilt_mask(tilt.as_ref()));
         let last = step.reached || iteration + 1 >= ce.max_iterations;
         let next = if last {
             IterationPlan {
@@ -844,6 +875,7 @@ impl Run {
                 proposal: step.next.with_defensive(ce.defensive_lambda),
                 step: Some(step),
                 splitting: None,
+                tilt,
             }
         } else {
             IterationPlan {
@@ -852,6 +884,7 @@ impl Run {
                 proposal: step.next.clone(),
                 step: Some(step),
                 splitting: None,
+                tilt,
             }
         };
         boxpose_data::write_file_atomically(
@@ -865,8 +898,9 @@ impl Run {
         self.dir.join("splitting.json")
     }
 
-    /// The orientation blocks of z, which the splitting moves turn as rotations.
-    fn splitting_blocks(&self) -> Vec<usize> {
+    /// The orientation blocks of z (four normals whose direction is a uniform rotation): the
+    /// splitting moves turn them as rotations, cross-entropy fits them angular central Gaussians.
+    fn orientation_blocks(&self) -> Vec<usize> {
         self.record
             .dimensions
             .iter()
@@ -907,6 +941,7 @@ impl Run {
             proposal: plan.proposal.clone(),
             step: None,
             splitting: Some(state),
+            tilt: None,
         };
         boxpose_data::write_file_atomically(
             &self.plan_path(iteration + 1),
@@ -1172,6 +1207,10 @@ impl Run {
             }
         };
         let s = self.settings();
+        let ce_tilt = plans
+            .iter()
+            .find_map(|p| p.tilt.as_ref())
+            .map(|choice| TiltSummary::new(choice, &self.record.dimensions));
         Ok(Summary {
             space: toml::from_str::<toml::Table>(&self.record.space_toml)
                 .ok()
@@ -1218,6 +1257,13 @@ impl Run {
             }
             .into_iter()
             .chain(system_errors_warning(samples))
+            .chain(ce_tilt.as_ref().filter(|t| t.nothing_stood_out).map(|t| {
+                format!(
+                    "--ce-tilt auto: no parameter's effect on the failures showed among the first \
+                     iteration's {} elites, so every parameter was tilted",
+                    t.elites
+                )
+            }))
             .collect(),
             strata: match &splitting {
                 Some(_) => vec![StratumSummary::whole(&headline)],
@@ -1230,6 +1276,7 @@ impl Run {
             },
             estimate: headline,
             splitting: splitting.map(|run| SplittingSummary::new(&run)),
+            ce_tilt,
             boxpose_version: env!("CARGO_PKG_VERSION").into(),
             mujoco_version: boxpose_physics::MUJOCO_VERSION.into(),
         })
@@ -1487,6 +1534,58 @@ pub struct StageMeans {
     pub fit: f64,
 }
 
+/// `--ce-tilt auto`: what the first tuning iteration's elites chose.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TiltSummary {
+    /// Elites of iteration 0 the tests were made on.
+    pub elites: usize,
+    /// The family-wise level α; each test is held to α / the number of tests.
+    pub alpha: f64,
+    /// No parameter passed its test, so every one was tilted.
+    pub nothing_stood_out: bool,
+    /// Every parameter in z's order (an orientation block once, by its name without `.q0`).
+    pub tests: Vec<TiltTest>,
+}
+
+/// One parameter's test of "the failures do not depend on it".
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct TiltTest {
+    pub parameter: String,
+    pub p_value: f64,
+    pub tilted: bool,
+}
+
+impl TiltSummary {
+    fn new(choice: &TiltChoice, dimensions: &[String]) -> Self {
+        Self {
+            elites: choice.elites,
+            alpha: choice.alpha,
+            nothing_stood_out: choice.is_empty(),
+            tests: choice
+                .tests
+                .iter()
+                .map(|t| TiltTest {
+                    parameter: match t.len {
+                        1 => dimensions[t.start].clone(),
+                        _ => dimensions[t.start].trim_end_matches(".q0").to_string(),
+                    },
+                    p_value: t.p_value,
+                    tilted: t.tilted,
+                })
+                .collect(),
+        }
+    }
+
+    /// The tilted parameters' names.
+    pub fn tilted(&self) -> Vec<&str> {
+        self.tests
+            .iter()
+            .filter(|t| t.tilted || self.nothing_stood_out)
+            .map(|t| t.parameter.as_str())
+            .collect()
+    }
+}
+
 /// `summary.json`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct Summary {
@@ -1515,6 +1614,9 @@ pub struct Summary {
     /// Subset simulation's levels and diagnostics.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub splitting: Option<SplittingSummary>,
+    /// `--ce-tilt auto`: the parameters tested and tilted.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub ce_tilt: Option<TiltSummary>,
     pub boxpose_version: String,
     pub mujoco_version: String,
 }

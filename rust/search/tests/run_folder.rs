@@ -161,21 +161,25 @@ fn summary(dir: &Path) -> serde_json::Value {
 /// Interrupted at evaluation `at` (the batch in flight is lost), then resumed with a fresh
 /// evaluator: the tables equal the uninterrupted run's byte for byte.
 fn check_resume(sampler: Sampler, samples: usize, batch_size: usize, p: f64, at: usize) {
+    check_resume_of(&settings(sampler, samples, batch_size), p, at);
+}
+
+fn check_resume_of(s: &RunSettings, p: f64, at: usize) {
     let root = tempfile::tempdir().unwrap();
-    let s = settings(sampler, samples, batch_size);
+    let (sampler, batch_size) = (s.sampler, s.batch_size);
     let whole = root.path().join("whole");
     let mut uninterrupted = ClosedForm::new(p);
-    run(&whole, &s, &mut uninterrupted).unwrap();
+    run(&whole, s, &mut uninterrupted).unwrap();
     assert!(
         at < uninterrupted.calls,
         "the interruption falls inside the run"
     );
     let resumed = root.path().join("resumed");
     let mut interrupted = ClosedForm::interrupted_after(p, at);
-    assert!(run(&resumed, &s, &mut interrupted).is_err(), "interrupted");
+    assert!(run(&resumed, s, &mut interrupted).is_err(), "interrupted");
     assert!(!resumed.join("samples.parquet").exists());
     let mut fresh = ClosedForm::new(p);
-    run(&resumed, &s, &mut fresh).unwrap();
+    run(&resumed, s, &mut fresh).unwrap();
     // the committed batches were kept: only the batch in flight is evaluated twice
     assert!(
         fresh.calls < uninterrupted.calls
@@ -244,6 +248,53 @@ fn two_shards_merge_to_the_single_process_table() {
 fn cross_entropy_resumes_across_its_barriers() {
     // interrupted in its second tuning iteration, after the first barrier wrote a proposal
     check_resume(Sampler::Ce, 200, 50, 1e-3, 250);
+}
+
+#[test]
+fn cross_entropy_chooses_the_deciding_parameter_itself_and_resumes() {
+    let p = 1e-3;
+    let mut s = settings(Sampler::Ce, 1000, 100);
+    s.ce_tilt = vec!["auto".into()];
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("auto");
+    run(&dir, &s, &mut ClosedForm::new(p)).unwrap();
+    let summary = summary(&dir);
+    let tests = summary["ce_tilt"]["tests"].as_array().unwrap();
+    let tilted: Vec<&str> = tests
+        .iter()
+        .filter(|t| t["tilted"] == true)
+        .map(|t| t["parameter"].as_str().unwrap())
+        .collect();
+    assert_eq!(tilted, [DECIDING], "{tests:?}");
+    // the orientation block is tested once, as a whole
+    assert!(tests.iter().any(|t| t["parameter"] == "target.orientation"));
+    let ci = &summary["estimate"]["ci95"];
+    let (lo, hi) = (ci[0].as_f64().unwrap(), ci[1].as_f64().unwrap());
+    assert!(lo < p && p < hi, "[{lo}, {hi}] covers {p}");
+    // every later proposal holds the other parameters at their nominal
+    let plan: serde_json::Value =
+        serde_json::from_slice(&read(&dir.join("proposals/iter-0001.json"))).unwrap();
+    let names = RunRecord::new(&space(), s.clone()).unwrap().dimensions;
+    let component = &plan["proposal"]["components"][0];
+    for (d, name) in names.iter().enumerate() {
+        let (mean, std) = (
+            component["mean"][d].as_f64().unwrap(),
+            component["std"][d].as_f64().unwrap(),
+        );
+        assert_eq!(
+            name == DECIDING,
+            (mean, std) != (0.0, 1.0),
+            "{name}: mean {mean}, std {std}"
+        );
+    }
+    // "auto" with names is refused; resumed across the choice, the same tables
+    let mut mixed = s.clone();
+    mixed.ce_tilt.push("target.size_m".into());
+    let refused = RunRecord::new(&space(), mixed).unwrap_err().to_string();
+    assert!(refused.contains("--ce-tilt auto"), "{refused}");
+    s.samples = 200;
+    s.ce.final_samples = 200;
+    check_resume_of(&s, p, 250);
 }
 
 #[test]
