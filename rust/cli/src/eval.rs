@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::Context;
-use arrow::array::{ArrayRef, Float64Array, Int32Array};
 use boxpose_data::Dataset;
+use boxpose_data::arrow::array::{ArrayRef, Float64Array, Int32Array};
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;

@@ -9,7 +9,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, bail};
-use arrow::array::{ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array};
+use boxpose_data::arrow::array::{
+    ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array,
+};
 use boxpose_data::{Dataset, Instance};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::align::nearest_rotation;

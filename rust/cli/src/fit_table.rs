@@ -2,7 +2,9 @@
 
 use std::sync::Arc;
 
-use arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, StringArray};
+use boxpose_data::arrow::array::{
+    ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, StringArray,
+};
 use boxpose_geometry::metrics::average_recall;
 use boxpose_geometry::pipeline::{FitOutcome, Method, Scores};
 

@@ -19,10 +19,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, bail};
-use arrow::array::{
+use boxpose_data::arrow::array::{
     ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, ListArray, StringArray,
 };
-use arrow::datatypes::{Float32Type, Float64Type, Int32Type};
+use boxpose_data::arrow::datatypes::{Float32Type, Float64Type, Int32Type};
 use boxpose_data::{Dataset, Frame, Intrinsics};
 use boxpose_geometry::adaptive::FitConfidence;
 use boxpose_geometry::pipeline::{Fitted, Method};

@@ -5,9 +5,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
+use boxpose_data::arrow::array::{Array, AsArray};
+use boxpose_data::arrow::record_batch::RecordBatch;
 use boxpose_data::{DataError, Dataset, Pose, schema, shard_file_name, write_shard};
-use boxpose_render::arrow::array::{Array, AsArray};
-use boxpose_render::arrow::record_batch::RecordBatch;
 use boxpose_render::{RenderRequest, Renderer, scene_rows};
 
 /// Re-render frames of one scene of a dataset with the embedded Blender.

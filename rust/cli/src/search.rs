@@ -44,7 +44,7 @@ use crate::search_report;
         nominal, and reports the weighted (ratio) estimate, its 95% interval, the effective sample size and \
         the largest weight's share, with a warning when the weights are too uneven to trust the interval \
         (--ce-tilt keeps parameters the failures do not depend on at their nominal; --ce-tilt auto chooses them \
-        by testing the first tuning iteration's elites against the nominal). --sampler splitting \
+        by testing which parameters the first tuning iteration's scores depend on). --sampler splitting \
         (subset simulation, adaptive multilevel splitting) draws --samples particles from the nominal, keeps \
         the highest-scoring share --splitting-level-probability of them and grows Markov chains from them \
         that stay above that level, stage after stage, until that share fails: p̂ is the product of the \
@@ -243,9 +243,9 @@ struct RunArgs {
     ce_components: usize,
     /// Cross-entropy: tilt only these parameters (comma-separated names or prefixes, e.g.
     /// `target.size_m,target.orientation`); the others keep their nominal and add no weight
-    /// variance. `auto`: tilt those whose values among the first tuning iteration's elites
-    /// differ from the nominal (tested at family-wise level 1 %; summary.json's `ce_tilt` lists
-    /// every test). Default: all.
+    /// variance. `auto`: tilt those the first tuning iteration's scores depend on (a rank test
+    /// per parameter at family-wise level 1 %; summary.json's `ce_tilt` lists every test).
+    /// Default: all.
     #[arg(long, value_delimiter = ',')]
     ce_tilt: Vec<String>,
     /// Splitting: the share p₀ of each stage's particles above the next level (Au & Beck: 0.1).
@@ -528,9 +528,9 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     }
     if let Some(tilt) = &summary.ce_tilt {
         println!(
-            "cross-entropy tilted {} (chosen from the first iteration's {} elites)",
+            "cross-entropy tilted {} (chosen from the first iteration's {} valid samples)",
             tilt.tilted().join(", "),
-            tilt.elites
+            tilt.samples
         );
     }
     print_estimate(out, &summary.estimate, summary.samples_spent);

@@ -220,7 +220,7 @@ fn estimate_curve(rows: &[SampleRow], run: &Run) -> anyhow::Result<Vec<(f64, f64
 /// Each counterexample frame's rendered region as `boxpose render --crop` takes it (`x0,y0,x1,y1`),
 /// from its `render_settings`; frames rendered whole have none.
 fn render_crops(dataset: &Dataset) -> anyhow::Result<std::collections::HashMap<i64, String>> {
-    use arrow::array::{AsArray, Int64Array};
+    use boxpose_data::arrow::array::{AsArray, Int64Array};
     let mut crops = std::collections::HashMap::new();
     for shard in dataset.read_table(&boxpose_data::schema::FRAMES)? {
         let batch = &shard.batch;

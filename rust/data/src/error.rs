@@ -23,7 +23,7 @@ pub enum DataError {
     #[error("{path}: reading Arrow data failed: {source}")]
     Arrow {
         path: PathBuf,
-        source: arrow::error::ArrowError,
+        source: crate::arrow::error::ArrowError,
     },
     #[error("{path}: not a boxpose shard (no `{key}` in its Parquet metadata)")]
     NotAShard { path: PathBuf, key: &'static str },

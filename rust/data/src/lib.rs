@@ -4,6 +4,7 @@
 //! [`write_shard`] writes a shard atomically; [`Dataset`] opens a folder, validates every shard
 //! against the schema and yields decoded frames joined with their instances.
 
+pub mod arrow;
 mod error;
 mod reader;
 pub mod recipe;

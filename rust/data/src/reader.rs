@@ -3,10 +3,10 @@ use std::fs;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use arrow::array::{Array, AsArray, BooleanArray};
-use arrow::compute::{cast, concat_batches, filter_record_batch};
-use arrow::datatypes::{DataType, Float32Type, Float64Type, Int32Type, Int64Type};
-use arrow::record_batch::RecordBatch;
+use crate::arrow::array::{Array, AsArray, BooleanArray};
+use crate::arrow::compute::{cast, concat_batches, filter_record_batch};
+use crate::arrow::datatypes::{DataType, Float32Type, Float64Type, Int32Type, Int64Type};
+use crate::arrow::record_batch::RecordBatch;
 use parquet::arrow::ProjectionMask;
 use parquet::arrow::arrow_reader::{ParquetRecordBatchReaderBuilder, RowSelection, RowSelector};
 
@@ -521,7 +521,7 @@ impl ShardRowOffsets {
 }
 
 /// A non-null key column of a validated batch.
-fn key_column<'a, T: arrow::datatypes::ArrowPrimitiveType>(
+fn key_column<'a, T: crate::arrow::datatypes::ArrowPrimitiveType>(
     sb: &'a ShardBatch,
     name: &'static str,
 ) -> Result<&'a [T::Native]> {
@@ -885,7 +885,7 @@ fn same_type(found: &DataType, expected: &DataType) -> bool {
 fn check_columns(
     path: &Path,
     table: &'static Table,
-    arrow_schema: &arrow::datatypes::Schema,
+    arrow_schema: &crate::arrow::datatypes::Schema,
 ) -> Result<()> {
     for column in table.columns {
         let field =
@@ -1031,7 +1031,7 @@ fn numbers(array: &dyn Array) -> Option<Vec<f64>> {
     if !array.data_type().is_numeric() {
         return None;
     }
-    let cast = arrow::compute::cast(array, &DataType::Float64).ok()?;
+    let cast = crate::arrow::compute::cast(array, &DataType::Float64).ok()?;
     Some(cast.as_primitive::<Float64Type>().values().to_vec())
 }
 

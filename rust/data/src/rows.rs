@@ -2,11 +2,11 @@
 
 use std::path::Path;
 
-use arrow::array::{Array, AsArray};
-use arrow::datatypes::{
+use crate::arrow::array::{Array, AsArray};
+use crate::arrow::datatypes::{
     ArrowPrimitiveType, Float32Type, Float64Type, Int8Type, Int32Type, Int64Type,
 };
-use arrow::record_batch::RecordBatch;
+use crate::arrow::record_batch::RecordBatch;
 
 use crate::error::{DataError, Result};
 
@@ -515,12 +515,12 @@ fn decode_depth(
 mod to_batch {
     use std::sync::Arc;
 
-    use arrow::array::{
+    use crate::arrow::array::{
         ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray,
         StringArray,
     };
-    use arrow::datatypes::{ArrowPrimitiveType, Float32Type, Float64Type};
-    use arrow::record_batch::RecordBatch;
+    use crate::arrow::datatypes::{ArrowPrimitiveType, Float32Type, Float64Type};
+    use crate::arrow::record_batch::RecordBatch;
 
     use super::{Object, Pose, Scene};
     use crate::schema::{self, Table};

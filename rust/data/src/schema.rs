@@ -11,7 +11,7 @@
 //! top-left pixel at (0, 0); box corner i has sign pattern bit0 → x, bit1 → y, bit2 → z
 //! (0 = −, 1 = +).
 
-use arrow::datatypes::{DataType, Field, Schema};
+use crate::arrow::datatypes::{DataType, Field, Schema};
 
 /// Version of the contract. Bump it on any change to [`TABLES`]; readers refuse other versions.
 pub const SCHEMA_VERSION: u32 = 1;

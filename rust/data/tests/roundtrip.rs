@@ -2,11 +2,11 @@
 
 use std::sync::Arc;
 
-use arrow::array::{
+use boxpose_data::arrow::array::{
     ArrayRef, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array, ListArray,
 };
-use arrow::datatypes::{Float32Type, Float64Type};
-use arrow::record_batch::RecordBatch;
+use boxpose_data::arrow::datatypes::{Float32Type, Float64Type};
+use boxpose_data::arrow::record_batch::RecordBatch;
 use boxpose_data::schema::OBJECTS;
 use boxpose_data::{DataError, Dataset, read_shard, shard_file_name, write_shard};
 use proptest::prelude::*;

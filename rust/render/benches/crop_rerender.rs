@@ -8,11 +8,11 @@
 
 use std::time::Instant;
 
-use arrow::array::AsArray;
-use arrow::datatypes::Float64Type;
-use arrow::record_batch::RecordBatch;
 use arrow_pyarrow::FromPyArrow;
 use boxpose_data::Pose;
+use boxpose_data::arrow::array::AsArray;
+use boxpose_data::arrow::datatypes::Float64Type;
+use boxpose_data::arrow::record_batch::RecordBatch;
 use boxpose_render::{RenderRequest, Renderer};
 use pyo3::prelude::*;
 

@@ -18,10 +18,9 @@
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-pub use arrow;
-use arrow::record_batch::RecordBatch;
 use arrow_pyarrow::{FromPyArrow, ToPyArrow};
 use boxpose_data::Pose;
+use boxpose_data::arrow::record_batch::RecordBatch;
 use boxpose_data::schema::{self, Table};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyTuple};

@@ -3,11 +3,11 @@
 
 use std::sync::{Mutex, MutexGuard, OnceLock};
 
-use arrow::array::{Array, AsArray, BinaryArray};
-use arrow::datatypes::{Float64Type, Int32Type};
-use arrow::record_batch::RecordBatch;
 use arrow_pyarrow::FromPyArrow;
 use boxpose_data::Pose;
+use boxpose_data::arrow::array::{Array, AsArray, BinaryArray};
+use boxpose_data::arrow::datatypes::{Float64Type, Int32Type};
+use boxpose_data::arrow::record_batch::RecordBatch;
 use boxpose_render::{RenderError, RenderRequest, Rendered, Renderer};
 use pyo3::prelude::*;
 

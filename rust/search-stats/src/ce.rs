@@ -288,8 +288,8 @@ pub fn run_in_memory_from(
 }
 
 /// [`run_in_memory`] with the tilted dimensions chosen from data, as `boxpose search --ce-tilt
-/// auto` does: iteration 0 draws from the nominal, [`choose_tilt`] tests its elites at
-/// family-wise level `tilt_alpha` (`rotation_blocks`: the orientation blocks' starts), and from
+/// auto` does: iteration 0 draws from the nominal, [`choose_tilt`] tests its scores' dependence
+/// on each dimension at family-wise level `tilt_alpha` (`rotation_blocks`: the orientation blocks' starts), and from
 /// then on every proposal holds the untilted dimensions at their nominal
 /// ([`hold_at_nominal`]); the chosen orientation blocks get angular central Gaussians.
 pub fn run_in_memory_auto_tilt(
@@ -305,9 +305,7 @@ pub fn run_in_memory_auto_tilt(
     let start = Proposal::tuning_start(dim, config.components);
     let zs = draw(&start, seed, 0, config.samples_per_iteration);
     let scores: Vec<f64> = zs.iter().map(|z| score(z)).collect();
-    let chosen = elites(&scores, config.rho, failure_level)?;
-    let elite_zs: Vec<Vec<f64>> = chosen.indices.iter().map(|&i| zs[i].clone()).collect();
-    let choice = choose_tilt(&elite_zs, dim, rotation_blocks, tilt_alpha)?;
+    let choice = choose_tilt(&zs, &scores, dim, rotation_blocks, tilt_alpha)?;
     let mask = choice.mask(dim);
     let start = start.with_rotation_blocks(&choice.tilted_blocks())?;
     let run = tune_then_estimate(

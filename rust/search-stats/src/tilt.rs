@@ -2,30 +2,30 @@
 //!
 //! A proposal that moves every dimension of z pays for the ones the failure does not depend
 //! on: each adds variance to the likelihood ratio and nothing to the hit rate. The first tuning
-//! iteration draws from the nominal, and its elites are chosen by the score alone, so **if the
-//! score does not depend on z_d, z_d is exactly N(0, 1) among the elites** (and a direction
-//! block is exactly uniform on S³). Each dimension is therefore tested against its nominal on
-//! the elites:
+//! iteration draws from the nominal, so each dimension can be tested for **any dependence of the
+//! score on it**: if the score does not depend on z_d, the ranks of the scores are independent
+//! of z_d. The test regresses the centred score ranks on features of the dimension and takes
+//! n·R², which is χ²(k) under independence (the score test of a linear model; with ranks it
+//! needs no assumption on the score's distribution):
 //!
-//! - a scalar z_d: the mean (√n·z̄ ~ N(0, 1)) and the variance ((n − 1)s² ~ χ²(n − 1)), both
-//!   two-sided, the smaller p-value doubled;
-//! - an orientation block (four normals whose direction is a uniformly random rotation):
-//!   Bingham's test of uniformity on the sphere, S = 12 n (tr T² − 1/4) ~ χ²(9) with
-//!   T = (1/n) Σ u uᵀ over the unit directions u (Mardia & Jupp 2000, §10.7; it is invariant to
-//!   u → −u, as a quaternion's rotation is).
+//! - a scalar z_d: k = 2 features, z_d and z_d² (a failure at one end, or at both);
+//! - an orientation block (four normals whose direction u is a uniformly random rotation): the
+//!   k = 9 free entries of u uᵀ (u_i u_j for i < j, u_i² for i < 4), which are invariant to
+//!   u → −u, as a quaternion's rotation is, and which hold every smooth dependence on the
+//!   rotation to first order.
 //!
 //! A dimension is tilted when its p-value is below α divided by the number of tests
 //! (Bonferroni), so a search whose failures depend on none of them tilts none by chance with
 //! probability at least 1 − α. Holding a dimension at its nominal never biases the
 //! importance-sampling estimate (the weight is then exactly 1 along it); a missed dimension only
-//! costs variance.
+//! costs variance. Invalid samples (NaN scores) are left out.
 
+use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use crate::ce::CeError;
 use crate::proposal::{Proposal, ROTATION_BLOCK_DIM};
-use crate::stats::normal_cdf;
 
 /// One test: a scalar dimension (`len` 1) or an orientation block (`len` 4) starting at `start`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -40,11 +40,11 @@ pub struct DimensionTest {
     pub tilted: bool,
 }
 
-/// The choice made from one batch of elites.
+/// The choice made from one batch of nominal samples.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct TiltChoice {
-    /// Elites the tests were made on.
-    pub elites: usize,
+    /// Valid samples the tests were made on.
+    pub samples: usize,
     /// The family-wise level α; each test is held to α / `tests.len()`.
     pub alpha: f64,
     /// One entry per scalar dimension and per orientation block, in z's order.
@@ -82,11 +82,13 @@ impl TiltChoice {
     }
 }
 
-/// Tests every scalar dimension and orientation block of `elite_zs` (drawn from the nominal and
-/// kept for their scores) against its nominal distribution at family-wise level `alpha`.
-/// `rotation_blocks` are the starts of the four-dimensional orientation blocks.
+/// Tests every scalar dimension and orientation block of z for a dependence of `scores` on it,
+/// at family-wise level `alpha`: `zs` were drawn from the nominal and `scores[i]` is sample i's
+/// score (NaN: invalid, left out). `rotation_blocks` are the starts of the four-dimensional
+/// orientation blocks.
 pub fn choose_tilt(
-    elite_zs: &[Vec<f64>],
+    zs: &[Vec<f64>],
+    scores: &[f64],
     dim: usize,
     rotation_blocks: &[usize],
     alpha: f64,
@@ -97,45 +99,64 @@ pub fn choose_tilt(
             message: format!("{alpha} is not in (0, 1)"),
         });
     }
-    let n = elite_zs.len();
-    if n < 2 {
+    if zs.len() != scores.len() {
         return Err(CeError::Input(format!(
-            "{n} elites: at least 2 are needed to choose the tilted dimensions"
+            "{} samples but {} scores",
+            zs.len(),
+            scores.len()
         )));
     }
-    if let Some(z) = elite_zs.iter().find(|z| z.len() != dim) {
+    if let Some(z) = zs.iter().find(|z| z.len() != dim) {
         return Err(CeError::Input(format!(
-            "an elite has {} dimensions, not {dim}",
+            "a sample has {} dimensions, not {dim}",
             z.len()
         )));
     }
+    let valid: Vec<usize> = (0..zs.len()).filter(|&i| !scores[i].is_nan()).collect();
+    let n = valid.len();
+    if n < 20 {
+        return Err(CeError::Input(format!(
+            "{n} valid samples: at least 20 are needed to choose the tilted dimensions"
+        )));
+    }
+    let ranks = centred_ranks(&valid.iter().map(|&i| scores[i]).collect::<Vec<_>>());
     let mut tests = Vec::new();
     let mut d = 0;
     while d < dim {
-        if rotation_blocks.contains(&d) {
+        let (len, features): (usize, Vec<Vec<f64>>) = if rotation_blocks.contains(&d) {
             if d + ROTATION_BLOCK_DIM > dim {
                 return Err(CeError::Input(format!(
                     "the orientation block at {d} does not fit in {dim} dimensions"
                 )));
             }
-            let blocks: Vec<&[f64]> = elite_zs
+            let features = valid
                 .iter()
-                .map(|z| &z[d..d + ROTATION_BLOCK_DIM])
+                .map(|&i| rotation_features(&zs[i][d..d + ROTATION_BLOCK_DIM]))
                 .collect();
-            tests.push(test(d, ROTATION_BLOCK_DIM, bingham_p_value(&blocks)));
-            d += ROTATION_BLOCK_DIM;
+            (ROTATION_BLOCK_DIM, features)
         } else {
-            let values: Vec<f64> = elite_zs.iter().map(|z| z[d]).collect();
-            tests.push(test(d, 1, standard_normal_p_value(&values)));
-            d += 1;
-        }
+            (
+                1,
+                valid
+                    .iter()
+                    .map(|&i| vec![zs[i][d], zs[i][d] * zs[i][d]])
+                    .collect(),
+            )
+        };
+        tests.push(DimensionTest {
+            start: d,
+            len,
+            p_value: rank_dependence_p_value(&ranks, &features),
+            tilted: false,
+        });
+        d += len;
     }
     let threshold = alpha / tests.len() as f64;
     for t in &mut tests {
         t.tilted = t.p_value < threshold;
     }
     Ok(TiltChoice {
-        elites: n,
+        samples: n,
         alpha,
         tests,
     })
@@ -156,54 +177,66 @@ pub fn hold_at_nominal(mut proposal: Proposal, mask: &[bool]) -> Proposal {
     proposal
 }
 
-fn test(start: usize, len: usize, p_value: f64) -> DimensionTest {
-    DimensionTest {
-        start,
-        len,
-        p_value,
-        tilted: false,
+/// The ranks of `x` (ties share their mean rank), centred on zero.
+fn centred_ranks(x: &[f64]) -> Vec<f64> {
+    let mut order: Vec<usize> = (0..x.len()).collect();
+    order.sort_by(|&a, &b| x[a].total_cmp(&x[b]));
+    let mut ranks = vec![0.0; x.len()];
+    let mut i = 0;
+    while i < order.len() {
+        let mut j = i;
+        while j + 1 < order.len() && x[order[j + 1]] == x[order[i]] {
+            j += 1;
+        }
+        let mean_rank = 0.5 * (i + j) as f64;
+        for &k in &order[i..=j] {
+            ranks[k] = mean_rank;
+        }
+        i = j + 1;
     }
+    let centre = (x.len() - 1) as f64 / 2.0;
+    ranks.iter().map(|r| r - centre).collect()
 }
 
-/// Two-sided p-value of "`x` is an i.i.d. N(0, 1) sample", from its mean and its variance
-/// (the smaller of the two p-values, doubled).
-fn standard_normal_p_value(x: &[f64]) -> f64 {
-    let n = x.len() as f64;
-    let mean = x.iter().sum::<f64>() / n;
-    let p_mean = 2.0 * (1.0 - normal_cdf((mean * n.sqrt()).abs()));
-    let sum_sq: f64 = x.iter().map(|v| (v - mean).powi(2)).sum();
-    let chi = ChiSquared::new(n - 1.0).expect("n ≥ 2");
-    let lower = chi.cdf(sum_sq);
-    let p_var = 2.0 * lower.min(1.0 - lower);
-    (2.0 * p_mean.min(p_var)).min(1.0)
+/// The nine free entries of u uᵀ for the direction u of a four-vector (u_i u_j for i < j, and
+/// u_i² for i < 3; u_3² = 1 − the rest).
+fn rotation_features(block: &[f64]) -> Vec<f64> {
+    let norm = block
+        .iter()
+        .map(|v| v * v)
+        .sum::<f64>()
+        .sqrt()
+        .max(f64::MIN_POSITIVE);
+    let u: Vec<f64> = block.iter().map(|v| v / norm).collect();
+    let mut f = Vec::with_capacity(9);
+    for i in 0..ROTATION_BLOCK_DIM {
+        for j in i + 1..ROTATION_BLOCK_DIM {
+            f.push(u[i] * u[j]);
+        }
+    }
+    f.extend((0..ROTATION_BLOCK_DIM - 1).map(|i| u[i] * u[i]));
+    f
 }
 
-/// Bingham's test that the directions of the four-vectors `blocks` are uniform on S³:
-/// S = p(p + 2)/2 · n · (tr T² − 1/p) ~ χ²((p − 1)(p + 2)/2) with p = 4, T = (1/n) Σ u uᵀ.
-fn bingham_p_value(blocks: &[&[f64]]) -> f64 {
-    const P: usize = ROTATION_BLOCK_DIM;
-    let mut t = [[0.0; P]; P];
-    let mut n = 0usize;
-    for b in blocks {
-        let norm = b.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if norm == 0.0 || !norm.is_finite() {
-            continue;
-        }
-        n += 1;
-        for i in 0..P {
-            for j in 0..P {
-                t[i][j] += b[i] * b[j] / (norm * norm);
-            }
-        }
+/// p-value of "the centred `ranks` do not depend on `features`" (one row per sample): n·R² of
+/// the least-squares fit of the ranks on the centred features, against χ²(k).
+fn rank_dependence_p_value(ranks: &[f64], features: &[Vec<f64>]) -> f64 {
+    let (n, k) = (features.len(), features[0].len());
+    let mut x = DMatrix::from_fn(n, k, |i, j| features[i][j]);
+    for j in 0..k {
+        let mean = x.column(j).mean();
+        x.column_mut(j).add_scalar_mut(-mean);
     }
-    if n == 0 {
-        return 1.0;
-    }
-    let trace_sq: f64 = t.iter().flatten().map(|v| (v / n as f64).powi(2)).sum();
-    let p = P as f64;
-    let statistic = p * (p + 2.0) / 2.0 * n as f64 * (trace_sq - 1.0 / p);
-    let df = (p - 1.0) * (p + 2.0) / 2.0;
-    1.0 - ChiSquared::new(df).expect("df > 0").cdf(statistic.max(0.0))
+    let y = DVector::from_column_slice(ranks);
+    let total = y.norm_squared();
+    let Some(chol) = (x.transpose() * &x).cholesky() else {
+        return 1.0; // a constant feature: nothing to test
+    };
+    let xty = x.transpose() * &y;
+    let explained = xty.dot(&chol.solve(&xty));
+    let r_squared = (explained / total).clamp(0.0, 1.0);
+    let chi = ChiSquared::new(k as f64).expect("k > 0");
+    1.0 - chi.cdf(n as f64 * r_squared)
 }
 
 #[cfg(test)]
@@ -224,46 +257,53 @@ mod tests {
     }
 
     #[test]
-    fn nominal_elites_tilt_nothing_at_the_family_wise_rate() {
-        // 200 independent nominal "elite" sets of 100 in 18 dimensions (14 scalars, one block):
-        // at α = 0.05 at most about 5 % may tilt anything.
+    fn a_score_that_depends_on_nothing_tilts_nothing_at_the_family_wise_rate() {
+        // 200 independent sets of 300 samples in 18 dimensions (14 scalars, one block) with
+        // scores independent of z: at α = 0.05 at most about 5 % may tilt anything.
         let runs = 200;
         let chose = (0..runs)
             .filter(|&seed| {
-                !choose_tilt(&nominal(100, 18, seed), 18, &[10], 0.05)
+                let zs = nominal(300, 18, seed);
+                let scores: Vec<f64> = nominal(300, 1, seed + 1000).concat();
+                !choose_tilt(&zs, &scores, 18, &[10], 0.05)
                     .unwrap()
                     .is_empty()
             })
             .count();
         assert!(
             chose <= 20,
-            "{chose} of {runs} nominal sets tilted something"
+            "{chose} of {runs} independent sets tilted something"
         );
-        let none = choose_tilt(&nominal(100, 18, 0), 18, &[10], 1e-9).unwrap();
-        assert!(none.is_empty());
+        let zs = nominal(300, 18, 0);
+        let none = choose_tilt(&zs, &vec![1.0; 300], 18, &[10], 0.05).unwrap();
+        assert!(none.is_empty(), "constant scores: nothing to tilt");
         assert_eq!(none.mask(18), vec![true; 18], "nothing chosen: tilt all");
         assert_eq!(none.tilted_blocks(), vec![10]);
     }
 
     #[test]
-    fn a_shifted_scalar_a_narrowed_scalar_and_a_concentrated_block_are_found() {
-        let mut zs = nominal(100, 18, 7);
-        for z in &mut zs {
-            z[2] += 1.0; // shifted mean
-            z[5] *= 0.4; // narrowed
-            // a block concentrated near ±(1, 0, 0, 0)
-            z[11] *= 0.3;
-            z[12] *= 0.3;
-            z[13] *= 0.3;
-        }
-        let choice = choose_tilt(&zs, 18, &[10], 0.01).unwrap();
+    fn a_monotone_a_two_sided_and_an_orientation_dependence_are_found() {
+        let zs = nominal(1000, 18, 7);
+        let q0 = [0.5, -0.5, 0.5, 0.5];
+        let scores: Vec<f64> = zs
+            .iter()
+            .enumerate()
+            .map(|(i, z)| {
+                let norm = z[10..14].iter().map(|v| v * v).sum::<f64>().sqrt();
+                let dot: f64 = (0..4).map(|j| q0[j] * z[10 + j]).sum::<f64>() / norm;
+                let score = 0.5 * z[2] + 0.5 * z[5] * z[5] + dot * dot;
+                if i % 50 == 0 { f64::NAN } else { score } // invalid samples are left out
+            })
+            .collect();
+        let choice = choose_tilt(&zs, &scores, 18, &[10], 0.01).unwrap();
+        assert_eq!(choice.samples, 980);
         let tilted: Vec<usize> = choice
             .tests
             .iter()
             .filter(|t| t.tilted)
             .map(|t| t.start)
             .collect();
-        assert_eq!(tilted, vec![2, 5, 10]);
+        assert_eq!(tilted, vec![2, 5, 10], "{:?}", choice.tests);
         assert_eq!(choice.tilted_blocks(), vec![10]);
         let mask = choice.mask(18);
         assert_eq!(mask.iter().filter(|&&m| m).count(), 6);
@@ -271,10 +311,21 @@ mod tests {
     }
 
     #[test]
+    fn ranks_share_ties() {
+        assert_eq!(
+            centred_ranks(&[3.0, 1.0, 3.0, 2.0]),
+            vec![1.0, -1.5, 1.0, -0.5]
+        );
+    }
+
+    #[test]
     fn bad_inputs_are_refused() {
-        assert!(choose_tilt(&nominal(1, 3, 1), 3, &[], 0.05).is_err());
-        assert!(choose_tilt(&nominal(10, 3, 1), 3, &[], 1.0).is_err());
-        assert!(choose_tilt(&nominal(10, 3, 1), 3, &[1], 0.05).is_err());
-        assert!(choose_tilt(&nominal(10, 3, 1), 4, &[], 0.05).is_err());
+        let zs = nominal(30, 3, 1);
+        let scores = vec![0.0; 30];
+        assert!(choose_tilt(&zs[..10], &scores[..10], 3, &[], 0.05).is_err());
+        assert!(choose_tilt(&zs, &scores, 3, &[], 1.0).is_err());
+        assert!(choose_tilt(&zs, &scores, 3, &[1], 0.05).is_err());
+        assert!(choose_tilt(&zs, &scores, 4, &[], 0.05).is_err());
+        assert!(choose_tilt(&zs, &scores[1..], 3, &[], 0.05).is_err());
     }
 }

@@ -153,8 +153,8 @@ pub fn eval_outcomes(
     method: &str,
     fraction: f64,
 ) -> Result<Vec<(BoxKey, bool)>> {
-    use arrow::array::{Array, AsArray, RecordBatch};
-    use arrow::datatypes::{Float64Type, Int32Type, Int64Type};
+    use boxpose_data::arrow::array::{Array, AsArray, RecordBatch};
+    use boxpose_data::arrow::datatypes::{Float64Type, Int32Type, Int64Type};
     use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
     let bad = |message: String| SearchError::Io {
         path: path.to_path_buf(),

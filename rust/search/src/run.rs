@@ -22,17 +22,17 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use arrow::array::{
+use boxpose_data::arrow::array::{
     Array, ArrayRef, AsArray, BooleanArray, Float32Array, Float64Array, Int32Array, Int64Array,
     ListArray, StringArray,
 };
-use arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
-use arrow::record_batch::RecordBatch;
+use boxpose_data::arrow::datatypes::{Float32Type, Float64Type, Int32Type, Int64Type};
+use boxpose_data::arrow::record_batch::RecordBatch;
 use boxpose_data::schema::{self, SEARCH_SAMPLES, SEARCH_TIMINGS, Table};
 use boxpose_data::{Object, Scene};
 use boxpose_search_stats::{
     CeConfig, CeError, CeStep, ImportanceEstimate, Proposal, SplittingConfig, SplittingError,
-    SplittingRun, SplittingState, TiltChoice, WeightedSample, ce_step, choose_tilt, elites,
+    SplittingRun, SplittingState, TiltChoice, WeightedSample, ce_step, choose_tilt,
     hold_at_nominal, log_nominal, sample_rng,
 };
 use rand::Rng;
@@ -94,7 +94,7 @@ pub struct RunSettings {
     pub ce: CeConfig,
     /// Cross-entropy: the parameters the proposal may tilt (names or prefixes of z's dimensions,
     /// e.g. `target.size_m`); the others stay at their nominal, so they add no weight variance.
-    /// Empty: all of them. [`AUTO_TILT`] alone: chosen from the first tuning iteration's elites
+    /// Empty: all of them. [`AUTO_TILT`] alone: chosen from the first tuning iteration's scores
     /// ([`boxpose_search_stats::choose_tilt`]).
     #[serde(default)]
     pub ce_tilt: Vec<String>,
@@ -850,12 +850,16 @@ impl Run {
             problem: format!("cross-entropy step after iteration {iteration}: {e}"),
         };
         let (current, tilt) = if self.auto_tilt() && iteration == 0 {
-            // Iteration 0 drew from the nominal: its elites show what the failures depend on.
-            let chosen = elites(&scores, ce.rho, 0.0).map_err(step_error)?;
-            let elite_zs: Vec<Vec<f64>> = chosen.indices.iter().map(|&i| zs[i].clone()).collect();
+            // Iteration 0 drew from the nominal: its scores show what the failures depend on.
             let dim = self.record.dimensions.len();
-            let choice = choose_tilt(&elite_zs, dim, &self.orientation_blocks(), AUTO_TILT_ALPHA)
-                .map_err(step_error)?;
+            let choice = choose_tilt(
+                &zs,
+                &scores,
+                dim,
+                &self.orientation_blocks(),
+                AUTO_TILT_ALPHA,
+            )
+            .map_err(step_error)?;
             // The same density as iteration 0's (the nominal), with only the chosen blocks
             // shaped as rotations.
             let start = Proposal::tuning_start(dim, ce.components)
@@ -1259,9 +1263,9 @@ impl Run {
             .chain(system_errors_warning(samples))
             .chain(ce_tilt.as_ref().filter(|t| t.nothing_stood_out).map(|t| {
                 format!(
-                    "--ce-tilt auto: no parameter's effect on the failures showed among the first \
-                     iteration's {} elites, so every parameter was tilted",
-                    t.elites
+                    "--ce-tilt auto: no parameter's effect on the score showed in the first \
+                     iteration's {} valid samples, so every parameter was tilted",
+                    t.samples
                 )
             }))
             .collect(),
@@ -1534,11 +1538,11 @@ pub struct StageMeans {
     pub fit: f64,
 }
 
-/// `--ce-tilt auto`: what the first tuning iteration's elites chose.
+/// `--ce-tilt auto`: what the first tuning iteration's scores chose.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TiltSummary {
-    /// Elites of iteration 0 the tests were made on.
-    pub elites: usize,
+    /// Valid samples of iteration 0 the tests were made on.
+    pub samples: usize,
     /// The family-wise level α; each test is held to α / the number of tests.
     pub alpha: f64,
     /// No parameter passed its test, so every one was tilted.
@@ -1558,7 +1562,7 @@ pub struct TiltTest {
 impl TiltSummary {
     fn new(choice: &TiltChoice, dimensions: &[String]) -> Self {
         Self {
-            elites: choice.elites,
+            samples: choice.samples,
             alpha: choice.alpha,
             nothing_stood_out: choice.is_empty(),
             tests: choice

@@ -5,7 +5,7 @@
 
 use std::time::Instant;
 
-use arrow::record_batch::RecordBatch;
+use boxpose_data::arrow::record_batch::RecordBatch;
 use boxpose_data::{Frame, Instance, Object, Scene};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
@@ -644,7 +644,7 @@ fn window_inside_render(
     bbox: [i32; 4],
     margin: f64,
 ) -> Result<bool> {
-    use arrow::array::AsArray;
+    use boxpose_data::arrow::array::AsArray;
     let settings = frames
         .column_by_name("render_settings")
         .map(|c| c.as_string::<i32>().value(0).to_string())
