@@ -1,8 +1,11 @@
 """No output replaces what it did not write (issue 31, item 2): every command that writes a dataset
 or run folder, pointed at a folder that holds another dataset, refuses with a message naming the
-folder and leaves every file of it byte for byte as it was, and adds none."""
+folder and leaves every file of it byte for byte as it was, and adds none; and a folder another
+boxpose process is writing into is refused the same way."""
 
+import fcntl
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -117,3 +120,56 @@ def test_a_writing_command_refuses_a_folder_holding_another_dataset(
     assert sorted(after) == sorted(before), f"{name} added or removed files"
     changed = [path for path in before if after[path] != before[path]]
     assert not changed, f"{name} changed {changed}"
+
+
+# The commands that write into a folder of their own: while one runs, the folder is locked.
+LOCKING_COMMANDS = [
+    "render",
+    "search variants",
+    "search replay",
+    "eval",
+    "eval-results bop",
+    "predict",
+    "train",
+    "train-segmenter",
+]
+
+
+@pytest.mark.parametrize("name", LOCKING_COMMANDS)
+def test_a_writing_command_refuses_a_folder_another_process_is_writing(
+    name, boxpose_bin, dataset, tmp_path
+):
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "partial.txt").write_text("written by the other process")
+    before = snapshot(busy)
+    holder = os.open(busy, os.O_RDONLY)
+    try:
+        fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)  # what a running boxpose holds
+        result = subprocess.run(
+            command_line(name, boxpose_bin, dataset, busy, tmp_path),
+            capture_output=True,
+            text=True,
+            cwd=REPO,
+            timeout=120,
+        )
+    finally:
+        os.close(holder)
+    assert result.returncode != 0, f"{name} wrote into a folder in use:\n{result.stdout}"
+    assert "another boxpose command is writing into it" in result.stderr, result.stderr
+    assert str(busy) in result.stderr
+    assert snapshot(busy) == before
+
+
+def test_a_command_that_fails_on_its_input_leaves_no_folder_behind(boxpose_bin, dataset, tmp_path):
+    out = tmp_path / "new" / "eval"
+    result = subprocess.run(
+        [boxpose_bin, "eval", dataset, "--model", tmp_path / "no-model", "--out", out],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=120,
+    )
+    assert result.returncode != 0
+    assert "no-model" in result.stderr, result.stderr
+    assert not out.exists(), "the failed command left its --out behind"

@@ -159,7 +159,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let dataset_path = args.dataset.as_deref().context("give a dataset folder")?;
     // its own earlier output is rewritten (its stale files removed below)
-    crate::output_folder::refuse_foreign(&args.out, "--out", "eval", &["eval.parquet"])?;
+    let _claim = crate::output_folder::claim(&args.out, "--out", "eval", &["eval.parquet"])?;
     let mut model = KeypointModel::load(&args.model, args.backend.device()?)?;
     if let Some(radius) = args.peak_refine_radius {
         model.config.peak_refine_radius = radius;

@@ -188,7 +188,7 @@ struct Row {
 }
 
 fn bop(args: &BopArgs) -> anyhow::Result<()> {
-    crate::output_folder::refuse_foreign(
+    let _claim = crate::output_folder::claim(
         &args.out,
         "--out",
         "eval-results",

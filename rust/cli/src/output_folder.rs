@@ -53,3 +53,50 @@ pub fn refuse_foreign(
         names.join(", ")
     )
 }
+
+/// A writing command's hold on its output folder: [`claim`] checked that it holds no other
+/// output and locked the folder itself (flock on the directory, so the folder gains no lock
+/// file). The kernel releases the lock when the process ends, however it ends. Dropped, it
+/// removes the folder again when [`claim`] created it and nothing was written into it, so a
+/// command that fails on its input leaves nothing behind.
+pub struct Claim {
+    _locked: std::fs::File,
+    created: Option<std::path::PathBuf>,
+}
+
+impl Drop for Claim {
+    fn drop(&mut self) {
+        if let Some(folder) = &self.created {
+            let _ = std::fs::remove_dir(folder); // only succeeds while the folder is empty
+        }
+    }
+}
+
+/// [`refuse_foreign`], then the folder (created if missing) locked for this process: a second
+/// `boxpose` writing into it at the same time is refused, naming the folder.
+pub fn claim(folder: &Path, flag: &str, command: &str, own: &[&str]) -> anyhow::Result<Claim> {
+    refuse_foreign(folder, flag, command, own)?;
+    let created = if folder.exists() {
+        None
+    } else {
+        std::fs::create_dir_all(folder)
+            .map_err(|e| anyhow::anyhow!("{flag} {}: cannot create it: {e}", folder.display()))?;
+        Some(folder.to_path_buf())
+    };
+    let claim = Claim {
+        _locked: std::fs::File::open(folder)
+            .map_err(|e| anyhow::anyhow!("{flag} {}: cannot open it: {e}", folder.display()))?,
+        created,
+    };
+    match claim._locked.try_lock() {
+        Ok(()) => Ok(claim),
+        Err(std::fs::TryLockError::WouldBlock) => anyhow::bail!(
+            "{flag} {}: another boxpose command is writing into it now; wait for it to end, or \
+             choose another folder for {flag}",
+            folder.display()
+        ),
+        Err(std::fs::TryLockError::Error(e)) => {
+            anyhow::bail!("{flag} {}: cannot lock it: {e}", folder.display())
+        }
+    }
+}

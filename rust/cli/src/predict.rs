@@ -160,7 +160,8 @@ struct Target {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     // its own earlier predictions are replaced
-    crate::output_folder::refuse_foreign(&args.out, "--out", "predict", &["predictions.parquet"])?;
+    let _claim =
+        crate::output_folder::claim(&args.out, "--out", "predict", &["predictions.parquet"])?;
     let model = KeypointModel::load(&args.model, args.backend.device()?)?;
     let (frame, targets) = match (&args.dataset, &args.rgb) {
         (Some(dataset), None) => {

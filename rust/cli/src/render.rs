@@ -111,7 +111,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     // The rendered rows are written as the folder's only shards (`part-00000-of-00001`), which
     // would replace another dataset's rows or an earlier render's: no marker is its own.
-    crate::output_folder::refuse_foreign(&args.out, "--out", "render", &[])?;
+    let _claim = crate::output_folder::claim(&args.out, "--out", "render", &[])?;
     let (scenes, objects) = scene_rows(&args.dataset, args.scene)
         .with_context(|| format!("reading scene {} of {}", args.scene, args.dataset.display()))?;
     check_frames(&args.dataset, args.scene, &args.frames)?;

@@ -558,7 +558,7 @@ fn variants(
         "--sigma {sigma} must be finite and non-negative"
     );
     // before the run is read: a folder of another dataset or run is refused whatever the run
-    crate::output_folder::refuse_foreign(out, "--out", "search variants", &VARIANTS_OUTPUT)?;
+    let _claim = crate::output_folder::claim(out, "--out", "search variants", &VARIANTS_OUTPUT)?;
     let run = Run::open(run_dir)?;
     let inside_run = std::path::absolute(out)?.starts_with(std::path::absolute(run_dir)?);
     anyhow::ensure!(
@@ -661,7 +661,7 @@ fn replay(
     threads: usize,
     backend: BackendKind,
 ) -> anyhow::Result<()> {
-    crate::output_folder::refuse_foreign(out, "--out", "search replay", &[])?;
+    let _claim = crate::output_folder::claim(out, "--out", "search replay", &[])?;
     let run = Run::open(run_dir)?;
     let (rows, _) = run.rows()?;
     let recorded = rows

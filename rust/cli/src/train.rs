@@ -62,14 +62,10 @@ pub struct RunArgs {
 
 impl RunArgs {
     /// A run folder resumes its own checkpoint; a dataset or another command's run is refused
-    /// before the run writes its config.toml into it.
-    fn refuse_foreign_out(&self, command: &str) -> anyhow::Result<()> {
-        crate::output_folder::refuse_foreign(
-            &self.out,
-            "--out",
-            command,
-            &["config.toml", "checkpoint"],
-        )
+    /// before the run writes its config.toml into it, and a second training into the same
+    /// folder while this one runs.
+    fn claim_out(&self, command: &str) -> anyhow::Result<crate::output_folder::Claim> {
+        crate::output_folder::claim(&self.out, "--out", command, &["config.toml", "checkpoint"])
     }
 
     fn override_config(&self, data: &mut DataConfig, o: &mut OptimizerConfig) {
@@ -213,7 +209,7 @@ fn parse_backbone(text: &str) -> Result<Backbone, String> {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    args.run.refuse_foreign_out("train")?;
+    let _claim = args.run.claim_out("train")?;
     let mut config = TrainConfig::load(&args.config)?;
     args.run
         .override_config(&mut config.data, &mut config.optimizer);
@@ -293,7 +289,7 @@ pub struct SegmenterArgs {
 }
 
 pub fn run_segmenter(args: &SegmenterArgs) -> anyhow::Result<()> {
-    args.run.refuse_foreign_out("train-segmenter")?;
+    let _claim = args.run.claim_out("train-segmenter")?;
     let mut config = SegmenterTrainConfig::load(&args.config)?;
     args.run
         .override_config(&mut config.data, &mut config.optimizer);
