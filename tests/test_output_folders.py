@@ -102,18 +102,23 @@ def command_line(name, boxpose_bin, dataset, foreign, tmp_path) -> list[str]:
     return [str(boxpose_bin), *(values.get(a, a.replace("OUT", str(foreign))) for a in args)]
 
 
-@pytest.mark.parametrize("name", [*BOXPOSE_COMMANDS, "make scenes"])
-def test_a_writing_command_refuses_a_folder_holding_another_dataset(
-    name, boxpose_bin, dataset, foreign, tmp_path
-):
-    before = snapshot(foreign)
-    result = subprocess.run(
-        command_line(name, boxpose_bin, dataset, foreign, tmp_path),
+def run_command(name, boxpose_bin, dataset, out, tmp_path) -> subprocess.CompletedProcess:
+    """Runs command `name` aimed at `out`, from the repository root."""
+    return subprocess.run(
+        command_line(name, boxpose_bin, dataset, out, tmp_path),
         capture_output=True,
         text=True,
         cwd=REPO,
         timeout=120,
     )
+
+
+@pytest.mark.parametrize("name", [*BOXPOSE_COMMANDS, "make scenes"])
+def test_a_writing_command_refuses_a_folder_holding_another_dataset(
+    name, boxpose_bin, dataset, foreign, tmp_path
+):
+    before = snapshot(foreign)
+    result = run_command(name, boxpose_bin, dataset, foreign, tmp_path)
     assert result.returncode != 0, f"{name} wrote into another dataset:\n{result.stdout}"
     assert str(foreign) in result.stderr, result.stderr
     after = snapshot(foreign)
@@ -146,13 +151,7 @@ def test_a_writing_command_refuses_a_folder_another_process_is_writing(
     holder = os.open(busy, os.O_RDONLY)
     try:
         fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)  # what a running boxpose holds
-        result = subprocess.run(
-            command_line(name, boxpose_bin, dataset, busy, tmp_path),
-            capture_output=True,
-            text=True,
-            cwd=REPO,
-            timeout=120,
-        )
+        result = run_command(name, boxpose_bin, dataset, busy, tmp_path)
     finally:
         os.close(holder)
     assert result.returncode != 0, f"{name} wrote into a folder in use:\n{result.stdout}"
