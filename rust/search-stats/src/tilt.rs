@@ -10,7 +10,7 @@
 //!
 //! - a scalar z_d: k = 2 features, z_d and z_d² (a failure at one end, or at both);
 //! - an orientation block (four normals whose direction u is a uniformly random rotation): the
-//!   k = 9 free entries of u uᵀ (u_i u_j for i < j, u_i² for i < 4), which are invariant to
+//!   k = 9 free entries of u uᵀ (u_i u_j for i < j, u_i² for i < 3), which are invariant to
 //!   u → −u, as a quaternion's rotation is, and which hold every smooth dependence on the
 //!   rotation to first order.
 //!
@@ -26,6 +26,9 @@ use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use crate::ce::CeError;
 use crate::proposal::{Proposal, ROTATION_BLOCK_DIM};
+
+/// The fewest valid samples [`choose_tilt`] tests on (χ² is a large-sample law).
+pub const MIN_SAMPLES: usize = 20;
 
 /// One test: a scalar dimension (`len` 1) or an orientation block (`len` 4) starting at `start`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -114,9 +117,9 @@ pub fn choose_tilt(
     }
     let valid: Vec<usize> = (0..zs.len()).filter(|&i| !scores[i].is_nan()).collect();
     let n = valid.len();
-    if n < 20 {
+    if n < MIN_SAMPLES {
         return Err(CeError::Input(format!(
-            "{n} valid samples: at least 20 are needed to choose the tilted dimensions"
+            "{n} valid samples: at least {MIN_SAMPLES} are needed to choose the tilted dimensions"
         )));
     }
     let ranks = centred_ranks(&valid.iter().map(|&i| scores[i]).collect::<Vec<_>>());

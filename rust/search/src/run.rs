@@ -183,10 +183,19 @@ impl RunRecord {
             (_, None) => {}
         }
         let names: Vec<&str> = space.dimensions.iter().map(|d| d.name.as_str()).collect();
-        if settings.ce_tilt.iter().any(|t| t == AUTO_TILT) && settings.ce_tilt.len() > 1 {
-            return Err(SearchError::Sample(format!(
-                "--ce-tilt {AUTO_TILT} chooses the parameters itself: give it alone, or name them"
-            )));
+        if settings.ce_tilt.iter().any(|t| t == AUTO_TILT) {
+            if settings.ce_tilt.len() > 1 {
+                return Err(SearchError::Sample(format!(
+                    "--ce-tilt {AUTO_TILT} chooses the parameters itself: give it alone, or name them"
+                )));
+            }
+            if settings.ce.samples_per_iteration < boxpose_search_stats::tilt::MIN_SAMPLES {
+                return Err(SearchError::Sample(format!(
+                    "--ce-tilt {AUTO_TILT} tests the first iteration's samples: give \
+                     --ce-samples-per-iteration at least {} (a few hundred to find weak effects)",
+                    boxpose_search_stats::tilt::MIN_SAMPLES
+                )));
+            }
         }
         for prefix in settings.ce_tilt.iter().filter(|t| *t != AUTO_TILT) {
             if !names.iter().any(|n| n.starts_with(prefix.as_str())) {

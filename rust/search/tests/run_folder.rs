@@ -292,6 +292,10 @@ fn cross_entropy_chooses_the_deciding_parameter_itself_and_resumes() {
     mixed.ce_tilt.push("target.size_m".into());
     let refused = RunRecord::new(&space(), mixed).unwrap_err().to_string();
     assert!(refused.contains("--ce-tilt auto"), "{refused}");
+    let mut few = s.clone();
+    few.ce.samples_per_iteration = 10;
+    let refused = RunRecord::new(&space(), few).unwrap_err().to_string();
+    assert!(refused.contains("--ce-samples-per-iteration"), "{refused}");
     s.samples = 200;
     s.ce.final_samples = 200;
     check_resume_of(&s, p, 250);
