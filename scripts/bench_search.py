@@ -1,6 +1,9 @@
-"""`make bench-search`: CPU-seconds per search sample by stage, in both perception modes, and on
-one real pipeline event the samples Monte Carlo and cross-entropy need for 20% relative error,
-measured in one run (docs/benchmarks.md, "Search").
+"""`make bench-search`: CPU-seconds per search sample by stage, in both perception modes; on one
+real pipeline event the samples each sampler needs for 20% relative error (Monte Carlo,
+cross-entropy tilting every parameter, cross-entropy with `--ce-tilt auto`, subset simulation),
+as ratios to Monte Carlo measured in the same run; then the same ratios on the analytic failure
+sets of known probability (the estimator tests' printouts), in one run (docs/benchmarks.md,
+"Search").
 
 Each configuration is one `boxpose search` process with one Cycles thread; its CPU time comes
 from the kernel (user + system of the child), the per-stage split from the run's timings table.
@@ -22,16 +25,22 @@ REPO = Path(__file__).resolve().parent.parent
 
 
 def search(boxpose: Path, out: Path, *args) -> dict:
+    """One `boxpose search` run in `out` (replaced): its samples, timings, summary and CPU time;
+    for a run that fails, `{"error": its last stderr line}`."""
     if out.exists():
         shutil.rmtree(out)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     start = time.perf_counter()
-    subprocess.run(
+    result = subprocess.run(
         [str(boxpose), "search", *map(str, args), "--out", str(out), "--threads", "1"],
-        check=True,
         cwd=REPO,
         stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
     )
+    if result.returncode != 0:
+        lines = result.stderr.strip().splitlines()
+        return {"error": lines[-1] if lines else f"exit status {result.returncode}"}
     wall = time.perf_counter() - start
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -73,8 +82,12 @@ def main() -> None:
         "--ce-components", type=int, default=3, help="cross-entropy mixture components"
     )
     parser.add_argument(
+        "--splitting-samples", type=int, default=500, help="subset simulation's particles per stage"
+    )
+    parser.add_argument(
         "--fail-when", default="paper", help="the real pipeline event (failure predicate)"
     )
+    parser.add_argument("--no-analytic", action="store_true", help="skip the analytic failure sets")
     parser.add_argument("--out", type=Path, default=REPO / "build" / "bench_search")
     args = parser.parse_args()
 
@@ -87,19 +100,21 @@ def main() -> None:
     for name, n, extra in configurations:
         crops = name.split(",")[0]
         folder = args.out / ("mc-" + name.replace(", ", "-").replace(" ", "-"))
-        runs[name] = search(
-            args.boxpose,
-            folder,
-            args.space,
-            "--samples",
-            n,
-            "--batch-size",
-            25,
-            "--crops",
-            crops,
-            "--fail-when",
-            args.fail_when,
-            *extra,
+        runs[name] = checked(
+            search(
+                args.boxpose,
+                folder,
+                args.space,
+                "--samples",
+                n,
+                "--batch-size",
+                25,
+                "--crops",
+                crops,
+                "--fail-when",
+                args.fail_when,
+                *extra,
+            )
         )
     print(f"\n## Seconds per sample by stage, {args.space}, one Cycles thread\n")
     print(
@@ -122,50 +137,110 @@ def main() -> None:
         f"whole frames {whole:.3f}: {whole / region:.2f}× faster"
     )
 
-    mc = runs["gt"]["summary"]["estimate"]
-    ce_run = search(
-        args.boxpose,
-        args.out / "ce-gt",
-        args.space,
-        "--sampler",
-        "ce",
-        "--samples",
-        args.ce_final,
-        "--batch-size",
-        25,
-        "--ce-samples-per-iteration",
-        args.ce_tune,
-        "--ce-components",
-        args.ce_components,
-        "--fail-when",
-        args.fail_when,
-    )
-    ce = ce_run["summary"]["estimate"]
-    tuning = ce_run["summary"]["tuning_samples"]
+    common = [args.space, "--batch-size", 25, "--fail-when", args.fail_when]
+    ce = ["--sampler", "ce", "--samples", args.ce_final, "--ce-samples-per-iteration", args.ce_tune]
+    samplers = {
+        "Monte Carlo": runs["gt"],
+        "cross-entropy, every parameter tilted": search(
+            args.boxpose,
+            args.out / "ce-gt",
+            *common,
+            *ce,
+            "--ce-components",
+            args.ce_components,
+        ),
+        "cross-entropy, --ce-tilt auto": search(
+            args.boxpose, args.out / "ce-auto-gt", *common, *ce, "--ce-tilt", "auto"
+        ),
+        "subset simulation": search(
+            args.boxpose,
+            args.out / "splitting-gt",
+            *common,
+            "--sampler",
+            "splitting",
+            "--samples",
+            args.splitting_samples,
+        ),
+    }
     target = 0.2
     print(
         f"\n## Samples for {target:.0%} relative error on a real event "
         f"({args.space}, ground-truth crops, --fail-when {args.fail_when})\n"
     )
     print(
-        "| sampler | p̂ | 95% CI | samples in estimate | relative error "
-        "| samples for 20% RE (tuning included) |"
+        "| sampler | p̂ | 95% CI | samples spent | relative error "
+        "| samples for 20% RE (tuning included) | × fewer than Monte Carlo |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|")
+    mc = runs["gt"]["summary"]["estimate"]
     p = mc["p_hat"]
     mc_needed = (1 - p) / (target**2 * p) if p > 0 else float("inf")
-    print(
-        f"| Monte Carlo | {p:.3e} | {fmt(mc['ci95'])} | {mc['samples']} | {rel(mc)} "
-        f"| {mc_needed:.0f} |"
+    for name, run in samplers.items():
+        if "error" in run:
+            print(f"| {name} | failed: {run['error']} | | | | | |")
+            continue
+        summary = run["summary"]
+        e = summary["estimate"]
+        needed = mc_needed if name == "Monte Carlo" else samples_for(summary, target)
+        finite = 0 < needed < float("inf") and mc_needed < float("inf")
+        ratio = mc_needed / needed if finite else float("nan")
+        print(
+            f"| {name} | {e['p_hat']:.3e} | {fmt(e['ci95'])} | {summary['samples_spent']} "
+            f"| {rel(e)} | {needed:.0f} | {ratio:.2f} |"
+        )
+        for warning in summary["warnings"]:
+            print(f"|   warning: {warning} | | | | | | |")
+    auto = samplers["cross-entropy, --ce-tilt auto"].get("summary", {})
+    if "ce_tilt" in auto:
+        tilt = auto["ce_tilt"]
+        chosen = [t["parameter"] for t in tilt["tests"] if t["tilted"]] or ["every parameter"]
+        print(f"\n--ce-tilt auto chose: {', '.join(chosen)}")
+    if not args.no_analytic:
+        analytic()
+
+
+def checked(run: dict) -> dict:
+    """The timing runs must succeed: the tables below are made of them."""
+    if "error" in run:
+        raise SystemExit(f"bench-search: a timing run failed: {run['error']}")
+    return run
+
+
+def samples_for(summary: dict, target: float) -> float:
+    """Samples a run needs for relative error `target`: its tuning (cross-entropy) charged as
+    spent, the estimating stage scaled by (relative error / target)²; subset simulation's whole
+    budget scaled so."""
+    e = summary["estimate"]
+    re = e.get("relative_error")
+    if not re:
+        return float("inf")
+    if summary["sampler"] == "splitting":
+        return summary["samples_spent"] * (re / target) ** 2
+    return summary["tuning_samples"] + e["samples"] * (re / target) ** 2
+
+
+def analytic() -> None:
+    """The estimator tests on analytic failure sets of known p (no rendering), their printed
+    ratios to Monte Carlo at 10% relative error."""
+    print("\n## Analytic failure sets (known p; evaluations for 10% RE, ratios to Monte Carlo)\n")
+    tests = (
+        ("estimators", ["ce_beats_monte_carlo_twentyfold_at_1e3"]),
+        ("auto_tilt", []),
+        ("splitting", ["splitting_beats_monte_carlo_hundredfold_at_1e6"]),
     )
-    ce_re = ce.get("relative_error")
-    ce_needed = tuning + ce["samples"] * (ce_re / target) ** 2 if ce_re else float("inf")
-    print(
-        f"| cross-entropy | {ce['p_hat']:.3e} | {fmt(ce['ci95'])} "
-        f"| {ce['samples']} (+{tuning} tuning) | {rel(ce)} | {ce_needed:.0f} |"
-    )
-    if ce_needed > 0 and mc_needed < float("inf"):
-        print(f"\nMonte Carlo / cross-entropy samples for 20% RE: {mc_needed / ce_needed:.2f}×")
+    for test, names in tests:
+        result = subprocess.run(
+            ["cargo", "test", "--release", "-q", "-p", "boxpose-search-stats", "--test", test]
+            + names
+            + ["--", "--nocapture"],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        for line in result.stdout.splitlines():
+            if "×" in line or "MC" in line:
+                print(f"{test}: {line.strip().lstrip('.')}")  # -q prints a dot per test
 
 
 def fmt(ci) -> str:
