@@ -90,11 +90,13 @@ pub enum SplittingError {
     #[error("rotation blocks: {0}")]
     RotationBlocks(String),
     /// No particle of a stage lies above its threshold (every particle invalid), or every
-    /// particle does below the failure level (the score is flat there): splitting cannot go
-    /// on. Scores with atoms need Walter's (2015) corrected estimators.
+    /// particle does below the failure level (the score is flat there, or the chains never
+    /// moved, so every particle is a copy of a seed): splitting cannot go on. Scores with atoms
+    /// need Walter's (2015) corrected estimators.
     #[error(
         "stage {stage}: the threshold {threshold} does not split the particles (a plateau of \
-         the score, or every sample invalid)"
+         the score, every sample invalid, or chains that never moved so that every particle is \
+         a copy of a seed: more particles per stage, --samples, give the chains room)"
     )]
     Plateau {
         /// The stage whose particles were ranked.
