@@ -45,7 +45,15 @@ pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
         metric(|s| s.translation_error_m),
         metric(|s| s.fit_time_us),
         metric(|s| s.confidence),
-        metric(|s| s.margin_nats),
+        // no other box hypothesis: an infinite margin, written as null (the readers refuse ±∞)
+        Arc::new(
+            rows.iter()
+                .map(|r| {
+                    let margin = r.outcome.scores()?.margin_nats;
+                    margin.is_finite().then_some(margin)
+                })
+                .collect::<Float64Array>(),
+        ),
         metric(|s| s.noise_scale_m),
         Arc::new(
             rows.iter()
@@ -171,7 +179,57 @@ pub fn failure_auroc(fits: &[(f64, bool)]) -> Option<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::failure_auroc;
+    use super::{FitRow, columns, failure_auroc};
+    use boxpose_data::arrow::array::Array;
+    use boxpose_geometry::pipeline::{FitOutcome, Method, Scores};
+
+    #[test]
+    fn an_infinite_margin_is_written_as_null_and_the_table_reads_back() {
+        let scores = |margin_nats| Scores {
+            paper_error: 0.01,
+            mssd_m: 0.002,
+            cube_mssd_m: 0.002,
+            iou_3d: 0.95,
+            add_s_m: 0.001,
+            rotation_error_deg: 0.5,
+            translation_error_m: 0.001,
+            fit_time_us: 10.0,
+            confidence: 0.5,
+            margin_nats,
+            noise_scale_m: 0.003,
+            inliers: 8,
+            mirror_ambiguous: false,
+            fitted_corners: [[0.0; 3]; 8],
+        };
+        let rows: Vec<FitRow> = [f64::INFINITY, 10.0]
+            .into_iter()
+            .enumerate()
+            .map(|(i, margin)| FitRow {
+                scene_id: 0,
+                frame_id: 0,
+                object_id: i as i32,
+                method: Method::Robust,
+                diameter_m: 0.2,
+                outcome: FitOutcome::Scored(scores(margin)),
+            })
+            .collect();
+        let path =
+            std::env::temp_dir().join(format!("boxpose-fit-table-{}.parquet", std::process::id()));
+        let table = &boxpose_data::schema::EVAL_GEOMETRY;
+        boxpose_data::write_table(&path, table, columns(&rows)).unwrap();
+        // the dataset reader refuses ±inf: the table must pass its checks
+        let batches = boxpose_data::read_shard(&path, table).unwrap();
+        let margin = batches[0]
+            .column_by_name("margin_nats")
+            .unwrap()
+            .as_any()
+            .downcast_ref::<boxpose_data::arrow::array::Float64Array>()
+            .unwrap()
+            .clone();
+        std::fs::remove_file(&path).unwrap();
+        assert!(margin.is_null(0));
+        assert_eq!(margin.value(1), 10.0);
+    }
 
     #[test]
     fn auroc_of_confidence_as_a_failure_predictor() {

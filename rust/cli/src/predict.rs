@@ -657,7 +657,11 @@ fn write_parquet(
         ),
         Arc::new(
             fits.iter()
-                .map(|f| f.map(|f| f.confidence.margin_nats))
+                // no other box hypothesis: an infinite margin, written as null (the readers refuse ±∞)
+                .map(|f| {
+                    f.map(|f| f.confidence.margin_nats)
+                        .filter(|m| m.is_finite())
+                })
                 .collect::<Float64Array>(),
         ),
         Arc::new(

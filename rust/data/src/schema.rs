@@ -793,7 +793,7 @@ const MARGIN_NATS: Column = nullable(col(
     "margin_nats",
     Float64,
     "nats",
-    "Log-likelihood margin over the best different box hypothesis; infinite when there is none.",
+    "Log-likelihood margin over the best different box hypothesis; null when there is none (an infinite margin).",
 ));
 
 const NOISE_SCALE_M: Column = nullable(col(

@@ -146,8 +146,9 @@ pub type BoxKey = (i64, i32, i32);
 
 /// Each box of a `boxpose eval` table (`eval.parquet`) and whether `method`'s fit failed it: its
 /// cube-group corner MSSD not below `fraction` × its diameter, or no pose (not found, not fitted).
-/// Only the six columns this needs are read (and checked): the table's `margin_nats` is +∞ where
-/// no other hypothesis exists, which the dataset reader's finite-values check refuses.
+/// Only the six columns this needs are read (and checked), so that a table written before
+/// `margin_nats` was null where no other hypothesis exists (it was +∞, which the dataset reader's
+/// finite-values check refuses) is still read.
 pub fn eval_outcomes(
     path: &std::path::Path,
     method: &str,
