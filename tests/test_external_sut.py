@@ -1,9 +1,9 @@
-"""`boxpose search --sut`: another perception system under test, a process speaking
-boxpose-sut/1 — the project's own pipeline through the protocol (`boxpose search serve`) equals
-the built-in path sample for sample; a Python function (examples/sut/pca_baseline.py) is scored;
-a system that crashes, hangs or cannot fit is counted apart and started again; a system that
-cannot start is refused before any run folder is made. Real MuJoCo, the embedded Blender at 96²,
-real subprocesses."""
+"""`boxpose search --sut` and `boxpose eval --sut`: another perception system under test, a
+process speaking boxpose-sut/1 — the project's own pipeline through the protocol (`boxpose search
+serve`) equals the built-in path sample for sample and box for box; a Python function
+(examples/sut/pca_baseline.py) is scored; a system that crashes, hangs or cannot fit is counted
+apart and started again; a system that cannot start is refused before any run folder is made.
+Real MuJoCo, the embedded Blender at 96², real subprocesses."""
 
 import json
 import os
@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from conftest import REPO, TINY_SEARCH_SPACE
+from conftest import REPO, TINY_SEARCH_SPACE, render_synthetic_dataset
 from test_search import recipe
 
 COMMON = ["--samples", 4, "--batch-size", 2, "--seed", 5, "--threads", 1]
@@ -166,4 +166,83 @@ def test_a_system_that_cannot_start_is_refused_before_any_run_folder(
     out = tmp_path / "run"
     r = search(boxpose_bin, space, *COMMON, "--sut", sut, "--out", out, check=False)
     assert r.returncode != 0 and said in r.stderr, r.stderr
+    assert not out.exists()
+
+
+def run_boxpose(boxpose_bin: Path, *args, check=True) -> subprocess.CompletedProcess:
+    """From the repository root, where the default model and the test fixtures' module are."""
+    r = subprocess.run(
+        [str(boxpose_bin), *map(str, args)], capture_output=True, text=True, cwd=REPO, timeout=600
+    )
+    if check:
+        assert r.returncode == 0, r.stdout + r.stderr
+    return r
+
+
+@pytest.fixture(scope="module")
+def frames(tmp_path_factory) -> Path:
+    """Two scenes of 2 and 3 boxes, two views each, at 128×96."""
+    return render_synthetic_dataset(tmp_path_factory.mktemp("eval_sut") / "frames", 128, 96)
+
+
+def test_eval_of_the_own_pipeline_through_the_protocol_equals_its_own_eval(
+    frames, boxpose_bin, tmp_path
+):
+    own, protocol = tmp_path / "own", tmp_path / "protocol"
+    # one crop per forward pass, as the server runs them: the same arithmetic
+    run_boxpose(boxpose_bin, "eval", frames, "--batch-size", 1, "--out", own)
+    serve = f"exec:{boxpose_bin} search serve --fit robust"
+    r = run_boxpose(boxpose_bin, "eval", frames, "--sut", serve, "--out", protocol)
+    assert "cube MSSD < 0.1 d" in r.stdout and 'method "external"' in r.stdout
+
+    keys = ["scene_id", "frame_id", "object_id"]
+    a = pd.read_parquet(own / "eval.parquet").query("method == 'robust'").set_index(keys)
+    b = pd.read_parquet(protocol / "eval.parquet").set_index(keys)
+    assert set(b.method) == {"external"} and len(a) >= 4
+    assert a.index.tolist() == b.index.tolist()
+    assert a.fit_error.isna().tolist() == b.fit_error.isna().tolist()
+    for column in ("paper_error", "mssd_m", "cube_mssd_m", "add_s_m", "translation_error_m"):
+        np.testing.assert_allclose(a[column], b[column], rtol=1e-9, atol=1e-12, err_msg=column)
+    # what an external system does not report is null, never a made-up value
+    assert b.heatmap_mse.isna().all() and b.inliers.isna().all() and b.margin_nats.isna().all()
+    summary = json.loads((protocol / "summary.json").read_text())
+    assert summary["instances"] == len(b) and summary["system_errors"] == 0
+
+    # the two runs pair box by box: nothing fixed, nothing new
+    out = tmp_path / "compare.json"
+    run_boxpose(
+        boxpose_bin, "eval", "compare", own, protocol, "--method", "robust,external", "--json", out
+    )
+    compared = json.loads(out.read_text())
+    assert compared["pairs"] == len(a) and not compared["fixed"] and not compared["new"]
+
+
+def test_eval_counts_a_crashing_system_apart_and_starts_it_again(frames, boxpose_bin, tmp_path):
+    out = tmp_path / "misbehaves"
+    r = run_boxpose(
+        boxpose_bin,
+        "eval",
+        frames,
+        "--sut",
+        f"{PYTHON_SUT} tests.sut_fixtures:misbehaves",
+        "--out",
+        out,
+    )
+    rows = pd.read_parquet(out / "eval.parquet")
+    by_scene = {k: rows[rows.scene_id == k] for k in (0, 1)}
+    assert len(by_scene[0]) > 0 and len(by_scene[1]) > 0
+    # scene 0: found nothing, a failure of the system's own
+    assert (by_scene[0].fit_error == "not found by the system").all()
+    # scene 1: it crashed on every box, each time started again, never scored
+    assert by_scene[1].fit_error.str.startswith("system under test").all()
+    assert by_scene[1].cube_mssd_m.isna().all()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["system_errors"] == len(by_scene[1]) and summary["restarts"] >= 1
+    assert f"system errors {len(by_scene[1])}" in r.stdout
+
+
+def test_eval_refuses_a_system_that_cannot_start_before_any_output(frames, boxpose_bin, tmp_path):
+    out = tmp_path / "eval"
+    r = run_boxpose(boxpose_bin, "eval", frames, "--sut", "exec:true", "--out", out, check=False)
+    assert r.returncode != 0 and "did not introduce itself" in r.stderr, r.stderr
     assert not out.exists()

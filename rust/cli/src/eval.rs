@@ -58,6 +58,16 @@ pub struct Args {
     batch_size: usize,
     #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
     backend: BackendKind,
+    /// Evaluate another perception system instead of this project's networks and fits, as
+    /// `search --sut` does: `exec:COMMAND` (a long-lived process speaking boxpose-sut/1) or
+    /// `python:MODULE:CALLABLE`. It gets each box's whole frame (with --crops gt its visible box
+    /// and mask too) and answers a pose; its rows (method `external`) pair with an own `eval`
+    /// run's in `eval compare --method robust,external`. A crash or timeout is counted apart.
+    #[arg(long, value_name = "SPEC", conflicts_with_all = ["model", "segmenter", "peak_refine_radius", "batch_size", "backend"])]
+    sut: Option<String>,
+    /// Seconds the --sut process may take to answer one box (or to start).
+    #[arg(long, default_value_t = 60.0, value_name = "SECONDS", requires = "sut")]
+    sut_timeout: f64,
 }
 
 #[derive(clap::Subcommand)]
@@ -75,8 +85,10 @@ enum Command {
         before: PathBuf,
         /// The one after it.
         after: PathBuf,
-        /// The fit compared: paper_exact, fast_exact, robust, size_and_pose, …
-        #[arg(long, default_value = "robust")]
+        /// The fit compared: paper_exact, fast_exact, robust, size_and_pose, …, or external (an
+        /// `eval --sut` run); BEFORE,AFTER compares two, e.g. `robust,external` for the own
+        /// pipeline against another system on the same boxes.
+        #[arg(long, default_value = "robust", value_name = "METHOD[,METHOD]")]
         method: String,
         /// A box succeeds when its cube MSSD is below this fraction of its diameter.
         #[arg(long, default_value_t = 0.1)]
@@ -99,7 +111,8 @@ fn compare(
         fraction.is_finite() && fraction > 0.0,
         "--fraction {fraction} must be a positive number"
     );
-    let outcomes = |folder: &Path| {
+    let (method_before, method_after) = method.split_once(',').unwrap_or((method, method));
+    let outcomes = |folder: &Path, method: &str| {
         boxpose_search::compare::eval_outcomes(&folder.join("eval.parquet"), method, fraction)
             .with_context(|| {
                 format!(
@@ -108,7 +121,10 @@ fn compare(
                 )
             })
     };
-    let c = boxpose_search::compare::pair(&outcomes(before)?, &outcomes(after)?);
+    let c = boxpose_search::compare::pair(
+        &outcomes(before, method_before)?,
+        &outcomes(after, method_after)?,
+    );
     anyhow::ensure!(
         c.pairs > 0,
         "{} and {} share no box: were they run on the same dataset and --held-out?",
@@ -158,6 +174,22 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         return compare(before, after, method, *fraction, json.as_deref());
     }
     let dataset_path = args.dataset.as_deref().context("give a dataset folder")?;
+    if let Some(spec) = &args.sut {
+        anyhow::ensure!(
+            args.sut_timeout.is_finite() && args.sut_timeout > 0.0,
+            "--sut-timeout {} must be a positive number of seconds",
+            args.sut_timeout
+        );
+        return crate::eval_external::run(&crate::eval_external::Settings {
+            spec,
+            timeout: std::time::Duration::from_secs_f64(args.sut_timeout),
+            dataset: dataset_path,
+            out: &args.out,
+            crops: args.crops,
+            min_visible_fraction: args.min_visible_fraction,
+            held_out: args.held_out,
+        });
+    }
     // its own earlier output is rewritten (its stale files removed below)
     let _claim = crate::output_folder::claim(&args.out, "--out", "eval", &["eval.parquet"])?;
     let mut model = KeypointModel::load(&args.model, args.backend.device()?)?;
@@ -352,7 +384,7 @@ fn print_targets(summary: &evaluation::Summary) {
 
 /// Removes an output an earlier run into the same folder wrote and this one does not, so that
 /// the folder never mixes two runs' results.
-fn remove_stale(path: &Path) -> anyhow::Result<()> {
+pub(crate) fn remove_stale(path: &Path) -> anyhow::Result<()> {
     match std::fs::remove_file(path) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
             Err(e).with_context(|| format!("removing the stale {}", path.display()))

@@ -2,6 +2,7 @@
 
 mod dump;
 mod eval;
+mod eval_external;
 mod eval_geometry;
 mod eval_results;
 mod export;

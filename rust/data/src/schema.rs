@@ -819,7 +819,7 @@ const FIT_COLUMNS: [Column; 19] = [
         "method",
         Utf8,
         "",
-        "The fit: paper_exact, fast_exact, robust, size_and_pose, robust_fixed or size_and_pose_ls.",
+        "The fit: paper_exact, fast_exact, robust, size_and_pose, robust_fixed or size_and_pose_ls; external for another system's answer (`eval --sut`, whose rows leave null what it does not report: margin, noise scale, inliers, mirror ambiguity, heatmap).",
     ),
     col(
         "diameter_m",
@@ -869,7 +869,12 @@ const FIT_COLUMNS: [Column; 19] = [
         "m",
         "Distance between fitted and true box centres.",
     )),
-    nullable(col("fit_time_us", Float64, "µs", "Wall time of the fit.")),
+    nullable(col(
+        "fit_time_us",
+        Float64,
+        "µs",
+        "Wall time of the fit (for `eval --sut`, of the whole call to the system).",
+    )),
     CONFIDENCE,
     MARGIN_NATS,
     NOISE_SCALE_M,
@@ -900,13 +905,13 @@ const EVAL_COLUMNS: [Column; FIT_COLUMNS.len() + 2] = {
         "heatmap_mse",
         Float64,
         "",
-        "Mean squared error of the predicted heatmap against the target; null where the segmenter missed the box.",
+        "Mean squared error of the predicted heatmap against the target; null where the segmenter missed the box, and for another system (`eval --sut`).",
     ));
     columns[FIT_COLUMNS.len() + 1] = col(
         "corners_found",
         Int32,
         "",
-        "True corners with an NMS peak within the recall radius.",
+        "True corners with an NMS peak (for `eval --sut`, a peak the system reported) within the recall radius.",
     );
     columns
 };

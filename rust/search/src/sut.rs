@@ -569,12 +569,14 @@ fn perceived(outcome: FitOutcome, size: [f64; 3], with_confidence: bool) -> Perc
 /// A sample's perception: scored (or failed), or not scored and why.
 type ScoredOrInvalid = std::result::Result<Perceived, Invalid>;
 
-/// An external system's answer scored against the target's truth, as the own pipeline's fit is.
-fn score_answer(answer: Answer, instance: &Instance) -> Result<(ScoredOrInvalid, Vec<[f64; 3]>)> {
+/// An external system's answer scored against the target's truth as the own pipeline's fits are
+/// (`boxpose eval --sut` writes these scores): the fit's outcome and the peaks it reported
+/// (camera frame, metres; empty when it gave none).
+pub fn score_external(answer: Answer, instance: &Instance) -> Result<(FitOutcome, Vec<[f64; 3]>)> {
     let known = BoxModel::new(Vector3::from(instance.size))?;
     Ok(match answer {
-        Answer::NotFound => (Ok(Perceived::NotDetected), Vec::new()),
-        Answer::FitFailed(reason) => (Ok(Perceived::FitFailed(reason)), Vec::new()),
+        Answer::NotFound => (FitOutcome::NotDetected, Vec::new()),
+        Answer::FitFailed(reason) => (FitOutcome::Failed(reason), Vec::new()),
         Answer::Found {
             pose,
             size_m,
@@ -592,12 +594,25 @@ fn score_answer(answer: Answer, instance: &Instance) -> Result<(ScoredOrInvalid,
                 confidence.unwrap_or(f64::NAN),
             );
             let outcome = fitted.score(0.0, &known, &evaluation::true_pose(instance), &[]);
-            (
-                Ok(perceived(outcome, instance.size, confidence.is_some())),
-                peaks,
-            )
+            (outcome, peaks)
         }
     })
+}
+
+/// [`score_external`] as a search sample's perception.
+fn score_answer(answer: Answer, instance: &Instance) -> Result<(ScoredOrInvalid, Vec<[f64; 3]>)> {
+    let with_confidence = matches!(
+        answer,
+        Answer::Found {
+            confidence: Some(_),
+            ..
+        }
+    );
+    let (outcome, peaks) = score_external(answer, instance)?;
+    Ok((
+        Ok(perceived(outcome, instance.size, with_confidence)),
+        peaks,
+    ))
 }
 
 /// The project's own pipeline as an external system (`boxpose sut-serve`, the protocol's
