@@ -96,3 +96,13 @@ def test_a_shipped_default_missing_outside_the_repository_says_where_to_run(tmp_
     assert error.startswith("error: ") and "configs/search/single_box.toml" in error
     assert hint.startswith("hint: ") and "repository root" in hint and "--model" in hint
     assert not (tmp_path / "run").exists()
+
+
+def test_the_top_level_help_says_how_datasets_are_made_and_what_out_means(boxpose_bin):
+    # the trial found no way from `--help` to `make scenes`, and four meanings of --out unnamed
+    text = subprocess.run(
+        [boxpose_bin, "--help"], capture_output=True, text=True, check=True
+    ).stdout
+    assert "make scenes RECIPE=NAME" in text and "scripts/make_scenes.py" in text
+    for command in ("eval-geometry", "export", "predict", "search", "train", "improve"):
+        assert command in text.split("--out is", 1)[1], command
