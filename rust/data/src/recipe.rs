@@ -360,7 +360,7 @@ pub const RECIPE_REFERENCE: &[RecipeKey] = {
             Accepted::OneOf(&TAPE_ALONG),
             Value("\"random\""),
             "",
-            "the side of a box's top face that the tape and the label's long axis follow; new recipes should set \"long\" (docs/dataset.md, \"Recipes\")",
+            "the side of a box's top face that the tape and the label's long axis follow: \"long\" as on a carton (the shipped keypoint network's unlabelled heatmap cannot read it; docs/dataset.md, \"Recipes\")",
         ),
         // Blender: cameras, lights, render settings
         key(
@@ -575,8 +575,9 @@ pub const SUPPORT_KINDS: [&str; 3] = ["floor", "bin", "pallet"];
 
 /// The values of `materials.tape_along`: which side of a box's top (+z) face its tape strip and
 /// its label's long (u) axis follow. `"long"`: the longer side (x when dx ≥ dy), as on a regular
-/// slotted carton, so the texture tells the two sides of a nearly square top apart and a keypoint
-/// network can learn the quarter turn. `"random"`: either side at random (the default, and what
+/// slotted carton, so the texture tells the two sides of a nearly square top apart (a network
+/// whose output has corner identity could learn the quarter turn from it; the shipped one's
+/// unlabelled heatmap cannot). `"random"`: either side at random (the default, and what
 /// every dataset written before the key existed holds). Both draw the same random numbers, so only
 /// those two choices differ. The Blender stage applies it (`blender_scripts.sampling`).
 pub const TAPE_ALONG: [&str; 2] = ["long", "random"];
