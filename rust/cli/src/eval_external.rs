@@ -8,9 +8,7 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use boxpose_data::arrow::array::{
-    ArrayRef, BooleanArray, Float64Array, Int32Array, Int64Array, StringArray,
-};
+use boxpose_data::arrow::array::{ArrayRef, BooleanArray, Float64Array, Int32Array, StringArray};
 use boxpose_data::{Dataset, Instance};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
@@ -21,6 +19,7 @@ use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Point3, Vector3};
 
+use crate::fit_table;
 use crate::plots;
 use crate::predict::Crops;
 
@@ -183,31 +182,22 @@ fn corners_found(instance: &Instance, peaks: &[[f64; 3]]) -> usize {
 /// an external system reports nothing of the kind (the margin, noise scale, inliers, mirror
 /// ambiguity, the heatmap).
 fn columns(rows: &[Row]) -> Vec<ArrayRef> {
-    let scores = |r: &Row| match &r.outcome {
-        Ok(FitOutcome::Scored(s)) => Some(*s),
-        _ => None,
-    };
-    let metric = |get: fn(&Scores) -> f64| -> ArrayRef {
-        Arc::new(
-            rows.iter()
-                .map(|r| scores(r).map(|s| get(&s)).filter(|v| v.is_finite()))
-                .collect::<Float64Array>(),
-        )
-    };
+    fn scores(row: &Row) -> Option<&Scores> {
+        match &row.outcome {
+            Ok(FitOutcome::Scored(s)) => Some(s),
+            _ => None,
+        }
+    }
     let absent = || -> ArrayRef { Arc::new(Float64Array::new_null(rows.len())) };
-    vec![
-        Arc::new(rows.iter().map(|r| r.scene_id).collect::<Int64Array>()),
-        Arc::new(rows.iter().map(|r| r.frame_id).collect::<Int32Array>()),
-        Arc::new(rows.iter().map(|r| r.object_id).collect::<Int32Array>()),
-        Arc::new(StringArray::from(vec![METHOD; rows.len()])),
-        Arc::new(rows.iter().map(|r| r.diameter_m).collect::<Float64Array>()),
-        metric(|s| s.paper_error),
-        metric(|s| s.mssd_m),
-        metric(|s| s.cube_mssd_m),
-        metric(|s| s.iou_3d),
-        metric(|s| s.add_s_m),
-        metric(|s| s.rotation_error_deg),
-        metric(|s| s.translation_error_m),
+    let leading: Vec<_> = rows
+        .iter()
+        .map(|r| {
+            let key = (r.scene_id, r.frame_id, r.object_id);
+            (key, METHOD, r.diameter_m, scores(r))
+        })
+        .collect();
+    let mut columns = fit_table::leading_columns(&leading);
+    let rest: Vec<ArrayRef> = vec![
         // the whole call: the system's own time and the transfer of the frame
         Arc::new(
             rows.iter()
@@ -244,7 +234,9 @@ fn columns(rows: &[Row]) -> Vec<ArrayRef> {
                 .map(|r| r.corners_found as i32)
                 .collect::<Int32Array>(),
         ),
-    ]
+    ];
+    columns.extend(rest);
+    columns
 }
 
 /// What `summary.json` holds for an external system: the learning targets' shares (a box not

@@ -7,6 +7,7 @@ use boxpose_data::arrow::array::{
 };
 use boxpose_geometry::metrics::average_recall;
 use boxpose_geometry::pipeline::{FitOutcome, Method, Scores};
+use boxpose_search::compare::BoxKey;
 
 pub struct FitRow {
     pub scene_id: i64,
@@ -15,6 +16,33 @@ pub struct FitRow {
     pub method: Method,
     pub diameter_m: f64,
     pub outcome: FitOutcome,
+}
+
+/// The first twelve columns of a fit table, which every writer fills alike: the box's keys, the
+/// method, the diameter and the seven distances of its pose (null where no pose came back, and
+/// where a value is not finite, which the readers refuse).
+pub fn leading_columns(rows: &[(BoxKey, &str, f64, Option<&Scores>)]) -> Vec<ArrayRef> {
+    let metric = |get: fn(&Scores) -> f64| -> ArrayRef {
+        Arc::new(
+            rows.iter()
+                .map(|(_, _, _, scores)| scores.map(get).filter(|v| v.is_finite()))
+                .collect::<Float64Array>(),
+        )
+    };
+    vec![
+        Arc::new(rows.iter().map(|r| r.0.0).collect::<Int64Array>()),
+        Arc::new(rows.iter().map(|r| r.0.1).collect::<Int32Array>()),
+        Arc::new(rows.iter().map(|r| r.0.2).collect::<Int32Array>()),
+        Arc::new(rows.iter().map(|r| Some(r.1)).collect::<StringArray>()),
+        Arc::new(rows.iter().map(|r| r.2).collect::<Float64Array>()),
+        metric(|s| s.paper_error),
+        metric(|s| s.mssd_m),
+        metric(|s| s.cube_mssd_m),
+        metric(|s| s.iou_3d),
+        metric(|s| s.add_s_m),
+        metric(|s| s.rotation_error_deg),
+        metric(|s| s.translation_error_m),
+    ]
 }
 
 /// The columns of [`boxpose_data::schema::EVAL_GEOMETRY`] (documented there), in order.
@@ -26,23 +54,19 @@ pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
                 .collect::<Float64Array>(),
         )
     };
-    vec![
-        Arc::new(rows.iter().map(|r| r.scene_id).collect::<Int64Array>()),
-        Arc::new(rows.iter().map(|r| r.frame_id).collect::<Int32Array>()),
-        Arc::new(rows.iter().map(|r| r.object_id).collect::<Int32Array>()),
-        Arc::new(
-            rows.iter()
-                .map(|r| Some(r.method.name()))
-                .collect::<StringArray>(),
-        ),
-        Arc::new(rows.iter().map(|r| r.diameter_m).collect::<Float64Array>()),
-        metric(|s| s.paper_error),
-        metric(|s| s.mssd_m),
-        metric(|s| s.cube_mssd_m),
-        metric(|s| s.iou_3d),
-        metric(|s| s.add_s_m),
-        metric(|s| s.rotation_error_deg),
-        metric(|s| s.translation_error_m),
+    let leading: Vec<_> = rows
+        .iter()
+        .map(|r| {
+            (
+                (r.scene_id, r.frame_id, r.object_id),
+                r.method.name(),
+                r.diameter_m,
+                r.outcome.scores(),
+            )
+        })
+        .collect();
+    let mut columns = leading_columns(&leading);
+    let rest: Vec<ArrayRef> = vec![
         metric(|s| s.fit_time_us),
         metric(|s| s.confidence),
         // no other box hypothesis: an infinite margin, written as null (the readers refuse ±∞)
@@ -70,7 +94,9 @@ pub fn columns(rows: &[FitRow]) -> Vec<ArrayRef> {
                 .map(|r| r.outcome.failure())
                 .collect::<StringArray>(),
         ),
-    ]
+    ];
+    columns.extend(rest);
+    columns
 }
 
 /// A table per method: recall of the cube-group MSSD (the primary metric) below 5 % and 10 % of
