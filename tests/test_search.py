@@ -917,6 +917,46 @@ def test_two_runs_on_the_same_inputs_compare_pair_by_pair(
     assert "--samples" not in other.stderr.split("cannot be paired")[1].split(");")[0]
 
 
+def test_independent_runs_agree_or_are_named_when_their_intervals_do_not_overlap(
+    mc_run, failing_run, spaces, boxpose_bin, tmp_path
+):
+    """`search agree`: a second Monte Carlo run of the same search with another seed agrees (its
+    interval overlaps); a run whose interval lies apart is named with the error; the same seed
+    twice is flagged as no independent evidence; another event is refused."""
+    other = tmp_path / "seed4"
+    reseeded = [*MC]
+    reseeded[reseeded.index("--seed") + 1] = 4
+    search(boxpose_bin, spaces["single"], "--out", other, "--fail-when", "mssd:0.05", *reseeded)
+    r = search(boxpose_bin, "agree", mc_run, other, "--json", tmp_path / "agree.json")
+    assert "the 2 runs agree" in r.stdout
+    a = json.loads((tmp_path / "agree.json").read_text())
+    for estimate, run in zip(a["estimates"], (mc_run, other), strict=True):
+        summary = json.loads((run / "summary.json").read_text())["estimate"]
+        assert estimate["p_hat"] == summary["p_hat"] and estimate["ci95"] == summary["ci95"]
+    assert a["disjoint"] == [] and a["same_seed"] == []
+
+    # a run whose interval lies above the other's (as a sampler that found a mode the other
+    # never drew would report): the two are named, exit status 1
+    apart = tmp_path / "apart"
+    shutil.copytree(other, apart)
+    summary = json.loads((apart / "summary.json").read_text())
+    upper = json.loads((mc_run / "summary.json").read_text())["estimate"]["ci95"][1]
+    assert upper < 0.999
+    summary["estimate"].update(p_hat=0.9995, ci95=[0.999, 1.0])
+    (apart / "summary.json").write_text(json.dumps(summary))
+    r = search(boxpose_bin, "agree", mc_run, other, apart, check=False)
+    assert r.returncode == 1 and "the runs disagree" in r.stderr
+    assert f"{mc_run} and {apart}" in r.stderr and f"{other} and {apart}" in r.stderr
+    assert f"{mc_run} and {other}" not in r.stderr
+
+    # one run twice: the same samples
+    r = search(boxpose_bin, "agree", mc_run, mc_run)
+    assert "same sampler and seed" in r.stdout
+    # another predicate is another event
+    r = search(boxpose_bin, "agree", mc_run, failing_run, check=False)
+    assert r.returncode == 1 and "another event" in r.stderr
+
+
 def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings(
     tiny_network, failing_run, spaces, boxpose_bin, tmp_path
 ):

@@ -151,6 +151,23 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// Check that independent runs of one search agree: each run's estimate with its 95 %
+    /// interval, and an error (exit status 1) when two intervals do not overlap — at least one
+    /// run missed failures the other found (an importance sampler that never drew a failure
+    /// mode) or claims too narrow an interval. The runs must estimate the same event (space,
+    /// recipe, crops, networks or --sut, fit, predicate); sampler, seed and budget may differ.
+    #[command(after_help = "Example:
+          boxpose search single_box --sampler ce --ce-tilt auto --seed 1 --out results/ce1
+          boxpose search single_box --sampler splitting --seed 2 --out results/split2
+          boxpose search agree results/ce1 results/split2 --json results/agree.json")]
+    Agree {
+        /// Finished run folders (two or more).
+        #[arg(required = true, num_args = 2..)]
+        runs: Vec<PathBuf>,
+        /// Also write the estimates and the disagreeing pairs to this JSON file.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
     /// Serve this project's pipeline (keypoint network and fit, ground-truth crops) as an external
     /// system under test on stdin and stdout, protocol boxpose-sut/1: the protocol's reference,
     /// whose samples equal the built-in path's (`--whole-frames`). Not for a terminal.
@@ -338,6 +355,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             after,
             json,
         }) => compare(before, after, json.as_deref()),
+        Some(Command::Agree { runs, json }) => agree(runs, json.as_deref()),
         Some(Command::Serve {
             model,
             fit,
@@ -392,6 +410,62 @@ fn compare(before: &Path, after: &Path, json: Option<&Path>) -> anyhow::Result<(
         boxpose_data::write_file_atomically(path, serde_json::to_string_pretty(c)?.as_bytes())
             .with_context(|| format!("writing {}", path.display()))?;
     }
+    Ok(())
+}
+
+fn agree(runs: &[PathBuf], json: Option<&Path>) -> anyhow::Result<()> {
+    let runs = runs
+        .iter()
+        .map(|dir| Run::open(dir))
+        .collect::<Result<Vec<_>, _>>()?;
+    let a = boxpose_search::compare::agreement(&runs)?;
+    for e in &a.estimates {
+        println!(
+            "{}: {}, seed {}, p̂ {:.3e} [{:.2e}, {:.2e}], {} samples{}",
+            e.run.display(),
+            e.sampler.name(),
+            e.seed,
+            e.p_hat,
+            e.ci95.0,
+            e.ci95.1,
+            e.samples_spent,
+            if e.warnings.is_empty() {
+                String::new()
+            } else {
+                format!(" ({} warnings of its own)", e.warnings.len())
+            }
+        );
+    }
+    if let Some(path) = json {
+        boxpose_data::write_file_atomically(path, serde_json::to_string_pretty(&a)?.as_bytes())
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    let name = |i: usize| a.estimates[i].run.display().to_string();
+    for &(i, j) in &a.same_seed {
+        println!(
+            "warning: {} and {} use the same sampler and seed: the same samples, not independent \
+             evidence; run one again with another --seed",
+            name(i),
+            name(j)
+        );
+    }
+    if let Some(pairs) = (!a.disjoint.is_empty()).then_some(&a.disjoint) {
+        let listed: Vec<String> = pairs
+            .iter()
+            .map(|&(i, j)| format!("{} and {}", name(i), name(j)))
+            .collect();
+        anyhow::bail!(
+            "the runs disagree: the 95 % intervals of {} do not overlap — at least one missed \
+             failures the other found (a failure mode its proposal never drew) or claims too narrow \
+             an interval; trust neither alone, and look at where each found its failures \
+             (`boxpose search report`)",
+            listed.join(", ")
+        );
+    }
+    println!(
+        "the {} runs agree: every two 95 % intervals overlap",
+        a.estimates.len()
+    );
     Ok(())
 }
 

@@ -217,3 +217,116 @@ pub fn eval_outcomes(
     }
     Ok(outcomes)
 }
+
+/// One run's estimate, as [`agreement`] reads it from its `summary.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct RunEstimate {
+    pub run: std::path::PathBuf,
+    pub sampler: Sampler,
+    pub seed: u64,
+    pub p_hat: f64,
+    pub ci95: (f64, f64),
+    pub samples_spent: usize,
+    /// The run's own warnings (weights, splitting's plateaus, …).
+    pub warnings: Vec<String>,
+}
+
+/// Whether independent runs of one search estimate the same failure probability.
+#[derive(Debug, Clone, Serialize)]
+pub struct Agreement {
+    pub estimates: Vec<RunEstimate>,
+    /// Pairs of runs (indices into `estimates`) whose 95 % intervals do not overlap: at least one
+    /// of the two is wrong — an importance sampler that never drew a failure mode the other found,
+    /// or an interval too narrow for its chain's correlation.
+    pub disjoint: Vec<(usize, usize)>,
+    /// Pairs that share a seed and a sampler: the same samples, not independent evidence.
+    pub same_seed: Vec<(usize, usize)>,
+}
+
+/// Compares the estimates of finished runs of one search — the same space, recipe, crops,
+/// networks (or system under test), fit and predicate; any sampler, seed and budget. Two 95 %
+/// intervals that do not overlap mean the estimates differ beyond what both claim (under equal
+/// standard errors, by chance in fewer than 0.6 % of pairs of correct intervals): the sign of a
+/// failure mode one run missed (issue 29's failure sets with several modes), which no run's own
+/// diagnostics can show.
+pub fn agreement(runs: &[Run]) -> Result<Agreement> {
+    let Some(first) = runs.first() else {
+        return Err(SearchError::Sample("give at least two run folders".into()));
+    };
+    if runs.len() < 2 {
+        return Err(SearchError::Run {
+            path: first.dir.clone(),
+            problem: "one run agrees with itself: give a second run of the same search".into(),
+        });
+    }
+    let event = |run: &Run| {
+        let s = run.settings();
+        (
+            run.record.space_toml.clone(),
+            run.record.recipe_toml.clone(),
+            s.crops,
+            s.whole_frames,
+            s.fit.clone(),
+            s.predicate,
+            s.model.clone(),
+            s.segmenter.clone(),
+            s.sut.clone(),
+        )
+    };
+    let mut estimates = Vec::new();
+    for run in runs {
+        if event(run) != event(first) {
+            return Err(SearchError::Run {
+                path: run.dir.clone(),
+                problem: format!(
+                    "it estimates another event than {}: the space, recipe, crops, networks, fit \
+                     and predicate must be equal (the sampler, seed and budget may differ)",
+                    first.dir.display()
+                ),
+            });
+        }
+        let path = run.dir.join("summary.json");
+        let text = std::fs::read_to_string(&path).map_err(|e| SearchError::Run {
+            path: path.clone(),
+            problem: format!(
+                "{e}: the run is not finished (run its `boxpose search` command again, or \
+                 `boxpose search merge` for a sharded one)"
+            ),
+        })?;
+        let summary: crate::run::Summary =
+            serde_json::from_str(&text).map_err(|e| SearchError::Run {
+                path: path.clone(),
+                problem: format!("unreadable summary.json: {e}"),
+            })?;
+        let ci95 = summary.estimate.ci95.ok_or_else(|| SearchError::Run {
+            path: path.clone(),
+            problem: "its estimate has no 95 % interval (no valid sample?)".into(),
+        })?;
+        estimates.push(RunEstimate {
+            run: run.dir.clone(),
+            sampler: summary.sampler,
+            seed: run.settings().seed,
+            p_hat: summary.estimate.p_hat,
+            ci95,
+            samples_spent: summary.samples_spent,
+            warnings: summary.warnings,
+        });
+    }
+    let (mut disjoint, mut same_seed) = (Vec::new(), Vec::new());
+    for i in 0..estimates.len() {
+        for j in i + 1..estimates.len() {
+            let (a, b) = (&estimates[i], &estimates[j]);
+            if a.ci95.1 < b.ci95.0 || b.ci95.1 < a.ci95.0 {
+                disjoint.push((i, j));
+            }
+            if a.seed == b.seed && a.sampler == b.sampler {
+                same_seed.push((i, j));
+            }
+        }
+    }
+    Ok(Agreement {
+        estimates,
+        disjoint,
+        same_seed,
+    })
+}
