@@ -241,6 +241,26 @@ def test_eval_counts_a_crashing_system_apart_and_starts_it_again(frames, boxpose
     assert f"system errors {len(by_scene[1])}" in r.stdout
 
 
+def test_eval_on_predicted_crops_sends_no_box_and_scores_what_the_system_says(
+    frames, boxpose_bin, tmp_path
+):
+    # --crops predicted: the whole frame without the target's box or mask; the PCA baseline
+    # needs the mask, so it gives up on every box — a failure of its own, with its reason
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ['PATH']}"}
+    out = tmp_path / "pca"
+    r = subprocess.run(
+        [str(boxpose_bin), "eval", str(frames), "--crops", "predicted", "--out", str(out),
+         "--sut", "python:examples.sut.pca_baseline:perceive"],
+        capture_output=True, text=True, cwd=REPO, env=env, timeout=600,
+    )  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    rows = pd.read_parquet(out / "eval.parquet")
+    assert len(rows) >= 4 and rows.cube_mssd_m.isna().all()
+    assert rows.fit_error.str.contains("needs the target's mask").all(), rows.fit_error.tolist()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["fit_failed"] == len(rows) and summary["cube_mssd_recall_010"] == 0.0
+
+
 def test_eval_refuses_a_system_that_cannot_start_before_any_output(frames, boxpose_bin, tmp_path):
     out = tmp_path / "eval"
     r = run_boxpose(boxpose_bin, "eval", frames, "--sut", "exec:true", "--out", out, check=False)
