@@ -297,10 +297,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         );
         plots::error_histogram(&histogram, &title, &series, PAPER_ERROR_THRESHOLD)?;
     } else {
-        remove_stale(&histogram)?;
+        crate::output_folder::remove_stale(&histogram)?;
     }
     if segmenter.is_none() {
-        remove_stale(&args.out.join("segmentation.json"))?;
+        crate::output_folder::remove_stale(&args.out.join("segmentation.json"))?;
     }
 
     let crops = match args.crops {
@@ -380,17 +380,6 @@ fn print_targets(summary: &evaluation::Summary) {
         summary.robust_right_quarter_turn_near_square,
         summary.near_square_instances,
     );
-}
-
-/// Removes an output an earlier run into the same folder wrote and this one does not, so that
-/// the folder never mixes two runs' results.
-pub(crate) fn remove_stale(path: &Path) -> anyhow::Result<()> {
-    match std::fs::remove_file(path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            Err(e).with_context(|| format!("removing the stale {}", path.display()))
-        }
-        _ => Ok(()),
-    }
 }
 
 /// The fit rows with each instance's heatmap MSE and corners found beside them.

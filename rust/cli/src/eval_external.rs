@@ -134,7 +134,7 @@ pub fn run(settings: &Settings) -> anyhow::Result<()> {
         serde_json::to_string_pretty(&summary.to_json())?.as_bytes(),
     )?;
     for stale in ["segmentation.json", "paper_error_hist.png"] {
-        crate::eval::remove_stale(&settings.out.join(stale))?;
+        crate::output_folder::remove_stale(&settings.out.join(stale))?;
     }
     let errors: Vec<f64> = rows
         .iter()

@@ -18,10 +18,8 @@ use boxpose_learn::backend::BackendKind;
 use boxpose_search::compare::{PairedComparison, compare};
 use boxpose_search::run::Run;
 
-use crate::output_folder::refuse_foreign;
+use crate::output_folder::{IMPROVE_SETTINGS_FILE as SETTINGS_FILE, refuse_foreign};
 
-/// The run's settings, recorded in it; a resumed run must have the same.
-pub const SETTINGS_FILE: &str = "improve.json";
 /// Search seeds of the rounds are `seed + 1 + round`; the evaluation's is far from them.
 const EVALUATION_SEED_OFFSET: u64 = 1_000_000;
 

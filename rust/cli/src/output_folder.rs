@@ -5,11 +5,16 @@
 
 use std::path::Path;
 
+use anyhow::Context;
+
 use boxpose_data::schema;
 
 /// What the search variants command writes beside its tables: which run and draw they hold, so a
 /// resume can tell its own shards from another dataset's.
 pub const VARIANTS_FILE: &str = "variants.json";
+
+/// What `boxpose improve` records its settings in; a resumed run must have the same.
+pub const IMPROVE_SETTINGS_FILE: &str = "improve.json";
 
 /// The files and folders that mark a folder as some command's output, and what that output is.
 const MARKERS: [(&str, &str); 14] = [
@@ -26,7 +31,7 @@ const MARKERS: [(&str, &str); 14] = [
     ("eval_results.parquet", "eval-results' output"),
     ("predictions.parquet", "predict's output"),
     ("camera.json", "a BOP export"),
-    (crate::improve::SETTINGS_FILE, "an improve run"),
+    (IMPROVE_SETTINGS_FILE, "an improve run"),
 ];
 
 /// Refuses `folder` (the value of `flag`) when it holds a marker of another dataset or run, any
@@ -98,5 +103,16 @@ pub fn claim(folder: &Path, flag: &str, command: &str, own: &[&str]) -> anyhow::
         Err(std::fs::TryLockError::Error(e)) => {
             anyhow::bail!("{flag} {}: cannot lock it: {e}", folder.display())
         }
+    }
+}
+
+/// Removes an output an earlier run into the same folder wrote and this one does not, so that
+/// the folder never mixes two runs' results.
+pub(crate) fn remove_stale(path: &Path) -> anyhow::Result<()> {
+    match std::fs::remove_file(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            Err(e).with_context(|| format!("removing the stale {}", path.display()))
+        }
+        _ => Ok(()),
     }
 }

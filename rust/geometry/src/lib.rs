@@ -14,6 +14,7 @@
 //! - [`size_fit`]: pose and box size together, for boxes of unknown size.
 //! - [`metrics`]: the paper's error (step 7) and the usual pose metrics.
 //! - [`pipeline`]: peaks → every pose fit → scores, as each evaluation runs them.
+//! - [`silhouette`]: a box's amodal silhouette in an image (the exports' amodal masks).
 
 pub mod adaptive;
 pub mod align;
@@ -27,6 +28,7 @@ pub mod heatmap;
 pub mod metrics;
 pub mod pipeline;
 pub mod robust;
+pub mod silhouette;
 pub mod size_fit;
 
 pub use box_model::{BoxModel, BoxSymmetry, ShapeClass};

@@ -3,9 +3,10 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::proposal::{Proposal, ProposalError, log_nominal};
+pub use crate::ce_error::CeError;
+use crate::proposal::{Proposal, log_nominal};
 use crate::rng::sample_rng;
-use crate::stats::{EstimateError, ImportanceEstimate, WeightedSample};
+use crate::stats::{ImportanceEstimate, WeightedSample};
 use crate::tilt::{TiltChoice, choose_tilt, hold_at_nominal};
 
 /// The `iteration` that [`run_in_memory`] gives [`sample_rng`] for the final batch.
@@ -50,28 +51,6 @@ impl Default for CeConfig {
             min_std: 0.75,
         }
     }
-}
-
-/// Errors of the cross-entropy step, its configuration and the reference driver.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum CeError {
-    /// A configuration value is out of range; `key` names it.
-    #[error("ce config `{key}`: {message}")]
-    Config {
-        /// The offending key.
-        key: &'static str,
-        /// What is wrong with it.
-        message: String,
-    },
-    /// The step's inputs do not match (lengths, or no finite score).
-    #[error("ce step: {0}")]
-    Input(String),
-    /// The weighted fit failed.
-    #[error(transparent)]
-    Proposal(#[from] ProposalError),
-    /// The final estimate could not be formed.
-    #[error(transparent)]
-    Estimate(#[from] EstimateError),
 }
 
 fn bad(key: &'static str, message: impl Into<String>) -> CeError {

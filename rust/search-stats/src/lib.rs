@@ -24,6 +24,7 @@
 
 pub mod acg;
 pub mod ce;
+mod ce_error;
 pub mod proposal;
 pub mod rng;
 pub mod splitting;

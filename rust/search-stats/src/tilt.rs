@@ -24,7 +24,7 @@ use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
-use crate::ce::CeError;
+use crate::ce_error::CeError;
 use crate::proposal::{Proposal, ROTATION_BLOCK_DIM};
 
 /// The fewest valid samples [`choose_tilt`] tests on (χ² is a large-sample law).

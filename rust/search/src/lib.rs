@@ -8,6 +8,7 @@
 pub mod compare;
 pub mod error;
 pub mod external;
+mod nuisance;
 pub mod run;
 pub mod scene;
 pub mod space;

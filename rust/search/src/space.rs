@@ -509,7 +509,7 @@ impl SearchSpace {
                 problem: format!("{}: {e}", file.recipe),
             }
         })?;
-        crate::scene::check_recipe(&recipe_toml)?;
+        crate::nuisance::check_recipe(&recipe_toml)?;
         let mut dimensions = Vec::new();
         let mut scalar = |name: &str, d: &Distribution| -> Result<()> {
             d.validate(name)?;
