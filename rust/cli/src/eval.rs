@@ -18,9 +18,9 @@ use boxpose_learn::segmentation::{self, SegmenterModel};
 use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::fit_table::{self, FitRow};
 use crate::plots;
 use crate::predict::Crops;
+use boxpose_learn::fit_table::{self, FitRow};
 
 #[derive(clap::Args)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
@@ -336,7 +336,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         100.0 * summary.corner_recall,
         summary.heatmap_mse
     );
-    fit_table::print(&fit_rows);
+    crate::fit_summary::print(&fit_rows);
     print_targets(&summary);
     println!(
         "per-instance metrics: {}",

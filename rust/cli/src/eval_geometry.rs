@@ -17,7 +17,7 @@ use boxpose_geometry::heatmap::{
 };
 use boxpose_geometry::pipeline;
 
-use crate::fit_table::{self, FitRow};
+use boxpose_learn::fit_table::{self, FitRow};
 use indicatif::{ProgressBar, ProgressStyle};
 use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
@@ -236,5 +236,5 @@ fn print_summary(args: &Args, rows: &[FitRow]) {
         "heatmap → pose on ground truth: corner noise {} m, {} outlier peak(s), {}³ voxels",
         args.noise_m, args.outliers, args.resolution
     );
-    fit_table::print(rows);
+    crate::fit_summary::print(rows);
 }

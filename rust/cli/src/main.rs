@@ -6,7 +6,7 @@ mod eval_external;
 mod eval_geometry;
 mod eval_results;
 mod export;
-mod fit_table;
+mod fit_summary;
 mod improve;
 mod inspect;
 mod output_folder;

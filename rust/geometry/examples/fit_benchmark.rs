@@ -106,7 +106,7 @@ fn main() {
                 let boxes = noises.len() * 4 * (per_cell / 4);
                 all_time += time;
                 all_boxes += boxes;
-                let auroc = benchmark::failure_auroc(&outcomes)
+                let auroc = boxpose_geometry::metrics::failure_auroc(&outcomes)
                     .map_or("—".to_string(), |a| format!("{a:.3}"));
                 println!(
                     "{:<12} {:>3} | {:>7.1}% {:>7.1}% {:>7.1}% {:>7.1}% | {:>9.1} {:>9}",

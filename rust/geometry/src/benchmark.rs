@@ -408,24 +408,3 @@ pub fn oracle_pose(case: &Case) -> Option<Isometry3<f64>> {
 
 /// A fit is wrong when its MSSD exceeds this fraction of the box's diameter.
 pub const WRONG_FRACTION_OF_DIAMETER: f64 = 0.1;
-
-/// Area under the ROC curve of `confidence` as a predictor of `wrong` (low confidence predicting
-/// a wrong fit): the probability that a wrong fit has lower confidence than a right one, ties
-/// counting half. `None` when either class is empty.
-pub fn failure_auroc(outcomes: &[(bool, f64)]) -> Option<f64> {
-    let wrong: Vec<f64> = outcomes.iter().filter(|o| o.0).map(|o| o.1).collect();
-    let right: Vec<f64> = outcomes.iter().filter(|o| !o.0).map(|o| o.1).collect();
-    if wrong.is_empty() || right.is_empty() {
-        return None;
-    }
-    let mut sorted_right = right.clone();
-    sorted_right.sort_by(f64::total_cmp);
-    let mut sum = 0.0;
-    for w in &wrong {
-        let above = sorted_right.partition_point(|r| r <= w);
-        let at_or_above = sorted_right.partition_point(|r| r < w);
-        // right fits with confidence strictly above w count 1, equal ones ½
-        sum += (sorted_right.len() - above) as f64 + 0.5 * (above - at_or_above) as f64;
-    }
-    Some(sum / (wrong.len() * right.len()) as f64)
-}

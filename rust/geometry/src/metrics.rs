@@ -458,3 +458,51 @@ fn ensure_pose(what: &'static str, pose: &Isometry3<f64>) -> Result<()> {
             .chain(pose.rotation.coords.iter()),
     )
 }
+
+/// Area under the ROC curve of a fit's confidence as a predictor of its failure, from
+/// (wrong, confidence) pairs (low confidence predicting a wrong fit): the probability that a wrong
+/// fit has lower confidence than a right one, ties counting half (Mann–Whitney U). `None` when
+/// either class is empty.
+pub fn failure_auroc(outcomes: &[(bool, f64)]) -> Option<f64> {
+    let wrong: Vec<f64> = outcomes.iter().filter(|o| o.0).map(|o| o.1).collect();
+    let right: Vec<f64> = outcomes.iter().filter(|o| !o.0).map(|o| o.1).collect();
+    if wrong.is_empty() || right.is_empty() {
+        return None;
+    }
+    let mut sorted_right = right.clone();
+    sorted_right.sort_by(f64::total_cmp);
+    let mut sum = 0.0;
+    for w in &wrong {
+        let above = sorted_right.partition_point(|r| r <= w);
+        let at_or_above = sorted_right.partition_point(|r| r < w);
+        // right fits with confidence strictly above w count 1, equal ones ½
+        sum += (sorted_right.len() - above) as f64 + 0.5 * (above - at_or_above) as f64;
+    }
+    Some(sum / (wrong.len() * right.len()) as f64)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::failure_auroc;
+
+    #[test]
+    fn auroc_of_confidence_as_a_failure_predictor() {
+        // every failure less confident than every right fit: 1; the reverse: 0
+        assert_eq!(
+            failure_auroc(&[(true, 0.1), (true, 0.2), (false, 0.8), (false, 0.9)]),
+            Some(1.0)
+        );
+        assert_eq!(failure_auroc(&[(true, 0.9), (false, 0.1)]), Some(0.0));
+        // all tied: chance
+        assert_eq!(
+            failure_auroc(&[(true, 0.5), (false, 0.5), (false, 0.5)]),
+            Some(0.5)
+        );
+        // one of the two failures below the right fit, one tied with it: (1 + ½) / 2
+        assert_eq!(
+            failure_auroc(&[(true, 0.2), (true, 0.7), (false, 0.7)]),
+            Some(0.75)
+        );
+        assert_eq!(failure_auroc(&[(false, 0.2), (false, 0.7)]), None);
+    }
+}

@@ -192,7 +192,8 @@ fn confidence_predicts_failure() {
     }
     for (method, floor) in [(Method::Robust, 0.85), (Method::SizeAndPose, 0.8)] {
         let o = outcomes(method, &mixed);
-        let auroc = benchmark::failure_auroc(&o).expect("both right and wrong fits");
+        let auroc =
+            boxpose_geometry::metrics::failure_auroc(&o).expect("both right and wrong fits");
         eprintln!(
             "{}: {} wrong of {}, AUROC {auroc:.3}",
             method.name(),

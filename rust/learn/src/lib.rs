@@ -5,6 +5,7 @@
 //!   threads (no burn);
 //! - [`model`]: the ResNet + deconvolution network; [`model_dir`]: model folders on disk;
 //! - [`inference`]: a frame and a crop → heatmap → peaks → pose; [`evaluation`]: scores of it;
+//!   [`fit_table`]: the Arrow columns of the fit tables (no burn);
 //! - [`training`]: the loop, validation and checkpoints for any [`training::Task`], reporting to
 //!   a [`training::TrainObserver`];
 //! - [`keypoint`]: the keypoint network's task; [`segmentation`]: the segmenter (its model,
@@ -14,6 +15,7 @@ pub mod backend;
 pub mod config;
 pub mod data;
 pub mod evaluation;
+pub mod fit_table;
 pub mod inference;
 pub mod keypoint;
 pub mod loader;

@@ -8,6 +8,7 @@
 pub mod compare;
 pub mod error;
 pub mod external;
+pub mod external_eval;
 mod nuisance;
 pub mod run;
 pub mod scene;
