@@ -4,18 +4,15 @@
 //! For every instance it draws the heatmap a perfect network would output — a Gaussian at each
 //! true corner, jittered by `--noise-m` — in a crop around the box, optionally adds confident
 //! outlier peaks, then runs NMS, back-projection and each pose fit, and scores them against the
-//! true pose. It isolates the geometry from the network: what fails here fails with any network.
+//! true pose (`boxpose_geometry::synthetic`; this module draws the noise and writes the table).
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use boxpose_data::{Dataset, Instance, Intrinsics};
 use boxpose_geometry::BoxModel;
-use boxpose_geometry::heatmap::{
-    self, CropTransform, DepthBins, HeatmapDims, NmsParams, PinholeIntrinsics, VoxelCoord,
-    VoxelGrid,
-};
-use boxpose_geometry::pipeline;
+use boxpose_geometry::heatmap::VoxelCoord;
+use boxpose_geometry::{pipeline, synthetic};
 
 use boxpose_learn::fit_table::{self, FitRow};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -23,13 +20,6 @@ use nalgebra::{Point3, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
-
-/// Gaussian width of the drawn peaks and of the NMS kernel, in voxels.
-const PEAK_SIGMA_VOXELS: f64 = 1.5;
-/// Crop and depth range extend this far beyond the box's projected corners / diameter.
-const CROP_MARGIN: f64 = 1.2;
-/// Score of a true corner's peak; outliers get 1.0, so they rank first, as in the paper's failures.
-const CORNER_PEAK_SCORE: f32 = 0.8;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -120,40 +110,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Crop (square, around the projected corners) and depth range (around the box centre) of the
-/// heatmap, as the keypoint network's input crop would be.
-fn voxel_grid(k: &Intrinsics, instance: &Instance, diameter: f64, resolution: usize) -> VoxelGrid {
-    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-    for p in &instance.corners_px {
-        for a in 0..2 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
-    let half = (hi[0] - lo[0]).max(hi[1] - lo[1]) / 2.0 * CROP_MARGIN + 1.0;
-    let scale = 2.0 * half / resolution as f64;
-    let depth_half = diameter / 2.0 * CROP_MARGIN;
-    VoxelGrid {
-        intrinsics: PinholeIntrinsics {
-            fx: k.fx,
-            fy: k.fy,
-            cx: k.cx,
-            cy: k.cy,
-        },
-        crop: CropTransform {
-            x0: (lo[0] + hi[0]) / 2.0 - half + 0.5,
-            y0: (lo[1] + hi[1]) / 2.0 - half + 0.5,
-            sx: scale,
-            sy: scale,
-        },
-        depth: DepthBins {
-            z_ref: instance.camera_box.translation[2],
-            z_min: -depth_half,
-            bin_size: 2.0 * depth_half / resolution as f64,
-        },
-    }
-}
-
+/// The instance's fits on a perfect network's heatmap: its true corners jittered by `--noise-m`,
+/// with `--outliers` spurious peaks placed uniformly in the crop.
 fn evaluate(
     args: &Args,
     k: &Intrinsics,
@@ -165,70 +123,46 @@ fn evaluate(
         instance.camera_box.quat_wxyz,
         instance.camera_box.translation,
     );
-    let truth_corners: Vec<Point3<f64>> = instance
+    let grid = synthetic::crop_grid(
+        [k.fx, k.fy, k.cx, k.cy],
+        &instance.corners_px,
+        instance.camera_box.translation[2],
+        model.diameter(),
+        args.resolution,
+    );
+    let noise = Normal::new(0.0, args.noise_m.max(0.0))?;
+    let corners: Vec<Point3<f64>> = instance
         .corners_camera
         .iter()
-        .map(|c| Point3::from(*c))
+        .map(|c| Point3::from(*c) + Vector3::from_fn(|_, _| noise.sample(rng)))
         .collect();
-    let grid = voxel_grid(k, instance, model.diameter(), args.resolution);
-    let n = args.resolution;
-    let dims = HeatmapDims {
-        depth: n,
-        height: n,
-        width: n,
-    };
-
-    let noise = Normal::new(0.0, args.noise_m.max(0.0))?;
-    let corners = truth_corners
-        .iter()
-        .map(|c| grid.project(&(c + Vector3::from_fn(|_, _| noise.sample(rng)))))
-        .collect::<Result<Vec<_>, _>>()?;
+    let n = args.resolution as f64;
     let outliers: Vec<VoxelCoord> = (0..args.outliers)
         .map(|_| VoxelCoord {
-            z_bin: rng.random_range(0.0..n as f64),
-            v: rng.random_range(0.0..n as f64),
-            u: rng.random_range(0.0..n as f64),
+            z_bin: rng.random_range(0.0..n),
+            v: rng.random_range(0.0..n),
+            u: rng.random_range(0.0..n),
         })
         .collect();
-    let mut volume = heatmap::render_target_heatmap(dims, &corners, PEAK_SIGMA_VOXELS)?;
-    volume.iter_mut().for_each(|v| *v *= CORNER_PEAK_SCORE);
-    if !outliers.is_empty() {
-        let spurious = heatmap::render_target_heatmap(dims, &outliers, PEAK_SIGMA_VOXELS)?;
-        volume
-            .iter_mut()
-            .zip(spurious)
-            .for_each(|(v, s)| *v = v.max(s));
-    }
-
-    let peaks = heatmap::non_maximum_suppression(
-        &volume,
-        dims,
-        &NmsParams {
-            count: 8,
-            sigma: PEAK_SIGMA_VOXELS,
-            refine_radius: 1,
-        },
+    let fits = synthetic::fit_synthetic_heatmap(
+        &model,
+        &truth,
+        &grid,
+        args.resolution,
+        &corners,
+        &outliers,
     )?;
-    let points = peaks
-        .iter()
-        .map(|p| grid.back_project(&p.coord))
-        .collect::<Result<Vec<_>, _>>()?;
-    let scores: Vec<f64> = peaks.iter().map(|p| p.score as f64).collect();
-
-    // No image here (the peaks are synthetic), so no depth check of mirror ties.
-    Ok(
-        pipeline::fit_and_score(&model, &truth, &points, &scores, None)
-            .into_iter()
-            .map(|(method, outcome)| FitRow {
-                scene_id: instance.scene_id,
-                frame_id: instance.frame_id,
-                object_id: instance.object_id,
-                method,
-                diameter_m: model.diameter(),
-                outcome,
-            })
-            .collect(),
-    )
+    Ok(fits
+        .into_iter()
+        .map(|(method, outcome)| FitRow {
+            scene_id: instance.scene_id,
+            frame_id: instance.frame_id,
+            object_id: instance.object_id,
+            method,
+            diameter_m: model.diameter(),
+            outcome,
+        })
+        .collect())
 }
 
 fn print_summary(args: &Args, rows: &[FitRow]) {

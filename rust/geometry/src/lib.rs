@@ -15,6 +15,7 @@
 //! - [`metrics`]: the paper's error (step 7) and the usual pose metrics.
 //! - [`pipeline`]: peaks → every pose fit → scores, as each evaluation runs them.
 //! - [`silhouette`]: a box's amodal silhouette in an image (the exports' amodal masks).
+//! - [`synthetic`]: a perfect network's heatmap of a box and its fits (`eval-geometry`).
 
 pub mod adaptive;
 pub mod align;
@@ -30,6 +31,7 @@ pub mod pipeline;
 pub mod robust;
 pub mod silhouette;
 pub mod size_fit;
+pub mod synthetic;
 
 pub use box_model::{BoxModel, BoxSymmetry, ShapeClass};
 pub use error::{GeometryError, Result};
