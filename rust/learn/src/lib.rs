@@ -5,6 +5,7 @@
 //!   threads (no burn);
 //! - [`model`]: the ResNet + deconvolution network; [`model_dir`]: model folders on disk;
 //! - [`inference`]: a frame and a crop → heatmap → peaks → pose; [`evaluation`]: scores of it;
+//!   [`prediction`]: `boxpose predict`'s boxes, fits and table;
 //!   [`fit_table`]: the Arrow columns of the fit tables (no burn);
 //! - [`training`]: the loop, validation and checkpoints for any [`training::Task`], reporting to
 //!   a [`training::TrainObserver`];
@@ -21,6 +22,7 @@ pub mod keypoint;
 pub mod loader;
 pub mod model;
 pub mod model_dir;
+pub mod prediction;
 pub mod segmentation;
 pub mod training;
 
