@@ -165,8 +165,7 @@ fn with_partial<T>(
             return Err(e);
         }
     };
-    fs::rename(&tmp, out)
-        .with_context(|| format!("cannot rename {} to {}", tmp.display(), out.display()))?;
+    boxpose_data::publish_folder(&tmp, out)?;
     Ok(written)
 }
 

@@ -184,10 +184,8 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
 
     let html = page(&run, &rows, &figures, &failing, &drawn)?;
     std::fs::write(tmp.join("index.html"), html).with_context(|| tmp.display().to_string())?;
-    if out.exists() {
-        std::fs::remove_dir_all(&out).with_context(|| out.display().to_string())?;
-    }
-    std::fs::rename(&tmp, &out).with_context(|| out.display().to_string())?;
+    // the old report stays readable until the new one replaces it in one step
+    boxpose_data::publish_folder(&tmp, &out)?;
     println!("report: {}", out.join("index.html").display());
     Ok(())
 }

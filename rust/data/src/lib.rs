@@ -16,7 +16,9 @@ mod writer;
 pub use error::{DataError, Result};
 pub use reader::{Dataset, FrameEntry, FrameIter, ShardBatch, conform, decode_frames, read_shard};
 pub use rows::{Frame, Instance, Intrinsics, Object, Pose, Scene, Visibility};
-pub use writer::{shard_file_name, write_file_atomically, write_parquet, write_shard, write_table};
+pub use writer::{
+    publish_folder, shard_file_name, write_file_atomically, write_parquet, write_shard, write_table,
+};
 
 /// Markers around the generated column reference in `docs/dataset.md`.
 pub const DOC_BEGIN: &str = "<!-- BEGIN GENERATED COLUMNS: `make schema` rewrites this part -->";

@@ -129,6 +129,57 @@ fn publish(written: Result<()>, tmp: &Path, path: &Path) -> Result<()> {
         })
 }
 
+/// Publishes the complete folder `staged` as `out`: renamed when `out` does not exist, else the
+/// two swapped in one step (Linux `renameat2(RENAME_EXCHANGE)`) and the old contents, now at
+/// `staged`, removed. Either way `out` is never missing and never half written: a reader (or a
+/// kill) at any moment finds the old folder or the new one. `staged` must be beside `out` (one
+/// file system). Where the file system cannot swap (EINVAL), the old folder is moved aside first,
+/// and only then is there a moment without `out`.
+pub fn publish_folder(staged: &Path, out: &Path) -> Result<()> {
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| DataError::Io { path, source }
+    };
+    if fs::symlink_metadata(out).is_err() {
+        fs::rename(staged, out).map_err(io(out))?;
+    } else {
+        use std::os::unix::ffi::OsStrExt;
+        let c_path = |p: &Path| std::ffi::CString::new(p.as_os_str().as_bytes());
+        let (from, to) = (
+            c_path(staged).map_err(|e| io(staged)(e.into()))?,
+            c_path(out).map_err(|e| io(out)(e.into()))?,
+        );
+        // SAFETY: two valid NUL-terminated paths, resolved against the working directory.
+        let swapped = unsafe {
+            libc::renameat2(
+                libc::AT_FDCWD,
+                from.as_ptr(),
+                libc::AT_FDCWD,
+                to.as_ptr(),
+                libc::RENAME_EXCHANGE,
+            )
+        };
+        if swapped != 0 {
+            let error = std::io::Error::last_os_error();
+            if error.raw_os_error() != Some(libc::EINVAL) {
+                return Err(io(out)(error));
+            }
+            let aside = staged.with_extension("old");
+            fs::rename(out, &aside).map_err(io(out))?;
+            fs::rename(staged, out).map_err(io(out))?;
+            fs::rename(&aside, staged).map_err(io(staged))?;
+        }
+        fs::remove_dir_all(staged).map_err(io(staged))?;
+    }
+    let folder = out
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(Path::new("."));
+    fs::File::open(folder)
+        .and_then(|dir| dir.sync_all())
+        .map_err(io(folder))
+}
+
 /// A temporary name beside `path`, unique to this writer (`<name>.<pid>-<n>.tmp`: two processes or
 /// threads publishing one file never share a temporary), its folder created.
 fn temporary_beside(path: &Path) -> Result<PathBuf> {
@@ -159,4 +210,24 @@ pub fn write_file_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
         .and_then(|mut file| file.write_all(bytes).and_then(|_| file.sync_all()))
         .map_err(io);
     publish(written, &tmp, path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_published_folder_replaces_the_old_one_in_one_step() {
+        let root = tempfile::tempdir().unwrap();
+        let (out, staged) = (root.path().join("report"), root.path().join("report.tmp"));
+        for round in ["first", "second"] {
+            fs::create_dir(&staged).unwrap();
+            fs::write(staged.join("index.html"), round).unwrap();
+            publish_folder(&staged, &out).unwrap();
+            assert_eq!(fs::read_to_string(out.join("index.html")).unwrap(), round);
+            assert!(!staged.exists(), "the old folder is removed");
+        }
+        let names: Vec<_> = fs::read_dir(root.path()).unwrap().collect();
+        assert_eq!(names.len(), 1, "nothing left beside it");
+    }
 }
