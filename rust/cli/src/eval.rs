@@ -205,72 +205,122 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let dataset = Dataset::open(dataset_path)?;
     crate::inspect::warn_if_incomplete(&dataset);
-    let evaluated = |scene_id: i64| {
+    let evaluated = evaluate(args, &model, segmenter.as_ref(), &dataset)?;
+    anyhow::ensure!(
+        !evaluated.evals.is_empty(),
+        "{}: no instance is visible enough to evaluate",
+        dataset_path.display()
+    );
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    write_rows(
+        &args.out.join("eval.parquet"),
+        &evaluated.fit_rows,
+        &evaluated.evals,
+    )?;
+    let summary = evaluation::summarize(&evaluated.evals);
+    boxpose_data::write_file_atomically(
+        &args.out.join("summary.json"),
+        serde_json::to_string_pretty(&summary)?.as_bytes(),
+    )?;
+    let histogram = write_histogram(args, dataset_path, &evaluated)?;
+    let segmentation_json = args.out.join("segmentation.json");
+    match &segmenter {
+        Some(_) => boxpose_data::write_file_atomically(
+            &segmentation_json,
+            serde_json::to_string_pretty(&evaluated.detections.scores())?.as_bytes(),
+        )?,
+        None => crate::output_folder::remove_stale(&segmentation_json)?,
+    }
+    print_report(
+        args,
+        dataset_path,
+        &evaluated,
+        &summary,
+        segmenter.is_some(),
+    );
+    match histogram {
+        Some(path) => println!("error histogram (paper Fig. 6): {}", path.display()),
+        None => println!("no fit succeeded: no error histogram"),
+    }
+    Ok(())
+}
+
+/// What evaluating a dataset's boxes gives: a row per box and fit, each box's evaluation, and the
+/// segmenter's detections scored (empty with ground-truth crops).
+struct Evaluated {
+    fit_rows: Vec<FitRow>,
+    evals: Vec<InstanceEval>,
+    detections: segmentation::DetectionScorer,
+}
+
+/// Every chosen box of the dataset (the held-out scenes with --held-out) through
+/// `evaluation::evaluate_frame`; frames stream through one at a time, the segmenter's AP keeps
+/// only overlaps.
+fn evaluate(
+    args: &Args,
+    model: &KeypointModel,
+    segmenter: Option<&SegmenterModel>,
+    dataset: &Dataset,
+) -> anyhow::Result<Evaluated> {
+    let evaluated_scene = |scene_id: i64| {
         args.held_out
             .is_none_or(|modulus| data::is_held_out(scene_id, i64::from(modulus)))
     };
-    // Frames stream through one at a time; the segmenter's AP keeps only overlaps.
     let frames = dataset.frames()?;
-    let mut detection_scorer = segmentation::DetectionScorer::default();
-    let total = frames.instance_count(evaluated);
+    let total = frames.instance_count(evaluated_scene);
     let bar = ProgressBar::new(total as u64).with_style(ProgressStyle::with_template(
         "evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
     )?);
-    let mut fit_rows = Vec::new();
-    let mut evals = Vec::new();
+    let mut out = Evaluated {
+        fit_rows: Vec::new(),
+        evals: Vec::new(),
+        detections: segmentation::DetectionScorer::default(),
+    };
     for frame in frames {
         let frame = &frame?;
-        if !evaluated(frame.scene_id) {
+        if !evaluated_scene(frame.scene_id) {
             continue;
         }
         let chosen: Vec<_> = frame
             .instances
             .iter()
-            .filter(|i| boxpose_learn::data::is_target(i, args.min_visible_fraction))
+            .filter(|i| data::is_target(i, args.min_visible_fraction))
             .collect();
-        let crops = match &segmenter {
-            Some(segmenter) => CropSource::Segmenter(segmenter),
-            None => CropSource::GroundTruth,
-        };
-        let evaluated = evaluation::evaluate_frame(&model, frame, &chosen, crops, args.batch_size)?;
+        let crops = segmenter.map_or(CropSource::GroundTruth, CropSource::Segmenter);
+        let evaluated = evaluation::evaluate_frame(model, frame, &chosen, crops, args.batch_size)?;
         if let Some(detections) = &evaluated.detections {
-            detection_scorer.add(frame, detections);
+            out.detections.add(frame, detections);
         }
         for (instance, eval) in chosen.iter().zip(evaluated.evals) {
-            for (method, outcome) in &eval.fits {
-                fit_rows.push(FitRow {
+            out.fit_rows
+                .extend(eval.fits.iter().map(|(method, outcome)| FitRow {
                     scene_id: instance.scene_id,
                     frame_id: instance.frame_id,
                     object_id: instance.object_id,
                     method: *method,
                     diameter_m: eval.diameter_m,
                     outcome: outcome.clone(),
-                });
-            }
-            evals.push(eval);
+                }));
+            out.evals.push(eval);
         }
         bar.inc(frame.instances.len() as u64);
     }
     bar.finish_and_clear();
-    anyhow::ensure!(
-        !evals.is_empty(),
-        "{}: no instance is visible enough to evaluate",
-        dataset_path.display()
-    );
+    Ok(out)
+}
 
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
-    write_rows(&args.out.join("eval.parquet"), &fit_rows, &evals)?;
-    let summary = evaluation::summarize(&evals);
-    let summary_path = args.out.join("summary.json");
-    boxpose_data::write_file_atomically(
-        &summary_path,
-        serde_json::to_string_pretty(&summary)?.as_bytes(),
-    )?;
-    // Normalised by the box's d²/3, so that the paper's unit-box threshold marks the
-    // counterexamples for every box size.
+/// The histogram of the paper's error of three fits, normalised by the box's d²/3 so that the
+/// paper's unit-box threshold marks the counterexamples for every box size; None (and an earlier
+/// histogram removed) when no fit succeeded.
+fn write_histogram(
+    args: &Args,
+    dataset_path: &Path,
+    evaluated: &Evaluated,
+) -> anyhow::Result<Option<PathBuf>> {
     let errors = |method: Method| -> Vec<f64> {
-        fit_rows
+        evaluated
+            .fit_rows
             .iter()
             .filter(|r| r.method == method)
             .filter_map(|r| {
@@ -285,24 +335,31 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         ("size + pose fit", errors(Method::SizeAndPose)),
     ];
     let histogram = args.out.join("paper_error_hist.png");
-    let plotted = series.iter().any(|(_, e)| e.iter().any(|v| *v > 0.0));
-    if plotted {
-        let title = format!(
-            "paper's error on {} ({} instances)",
-            dataset_path
-                .file_name()
-                .unwrap_or_default()
-                .to_string_lossy(),
-            evals.len()
-        );
-        plots::error_histogram(&histogram, &title, &series, PAPER_ERROR_THRESHOLD)?;
-    } else {
+    if !series.iter().any(|(_, e)| e.iter().any(|v| *v > 0.0)) {
         crate::output_folder::remove_stale(&histogram)?;
+        return Ok(None);
     }
-    if segmenter.is_none() {
-        crate::output_folder::remove_stale(&args.out.join("segmentation.json"))?;
-    }
+    let title = format!(
+        "paper's error on {} ({} instances)",
+        dataset_path
+            .file_name()
+            .unwrap_or_default()
+            .to_string_lossy(),
+        evaluated.evals.len()
+    );
+    plots::error_histogram(&histogram, &title, &series, PAPER_ERROR_THRESHOLD)?;
+    Ok(Some(histogram))
+}
 
+/// What was evaluated, the segmenter's scores, corner recall, the fit table and the targets.
+fn print_report(
+    args: &Args,
+    dataset_path: &Path,
+    evaluated: &Evaluated,
+    summary: &evaluation::Summary,
+    with_segmenter: bool,
+) {
+    let evals = &evaluated.evals;
     let crops = match args.crops {
         Crops::Gt => "ground-truth crops",
         Crops::Predicted => "the segmenter's crops",
@@ -313,8 +370,8 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         dataset_path.display(),
         evals.len()
     );
-    if segmenter.is_some() {
-        let s = detection_scorer.scores();
+    if with_segmenter {
+        let s = evaluated.detections.scores();
         println!(
             "segmenter {}: mask AP {:.3} (AP50 {:.3}), bbox AP {:.3} (AP50 {:.3}); {} detections for {} visible boxes; {} of {} evaluated boxes found",
             args.segmenter.display(),
@@ -327,8 +384,6 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             evals.iter().filter(|e| !e.missed).count(),
             evals.len()
         );
-        let path = args.out.join("segmentation.json");
-        boxpose_data::write_file_atomically(&path, serde_json::to_string_pretty(&s)?.as_bytes())?;
     }
     println!(
         "corner recall (peak within {:.0} mm): {:.1}%   heatmap MSE {:.3e}",
@@ -336,18 +391,12 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         100.0 * summary.corner_recall,
         summary.heatmap_mse
     );
-    crate::fit_summary::print(&fit_rows);
-    print_targets(&summary);
+    crate::fit_summary::print(&evaluated.fit_rows);
+    print_targets(summary);
     println!(
         "per-instance metrics: {}",
         args.out.join("eval.parquet").display()
     );
-    if plotted {
-        println!("error histogram (paper Fig. 6): {}", histogram.display());
-    } else {
-        println!("no fit succeeded: no error histogram");
-    }
-    Ok(())
 }
 
 /// The learning targets' shares with their 95 % Clopper–Pearson intervals and counts.
