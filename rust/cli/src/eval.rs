@@ -175,20 +175,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     let dataset_path = args.dataset.as_deref().context("give a dataset folder")?;
     if let Some(spec) = &args.sut {
-        anyhow::ensure!(
-            args.sut_timeout.is_finite() && args.sut_timeout > 0.0,
-            "--sut-timeout {} must be a positive number of seconds",
-            args.sut_timeout
-        );
-        return crate::eval_external::run(&crate::eval_external::Settings {
-            spec,
-            timeout: std::time::Duration::from_secs_f64(args.sut_timeout),
-            dataset: dataset_path,
-            out: &args.out,
-            crops: args.crops,
-            min_visible_fraction: args.min_visible_fraction,
-            held_out: args.held_out,
-        });
+        return run_external(args, spec, dataset_path);
     }
     // its own earlier output is rewritten (its stale files removed below)
     let _claim = crate::output_folder::claim(&args.out, "--out", "eval", &["eval.parquet"])?;
@@ -244,6 +231,24 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         None => println!("no fit succeeded: no error histogram"),
     }
     Ok(())
+}
+
+/// `eval --sut`: another system through the protocol instead of the own networks.
+fn run_external(args: &Args, spec: &str, dataset: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.sut_timeout.is_finite() && args.sut_timeout > 0.0,
+        "--sut-timeout {} must be a positive number of seconds",
+        args.sut_timeout
+    );
+    crate::eval_external::run(&crate::eval_external::Settings {
+        spec,
+        timeout: std::time::Duration::from_secs_f64(args.sut_timeout),
+        dataset,
+        out: &args.out,
+        crops: args.crops,
+        min_visible_fraction: args.min_visible_fraction,
+        held_out: args.held_out,
+    })
 }
 
 /// What evaluating a dataset's boxes gives: a row per box and fit, each box's evaluation, and the

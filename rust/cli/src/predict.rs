@@ -235,8 +235,30 @@ fn finish(
         &overlay_boxes,
     )?;
 
+    print_boxes(args, &frame, &targets, &predictions, &fits);
+    println!(
+        "predictions: {} and {}",
+        args.out.join("predictions.parquet").display(),
+        json_path.display()
+    );
+    println!(
+        "overlay (true white, NMS peaks black, fitted grey): {}",
+        overlay.display()
+    );
+    Ok(())
+}
+
+/// Per box: its fit's size, place, inliers and residual (with the distance to the true centre
+/// when known) and its confidence, or why there is no pose.
+fn print_boxes(
+    args: &Args,
+    frame: &Frame,
+    targets: &[Target],
+    predictions: &[Perception],
+    fits: &[Result<BoxFit, String>],
+) {
     println!("pose-and-size fit: {}", args.size_fit.name());
-    for (t, (p, fit)) in targets.iter().zip(predictions.iter().zip(&fits)) {
+    for (t, (p, fit)) in targets.iter().zip(predictions.iter().zip(fits)) {
         let who = t
             .object_id
             .map_or(format!("bbox {:?}", t.bbox), |id| format!("object {id}"));
@@ -282,16 +304,6 @@ fn finish(
             Err(e) => println!("{who}: no pose ({e})"),
         }
     }
-    println!(
-        "predictions: {} and {}",
-        args.out.join("predictions.parquet").display(),
-        json_path.display()
-    );
-    println!(
-        "overlay (true white, NMS peaks black, fitted grey): {}",
-        overlay.display()
-    );
-    Ok(())
 }
 
 fn find_frame(dataset: &Path, scene: i64, frame_id: i32) -> anyhow::Result<Frame> {

@@ -15,6 +15,7 @@ use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_search::external::{self, ExternalSut};
 use boxpose_search::run::{
     IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler, SplittingSummary,
+    Summary,
 };
 use boxpose_search::space::SearchSpace;
 use boxpose_search::sut::{self, Crops, Predicate};
@@ -476,72 +477,10 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         .as_deref()
         .context("give a run folder with --out")?;
     let space = SearchSpace::load(space_name, &args.recipes)?;
-    let crops = match args.crops {
-        CropsArg::Gt => Crops::Gt,
-        CropsArg::Predicted => Crops::Predicted,
-    };
-    let settings = RunSettings {
-        sampler: match args.sampler {
-            SamplerArg::Mc => Sampler::Mc,
-            SamplerArg::Ce => Sampler::Ce,
-            SamplerArg::Splitting => Sampler::Splitting,
-        },
-        samples: args.samples,
-        batch_size: args.batch_size,
-        seed: args.seed,
-        crops,
-        whole_frames: args.whole_frames || args.sut.is_some(),
-        fit: match args.sut {
-            Some(_) => EXTERNAL_FIT.into(),
-            None => args.fit.clone(),
-        },
-        predicate: args.fail_when,
-        ce: CeConfig {
-            samples_per_iteration: args.ce_samples_per_iteration,
-            max_iterations: args.ce_max_iterations,
-            rho: args.ce_rho,
-            alpha: args.ce_alpha,
-            defensive_lambda: args.ce_lambda,
-            final_samples: args.samples,
-            components: args.ce_components,
-            ..CeConfig::default()
-        },
-        ce_tilt: args.ce_tilt.clone(),
-        splitting: matches!(args.sampler, SamplerArg::Splitting).then(|| SplittingConfig {
-            particles: args.samples,
-            level_probability: args.splitting_level_probability,
-            target_acceptance: args.splitting_target_acceptance,
-            initial_rho: args.splitting_initial_rho,
-            max_levels: args.splitting_max_levels,
-        }),
-        // with another system under test, the networks and the fit are its own
-        model: match args.sut {
-            Some(_) => String::new(),
-            None => args.model.display().to_string(),
-        },
-        segmenter: (crops == Crops::Predicted && args.sut.is_none())
-            .then(|| args.segmenter.display().to_string()),
-        sut: args.sut.clone(),
-    };
     // everything that can be refused is checked before run.json is written (a refused command
     // leaves no run behind to refuse the corrected one) and before the networks and Blender load
-    let record = RunRecord::new(&space, settings)?;
-    boxpose_search::run::check_shard(args.shard, args.num_shards)?;
-    if let Some(spec) = &args.sut {
-        external::command_of(spec).map_err(anyhow::Error::msg)?;
-        anyhow::ensure!(
-            args.sut_timeout.is_finite() && args.sut_timeout > 0.0,
-            "--sut-timeout {} must be a positive number of seconds",
-            args.sut_timeout
-        );
-    } else {
-        KeypointModel::check_folder(&args.model)
-            .with_context(|| format!("--model {}", args.model.display()))?;
-        if crops == Crops::Predicted {
-            SegmenterModel::check_folder(&args.segmenter)
-                .with_context(|| format!("--segmenter {}", args.segmenter.display()))?;
-        }
-    }
+    let record = RunRecord::new(&space, run_settings(args))?;
+    check_run_args(args)?;
     boxpose_render::check_recipe(&space.recipe_toml, &space.file.recipe)
         .context("the search space's base recipe")?;
     // another system under test starts (and introduces itself) before the run folder is made
@@ -597,6 +536,13 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
         }
     }
     let summary = run.merge()?;
+    print_summary(out, &summary);
+    search_report::write(out, 6)?;
+    Ok(())
+}
+
+/// A merged run's levels or tilt, estimate and warnings.
+fn print_summary(out: &Path, summary: &Summary) {
     if let Some(splitting) = &summary.splitting {
         print_levels(splitting);
     }
@@ -609,7 +555,78 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     }
     print_estimate(out, &summary.estimate, summary.samples_spent);
     print_warnings(&summary.warnings);
-    search_report::write(out, 6)?;
+}
+
+/// The run's settings from the command line: with another system under test, the networks and
+/// the fit are its own.
+fn run_settings(args: &RunArgs) -> RunSettings {
+    let crops = match args.crops {
+        CropsArg::Gt => Crops::Gt,
+        CropsArg::Predicted => Crops::Predicted,
+    };
+    RunSettings {
+        sampler: match args.sampler {
+            SamplerArg::Mc => Sampler::Mc,
+            SamplerArg::Ce => Sampler::Ce,
+            SamplerArg::Splitting => Sampler::Splitting,
+        },
+        samples: args.samples,
+        batch_size: args.batch_size,
+        seed: args.seed,
+        crops,
+        whole_frames: args.whole_frames || args.sut.is_some(),
+        fit: match args.sut {
+            Some(_) => EXTERNAL_FIT.into(),
+            None => args.fit.clone(),
+        },
+        predicate: args.fail_when,
+        ce: CeConfig {
+            samples_per_iteration: args.ce_samples_per_iteration,
+            max_iterations: args.ce_max_iterations,
+            rho: args.ce_rho,
+            alpha: args.ce_alpha,
+            defensive_lambda: args.ce_lambda,
+            final_samples: args.samples,
+            components: args.ce_components,
+            ..CeConfig::default()
+        },
+        ce_tilt: args.ce_tilt.clone(),
+        splitting: matches!(args.sampler, SamplerArg::Splitting).then(|| SplittingConfig {
+            particles: args.samples,
+            level_probability: args.splitting_level_probability,
+            target_acceptance: args.splitting_target_acceptance,
+            initial_rho: args.splitting_initial_rho,
+            max_levels: args.splitting_max_levels,
+        }),
+        // with another system under test, the networks and the fit are its own
+        model: match args.sut {
+            Some(_) => String::new(),
+            None => args.model.display().to_string(),
+        },
+        segmenter: (crops == Crops::Predicted && args.sut.is_none())
+            .then(|| args.segmenter.display().to_string()),
+        sut: args.sut.clone(),
+    }
+}
+
+/// The shard and the system under test's settings, checked before anything loads.
+fn check_run_args(args: &RunArgs) -> anyhow::Result<()> {
+    boxpose_search::run::check_shard(args.shard, args.num_shards)?;
+    if let Some(spec) = &args.sut {
+        external::command_of(spec).map_err(anyhow::Error::msg)?;
+        anyhow::ensure!(
+            args.sut_timeout.is_finite() && args.sut_timeout > 0.0,
+            "--sut-timeout {} must be a positive number of seconds",
+            args.sut_timeout
+        );
+    } else {
+        KeypointModel::check_folder(&args.model)
+            .with_context(|| format!("--model {}", args.model.display()))?;
+        if matches!(args.crops, CropsArg::Predicted) {
+            SegmenterModel::check_folder(&args.segmenter)
+                .with_context(|| format!("--segmenter {}", args.segmenter.display()))?;
+        }
+    }
     Ok(())
 }
 
@@ -773,43 +790,7 @@ fn replay(
     );
     std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
     if let Some((frames, instances)) = &outcome.rendered {
-        let frame = boxpose_data::decode_frames(Path::new("<replayed render>"), frames, instances)?
-            .remove(0);
-        let truth = frame
-            .instances
-            .iter()
-            .find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID)
-            .map(|i| i.corners_camera.map(nalgebra::Point3::from));
-        let peaks: Vec<nalgebra::Point3<f64>> = outcome
-            .peaks
-            .iter()
-            .map(|p| nalgebra::Point3::from(*p))
-            .collect();
-        let fitted = replayed.fitted_corners_camera_m.as_deref().map(|c| {
-            std::array::from_fn(|i| nalgebra::Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))
-        });
-        let overlay = out.join(format!("sample-{sample}.png"));
-        crate::plots::overlay(
-            &overlay,
-            &frame.rgb,
-            frame.width,
-            frame.height,
-            &frame.intrinsics,
-            &[crate::plots::OverlayBox {
-                truth,
-                peaks: peaks.clone(),
-                fitted,
-            }],
-        )?;
-        if let Some(truth) = &truth {
-            crate::plots::view_3d(
-                &out.join(format!("sample-{sample}-3d.png")),
-                &format!("sample {sample}, replayed"),
-                truth,
-                &peaks,
-                fitted.as_ref(),
-            )?;
-        }
+        let overlay = draw_replay(out, sample, frames, instances, &outcome.peaks, &replayed)?;
         println!("  drawn: {}", overlay.display());
     }
     if recorded.failed != replayed.failed || recorded.valid != replayed.valid {
@@ -828,6 +809,53 @@ fn replay(
         );
     }
     Ok(())
+}
+
+/// The replayed render with its true box, peaks and fitted box drawn (sample-N.png), and the
+/// 3D view when the target is in the frame; returns the overlay's path.
+fn draw_replay(
+    out: &Path,
+    sample: i64,
+    frames: &boxpose_data::arrow::record_batch::RecordBatch,
+    instances: &boxpose_data::arrow::record_batch::RecordBatch,
+    peaks: &[[f64; 3]],
+    replayed: &SampleRow,
+) -> anyhow::Result<PathBuf> {
+    let frame =
+        boxpose_data::decode_frames(Path::new("<replayed render>"), frames, instances)?.remove(0);
+    let truth = frame
+        .instances
+        .iter()
+        .find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID)
+        .map(|i| i.corners_camera.map(nalgebra::Point3::from));
+    let peaks: Vec<nalgebra::Point3<f64>> =
+        peaks.iter().map(|p| nalgebra::Point3::from(*p)).collect();
+    let fitted = replayed.fitted_corners_camera_m.as_deref().map(|c| {
+        std::array::from_fn(|i| nalgebra::Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))
+    });
+    let overlay = out.join(format!("sample-{sample}.png"));
+    crate::plots::overlay(
+        &overlay,
+        &frame.rgb,
+        frame.width,
+        frame.height,
+        &frame.intrinsics,
+        &[crate::plots::OverlayBox {
+            truth,
+            peaks: peaks.clone(),
+            fitted,
+        }],
+    )?;
+    if let Some(truth) = &truth {
+        crate::plots::view_3d(
+            &out.join(format!("sample-{sample}-3d.png")),
+            &format!("sample {sample}, replayed"),
+            truth,
+            &peaks,
+            fitted.as_ref(),
+        )?;
+    }
+    Ok(overlay)
 }
 
 fn print_warnings(warnings: &[String]) {
