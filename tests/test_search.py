@@ -286,6 +286,11 @@ def test_the_report_shows_each_counterexample_s_parameters_and_every_predicate_s
             f"boxpose render {failing_run / 'counterexamples'} --scene {scene_id} --crop {crop}"
         )
         assert f"<code>{command}</code>" in html, command
+        # and its ground-truth sheet (boxpose view): drawn, shown, and as wide as three panels
+        sheet = failing_run / "report" / f"sample-{scene_id}-sheet.png"
+        assert f'src="sample-{scene_id}-sheet.png"' in html
+        with Image.open(sheet) as image:
+            assert image.width > 2 * frames.width[frames.scene_id == scene_id].iloc[0]
 
 
 def test_view_draws_a_counterexample_with_its_peaks_fit_and_parameters(

@@ -159,6 +159,13 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
                     fitted,
                 }],
             )?;
+            let sheet = format!("sample-{}-sheet.png", row.sample_id);
+            let extras = crate::view::sample_sheet(
+                &run,
+                row,
+                format!("sample {} of {}", row.sample_id, run_dir.display()),
+            );
+            plots::frame_sheet(&tmp.join(&sheet), &frame, &extras)?;
             if let Some(truth) = &truth {
                 let view = format!("sample-{}-3d.png", row.sample_id);
                 plots::view_3d(
@@ -460,10 +467,12 @@ fn page(
         parameter_table(&mut h, &run.record.dimensions, failing)?;
         for (id, file, command) in drawn {
             let view = file.replace(".png", "-3d.png");
+            let sheet = file.replace(".png", "-sheet.png");
             writeln!(
                 h,
                 "<div><figure style=\"display:inline-block;width:48%\"><img src=\"{file}\" style=\"width:100%;image-rendering:pixelated\"><figcaption>sample {id}: <code>{}</code></figcaption></figure>\
-                 <figure style=\"display:inline-block;width:48%\"><img src=\"{view}\"><figcaption>sample {id} in 3D (camera frame): true box green, NMS peaks red, fitted box blue</figcaption></figure></div>",
+                 <figure style=\"display:inline-block;width:48%\"><img src=\"{view}\"><figcaption>sample {id} in 3D (camera frame): true box green, NMS peaks red, fitted box blue</figcaption></figure>\
+                 <figure><img src=\"{sheet}\" style=\"width:100%\"><figcaption>sample {id}'s ground truth (<code>boxpose view</code>): every box's corners by visibility, the depth, the instance masks, and the sample's errors and parameter values</figcaption></figure></div>",
                 escape(command)
             )?;
         }

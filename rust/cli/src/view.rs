@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use boxpose_data::Dataset;
-use boxpose_search::run::Run;
+use boxpose_search::run::{Run, SampleRow};
 use nalgebra::Point3;
 
 use crate::plots::{self, OverlayBox, SheetExtras};
@@ -47,12 +47,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let is_run = args.path.join("run.json").is_file();
     let (dataset_dir, scene_id, extras, default_name) = match (is_run, args.scene, args.sample) {
         (true, _, Some(sample)) => {
-            let (title, overlay, text) = sample_extras(&args.path, sample)?;
-            let extras = SheetExtras {
-                title,
-                overlay: Some(overlay),
-                text,
-            };
+            let extras = sample_extras(&args.path, sample)?;
             let name = format!("view-sample-{sample}.png");
             (args.path.join("counterexamples"), sample, extras, name)
         }
@@ -113,13 +108,25 @@ fn no_frame(dataset: &Path, scene: i64, frame: i32, is_run: bool) -> String {
 
 /// The title, the target's peaks and fit, and the text panel (errors, then the parameters) of
 /// a search run's sample.
-fn sample_extras(run_dir: &Path, sample: i64) -> anyhow::Result<(String, OverlayBox, Vec<String>)> {
+fn sample_extras(run_dir: &Path, sample: i64) -> anyhow::Result<SheetExtras> {
     let run = Run::open(run_dir)?;
     let (rows, _) = run.rows()?;
     let row = rows
         .iter()
         .find(|r| r.sample_id == sample)
         .with_context(|| format!("{} has no sample {sample}", run_dir.display()))?;
+    Ok(sample_sheet(
+        &run,
+        row,
+        format!("{} — sample {sample}", run_dir.display()),
+    ))
+}
+
+/// What a sample's sheet adds to its frame's ground truth: the network's peaks and fitted box of
+/// the target, and a text panel of the sample's errors and parameter values (`boxpose view
+/// RUN --sample`, and each counterexample of the search report).
+pub fn sample_sheet(run: &Run, row: &SampleRow, title: String) -> SheetExtras {
+    let sample = row.sample_id;
     let points = |values: &[f64]| -> Vec<Point3<f64>> {
         values
             .chunks(3)
@@ -167,6 +174,9 @@ fn sample_extras(run_dir: &Path, sample: i64) -> anyhow::Result<(String, Overlay
             text.push(format!("{name} = {value:.4}"));
         }
     }
-    let title = format!("{} — sample {sample}", run_dir.display());
-    Ok((title, overlay, text))
+    SheetExtras {
+        title,
+        overlay: Some(overlay),
+        text,
+    }
 }
