@@ -104,8 +104,9 @@ pub(crate) fn save_model_dir<C: Serialize>(
     })
 }
 
-/// Writes a folder by filling `dir.tmp` and renaming it over `dir`, so a reader never sees a
-/// half-written one (an interrupted write leaves the previous folder intact).
+/// Writes a folder by filling `dir.tmp` and publishing it as `dir`
+/// ([`boxpose_data::publish_folder`]), so a reader never sees a half-written one and `dir` is
+/// never missing (an interrupted write leaves the previous folder intact).
 pub(crate) fn write_dir_atomically(
     dir: &Path,
     fill: impl FnOnce(&Path) -> Result<(), LearnError>,
@@ -124,18 +125,13 @@ pub(crate) fn write_dir_atomically(
     }
     std::fs::create_dir_all(&tmp).map_err(|e| LearnError::Io(tmp.clone(), e))?;
     fill(&tmp)?;
-    if dir.exists() {
-        std::fs::rename(dir, &old).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
-    }
-    std::fs::rename(&tmp, dir).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
-    if old.exists() {
-        std::fs::remove_dir_all(&old).map_err(|e| LearnError::Io(old, e))?;
-    }
+    // swapped in one step; where the file system cannot, the previous folder waits at `dir.old`
+    boxpose_data::publish_folder(&tmp, dir)?;
     Ok(())
 }
 
-/// If a write was interrupted between its two renames, `dir` is missing and `dir.old` is the last
-/// complete folder: put it back.
+/// If a write was interrupted between the renames of a file system that cannot swap two folders,
+/// `dir` is missing and `dir.old` is the last complete folder: put it back.
 pub(crate) fn restore_interrupted(dir: &Path, old: &Path) -> Result<(), LearnError> {
     if !dir.exists() && old.exists() {
         std::fs::rename(old, dir).map_err(|e| LearnError::Io(dir.to_path_buf(), e))?;
