@@ -81,22 +81,16 @@ pub struct CocoArgs {
 pub fn run(args: &Args) -> anyhow::Result<()> {
     match &args.format {
         Format::Bop(a) => {
-            let dataset = open(&a.dataset)?;
             let options = BopOptions {
                 split: a.split.clone(),
                 min_visib_fract: a.min_visib_fract,
                 source: dataset_name(&a.dataset),
             };
-            let bar = progress(&dataset, "bop")?;
-            let written = with_partial(&a.out, |tmp| {
+            let written = export(&a.dataset, &a.out, "bop", |dataset, tmp, on_frame| {
                 Ok(boxpose_formats::write_bop(
-                    &dataset,
-                    &options,
-                    tmp,
-                    &mut || bar.inc(1),
+                    dataset, &options, tmp, on_frame,
                 )?)
             })?;
-            bar.finish_and_clear();
             println!(
                 "{} scenes, {} images, {} instances, {} models",
                 written.scenes, written.images, written.instances, written.models
@@ -104,21 +98,15 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             println!("wrote {}", a.out.display());
         }
         Format::Coco(a) => {
-            let dataset = open(&a.dataset)?;
             let options = CocoOptions {
                 keypoints: a.keypoints,
                 source: dataset_name(&a.dataset),
             };
-            let bar = progress(&dataset, "coco")?;
-            let written = with_partial(&a.out, |tmp| {
+            let written = export(&a.dataset, &a.out, "coco", |dataset, tmp, on_frame| {
                 Ok(boxpose_formats::write_coco(
-                    &dataset,
-                    &options,
-                    tmp,
-                    &mut || bar.inc(1),
+                    dataset, &options, tmp, on_frame,
                 )?)
             })?;
-            bar.finish_and_clear();
             println!(
                 "{} images, {} annotations",
                 written.images, written.annotations
@@ -129,10 +117,20 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn open(path: &Path) -> anyhow::Result<Dataset> {
-    let dataset = Dataset::open(path)?;
+/// Opens the dataset, writes it with `write` into the staged folder with a progress bar, and
+/// publishes the folder as `out`; returns what `write` says it wrote.
+fn export<T>(
+    dataset: &Path,
+    out: &Path,
+    what: &str,
+    write: impl FnOnce(&Dataset, &Path, &mut dyn FnMut()) -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
+    let dataset = Dataset::open(dataset)?;
     crate::inspect::warn_if_incomplete(&dataset);
-    Ok(dataset)
+    let bar = progress(&dataset, what)?;
+    let written = with_partial(out, |tmp| write(&dataset, tmp, &mut || bar.inc(1)))?;
+    bar.finish_and_clear();
+    Ok(written)
 }
 
 /// Writes into `OUT.partial` (cleared first) and renames it to `OUT` once `write` succeeded;
