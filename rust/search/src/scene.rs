@@ -62,20 +62,15 @@ pub fn build(
     let [hx, hy] = support.half_extent_m;
     let top = support.top_z();
     let mut nuisance = Nuisance::new(&recipe, seed)?;
-    let p = |name: &str| parameters.get(name);
-
-    let size = [
-        p("target.size_m.x"),
-        p("target.size_m.y"),
-        p("target.size_m.z"),
-    ];
+    let target = &parameters.target;
+    let size = target.size_m;
     let quat = parameters.target_quat_wxyz;
     let radius = (size[0].powi(2) + size[1].powi(2) + size[2].powi(2)).sqrt() / 2.0;
     let lift = half_height(size, quat);
     let mut centre = [
-        inside(p("target.x_m"), hx, radius),
-        inside(p("target.y_m"), hy, radius),
-        top + p("target.drop_height_m") + lift,
+        inside(target.x_m, hx, radius),
+        inside(target.y_m, hy, radius),
+        top + target.drop_height_m + lift,
     ];
     if let Some(pile) = &space.pile {
         // the drop height is counted from the pile's highest point: the target starts clear of
@@ -84,7 +79,7 @@ pub fn build(
             .iter()
             .map(|b| b.translation_m[2] + half_height(b.size_m, b.quat_wxyz))
             .fold(top, f64::max);
-        centre[2] = pile_top + p("target.drop_height_m") + lift;
+        centre[2] = pile_top + target.drop_height_m + lift;
     }
     let mut objects = vec![nuisance.object(
         scene_id,
@@ -99,21 +94,17 @@ pub fn build(
         objects.push(pile_box.object(scene_id, TARGET_OBJECT_ID + 1 + i as i32));
     }
     let mut floor = centre[2] + lift + STACK_GAP_M;
-    for i in 0..parameters.neighbours {
-        let size = [
-            p(&format!("neighbour{i}.size_m.x")),
-            p(&format!("neighbour{i}.size_m.y")),
-            p(&format!("neighbour{i}.size_m.z")),
-        ];
+    for (i, neighbour) in parameters.neighbour_boxes.iter().enumerate() {
+        let size = neighbour.size_m;
         let radius = (size[0].powi(2) + size[1].powi(2)).sqrt() / 2.0;
         let translation = [
-            inside(p(&format!("neighbour{i}.x_m")), hx, radius),
-            inside(p(&format!("neighbour{i}.y_m")), hy, radius),
+            inside(neighbour.x_m, hx, radius),
+            inside(neighbour.y_m, hy, radius),
             floor + size[2] / 2.0,
         ];
         floor += size[2] + STACK_GAP_M;
         let pose = Pose {
-            quat_wxyz: yaw_quaternion(p(&format!("neighbour{i}.yaw_deg"))),
+            quat_wxyz: yaw_quaternion(neighbour.yaw_deg),
             translation,
         };
         objects.push(nuisance.object(scene_id, i as i32 + 1, size, pose));
@@ -165,8 +156,8 @@ fn pinned_recipe(
         }
     };
     let mut camera = section(&mut recipe, "camera")?;
-    for key in ["distance_m", "elevation_deg", "azimuth_deg", "hfov_deg"] {
-        camera.insert(key.into(), pin(parameters.get(&format!("camera.{key}"))));
+    for (key, value) in parameters.camera.recipe_keys() {
+        camera.insert(key.into(), pin(value));
     }
     camera.insert("frames_per_scene".into(), toml::Value::Integer(1));
     camera.insert("look_at_jitter_m".into(), toml::Value::Float(0.0));
@@ -175,13 +166,8 @@ fn pinned_recipe(
         toml::Value::Integer(TARGET_OBJECT_ID.into()),
     );
     let mut lighting = section(&mut recipe, "lighting")?;
-    for key in [
-        "sun_elevation_deg",
-        "sun_azimuth_deg",
-        "sun_strength",
-        "world_strength",
-    ] {
-        lighting.insert(key.into(), pin(parameters.get(&format!("lighting.{key}"))));
+    for (key, value) in parameters.lighting.recipe_keys() {
+        lighting.insert(key.into(), pin(value));
     }
     recipe.insert("camera".into(), toml::Value::Table(camera));
     recipe.insert("lighting".into(), toml::Value::Table(lighting));

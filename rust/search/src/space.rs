@@ -325,19 +325,148 @@ pub struct SearchSpace {
     pub pile: Option<Vec<PileBox>>,
 }
 
-/// Sampled scene inputs: every parameter's value, by name, and the stratum.
+/// Sampled scene inputs, typed: what the scene builder reads. Made only by
+/// [`SearchSpace::parameters`], which takes each value from the dimension of its name, so a name
+/// that does not match is one error there (and at load time, which builds a sample once), never a
+/// panic in the scene builder.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Parameters {
-    /// Number of neighbouring boxes.
+    /// Number of neighbouring boxes (the stratum).
     pub neighbours: u32,
+    /// Every scalar dimension's value by name, as the run's tables record them.
     pub values: BTreeMap<String, f64>,
     /// The target's drop orientation (unit quaternion w, x, y, z).
     pub target_quat_wxyz: [f64; 4],
+    pub target: TargetParameters,
+    /// One per neighbour, in drop order.
+    pub neighbour_boxes: Vec<NeighbourParameters>,
+    pub camera: CameraParameters,
+    pub lighting: LightingParameters,
+}
+
+/// The target box: its size, where it is dropped on the support and from how high.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TargetParameters {
+    pub size_m: [f64; 3],
+    pub x_m: f64,
+    pub y_m: f64,
+    pub drop_height_m: f64,
+}
+
+/// A neighbouring box: its size, place and yaw.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NeighbourParameters {
+    pub size_m: [f64; 3],
+    pub x_m: f64,
+    pub y_m: f64,
+    pub yaw_deg: f64,
+}
+
+/// The camera, as the recipe's `[camera]` keys pin it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CameraParameters {
+    pub distance_m: f64,
+    pub elevation_deg: f64,
+    pub azimuth_deg: f64,
+    pub hfov_deg: f64,
+}
+
+/// The light, as the recipe's `[lighting]` keys pin it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LightingParameters {
+    pub sun_elevation_deg: f64,
+    pub sun_azimuth_deg: f64,
+    pub sun_strength: f64,
+    pub world_strength: f64,
+}
+
+impl CameraParameters {
+    /// (recipe key, value) of each.
+    pub fn recipe_keys(&self) -> [(&'static str, f64); 4] {
+        [
+            ("distance_m", self.distance_m),
+            ("elevation_deg", self.elevation_deg),
+            ("azimuth_deg", self.azimuth_deg),
+            ("hfov_deg", self.hfov_deg),
+        ]
+    }
+}
+
+impl LightingParameters {
+    /// (recipe key, value) of each.
+    pub fn recipe_keys(&self) -> [(&'static str, f64); 4] {
+        [
+            ("sun_elevation_deg", self.sun_elevation_deg),
+            ("sun_azimuth_deg", self.sun_azimuth_deg),
+            ("sun_strength", self.sun_strength),
+            ("world_strength", self.world_strength),
+        ]
+    }
+}
+
+/// The value of the dimension `name`; an error naming it when the space has none.
+fn value_of(values: &BTreeMap<String, f64>, name: &str) -> Result<f64> {
+    values.get(name).copied().ok_or_else(|| {
+        SearchError::Sample(format!(
+            "the search space has no parameter `{name}` (it has {})",
+            values.keys().cloned().collect::<Vec<_>>().join(", ")
+        ))
+    })
 }
 
 impl Parameters {
-    pub fn get(&self, name: &str) -> f64 {
-        self.values[name]
+    /// The typed parameters of the scalar `values` in stratum `neighbours`.
+    fn typed(
+        values: BTreeMap<String, f64>,
+        neighbours: u32,
+        target_quat_wxyz: [f64; 4],
+    ) -> Result<Self> {
+        let v = |name: &str| value_of(&values, name);
+        let size = |prefix: &str| -> Result<[f64; 3]> {
+            Ok([
+                v(&format!("{prefix}.size_m.x"))?,
+                v(&format!("{prefix}.size_m.y"))?,
+                v(&format!("{prefix}.size_m.z"))?,
+            ])
+        };
+        let target = TargetParameters {
+            size_m: size("target")?,
+            x_m: v("target.x_m")?,
+            y_m: v("target.y_m")?,
+            drop_height_m: v("target.drop_height_m")?,
+        };
+        let neighbour_boxes = (0..neighbours)
+            .map(|i| {
+                let prefix = format!("neighbour{i}");
+                Ok(NeighbourParameters {
+                    size_m: size(&prefix)?,
+                    x_m: v(&format!("{prefix}.x_m"))?,
+                    y_m: v(&format!("{prefix}.y_m"))?,
+                    yaw_deg: v(&format!("{prefix}.yaw_deg"))?,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let camera = CameraParameters {
+            distance_m: v("camera.distance_m")?,
+            elevation_deg: v("camera.elevation_deg")?,
+            azimuth_deg: v("camera.azimuth_deg")?,
+            hfov_deg: v("camera.hfov_deg")?,
+        };
+        let lighting = LightingParameters {
+            sun_elevation_deg: v("lighting.sun_elevation_deg")?,
+            sun_azimuth_deg: v("lighting.sun_azimuth_deg")?,
+            sun_strength: v("lighting.sun_strength")?,
+            world_strength: v("lighting.world_strength")?,
+        };
+        Ok(Self {
+            neighbours,
+            values,
+            target_quat_wxyz,
+            target,
+            neighbour_boxes,
+            camera,
+            lighting,
+        })
     }
 }
 
@@ -654,13 +783,18 @@ impl SearchSpace {
                 });
             }
         }
-        Ok(Self {
+        let space = Self {
             file,
             text,
             recipe_toml,
             dimensions,
             pile,
-        })
+        };
+        // every name the scene builder reads resolves: one sample of the largest stratum, built
+        // once here, so a mismatch is a load error and never a failure mid-run
+        let largest = space.strata().into_iter().max().unwrap_or(0);
+        space.parameters(&vec![0.5; space.dim()], largest)?;
+        Ok(space)
     }
 
     /// Length of z.
@@ -710,15 +844,11 @@ impl SearchSpace {
                 quat.map(|v| sign * v / norm)
             }
             Orientation::Yaw => {
-                let half = values["target.yaw_deg"].to_radians() / 2.0;
+                let half = value_of(&values, "target.yaw_deg")?.to_radians() / 2.0;
                 [half.cos(), 0.0, 0.0, half.sin()]
             }
         };
-        Ok(Parameters {
-            neighbours,
-            values,
-            target_quat_wxyz,
-        })
+        Parameters::typed(values, neighbours, target_quat_wxyz)
     }
 }
 
@@ -835,5 +965,14 @@ mod tests {
         let p = space.parameters(&z, 0).unwrap();
         let norm: f64 = p.target_quat_wxyz.iter().map(|v| v * v).sum();
         assert!((norm - 1.0).abs() < 1e-12 && p.target_quat_wxyz[0] >= 0.0);
+    }
+
+    #[test]
+    fn a_parameter_the_space_lacks_is_an_error_naming_it_not_a_panic() {
+        let values: BTreeMap<String, f64> = [("camera.distance_m".to_string(), 1.0)].into();
+        let error = Parameters::typed(values, 0, [1.0, 0.0, 0.0, 0.0]).unwrap_err();
+        let message = error.to_string();
+        assert!(message.contains("`target.size_m.x`"), "{message}");
+        assert!(message.contains("camera.distance_m"), "{message}");
     }
 }

@@ -14,7 +14,7 @@ use boxpose_search_stats::splitting::run_in_memory;
 use boxpose_search_stats::{CeConfig, SplittingConfig, normal_cdf};
 
 /// The parameter whose nominal quantile decides failure: `camera.distance_m`, uniform on
-/// [0.6, 0.9] in `single_box`.
+/// [0.6, 0.9] in `single_box` (the evaluator reads it as `parameters.camera.distance_m`).
 const DECIDING: &str = "camera.distance_m";
 const DISTANCE_RANGE: [f64; 2] = [0.6, 0.9];
 
@@ -61,7 +61,7 @@ impl Evaluate for ClosedForm {
         }
         self.calls += 1;
         let [lo, hi] = DISTANCE_RANGE;
-        let u = (parameters.get(DECIDING) - lo) / (hi - lo);
+        let u = (parameters.camera.distance_m - lo) / (hi - lo);
         let error = 0.005 * 10f64.powf(self.score_of_quantile(u));
         Ok(Outcome {
             result: Ok(Perceived::Fitted(Metrics {
