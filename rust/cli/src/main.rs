@@ -106,6 +106,8 @@ enum Command {
 /// default report appends one whenever RUST_BACKTRACE is set, as it often is on developer
 /// machines, burying the message a user needs under 20 frames.
 fn main() -> std::process::ExitCode {
+    // the binary's choice: Blender's CUDA probe and exit-time leak report are not ours to show
+    boxpose_render::quiet_blender_output();
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {

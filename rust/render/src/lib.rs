@@ -45,6 +45,7 @@ mod quiet;
 
 pub use python::find_venv;
 use python::{check_python, init_python, py_err};
+pub use quiet::quiet_blender_output;
 
 static LIVE: AtomicBool = AtomicBool::new(false);
 

@@ -5,6 +5,8 @@
 //! The filter is a `grep -v` child process per stream, not a buffer in this process: if Blender
 //! crashes while its output is filtered, the pipe's write end closes with the process and grep
 //! still passes on everything written before the crash (an in-memory capture died with it).
+//! Only when the binary asks ([`quiet_blender_output`]): the library does not touch the
+//! process's streams on its own.
 use std::ffi::c_int;
 use std::io::Write;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
@@ -46,8 +48,25 @@ extern "C" fn remove_blender_tempdir() {
     }
 }
 
+/// Whether the process asked for Blender's noise to be filtered ([`quiet_blender_output`]): the
+/// library leaves the process's streams alone unless its binary asks.
+static QUIET: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Asks that Blender's known noise be filtered from this process's stdout and stderr while a
+/// renderer starts and first renders, and that the process's output be silenced at exit (after
+/// Rust's streams are flushed), before Blender's memory-leak report. A choice for a binary to
+/// make: it redirects the whole process's streams, so a library never makes it for its caller.
+pub fn quiet_blender_output() {
+    QUIET.store(true, std::sync::atomic::Ordering::SeqCst);
+}
+
+fn quiet() -> bool {
+    QUIET.load(std::sync::atomic::Ordering::SeqCst)
+}
+
 /// Registers the exit hooks: Blender's temp folder `blender_tempdir` is removed (only a
-/// `blender_*` folder, so a misread path cannot remove anything else), and the output silenced.
+/// `blender_*` folder, so a misread path cannot remove anything else), and with
+/// [`quiet_blender_output`] the output silenced.
 /// C atexit hooks run in reverse order of registration, so once bpy is imported these run before
 /// Blender's leak report (and C++ static destructors).
 pub fn at_exit(blender_tempdir: &std::path::Path) {
@@ -59,7 +78,9 @@ pub fn at_exit(blender_tempdir: &std::path::Path) {
         if is_session_folder && BLENDER_TEMPDIR.set(blender_tempdir.to_path_buf()).is_ok() {
             atexit(remove_blender_tempdir);
         }
-        atexit(silence_at_exit);
+        if quiet() {
+            atexit(silence_at_exit);
+        }
     }
 }
 
@@ -111,9 +132,13 @@ impl Drop for Filter {
     }
 }
 
-/// Runs `f` with stdout and stderr passed through the noise filter. The streams are restored
-/// however `f` ends (a panic included), and a crash inside `f` loses nothing written before it.
+/// Runs `f` with stdout and stderr passed through the noise filter when the binary asked for it
+/// ([`quiet_blender_output`]; else `f` alone). The streams are restored however `f` ends (a panic
+/// included), and a crash inside `f` loses nothing written before it.
 pub fn filter_output<T>(f: impl FnOnce() -> T) -> T {
+    if !quiet() {
+        return f();
+    }
     let _ = std::io::stdout().flush();
     let _ = std::io::stderr().flush();
     let filters: Vec<Filter> = [STDOUT, STDERR]
