@@ -8,8 +8,8 @@ use std::path::Path;
 use anyhow::Context;
 use boxpose_data::Dataset;
 use boxpose_search::run::{Run, SampleRow, Sampler, estimate};
-use boxpose_search::space::standard_normal_cdf;
 use boxpose_search::sut::Predicate;
+use boxpose_search_stats::stats::normal_cdf as standard_normal_cdf;
 use nalgebra::Point3;
 
 use crate::plots::{self, OverlayBox};

@@ -14,8 +14,8 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use boxpose_data::{Object, Pose};
+use boxpose_search_stats::stats::{normal_cdf as standard_normal_cdf, normal_quantile};
 use serde::{Deserialize, Serialize};
-use statrs::function::erf::{erfc, erfc_inv};
 
 use crate::error::{Result, SearchError};
 
@@ -105,14 +105,10 @@ impl Distribution {
     }
 }
 
-/// Φ(z), the standard normal CDF.
-pub fn standard_normal_cdf(z: f64) -> f64 {
-    0.5 * erfc(-z / std::f64::consts::SQRT_2)
-}
-
-/// Φ⁻¹(u), the standard normal quantile.
-pub fn standard_normal_quantile(u: f64) -> f64 {
-    -std::f64::consts::SQRT_2 * erfc_inv(2.0 * u.clamp(1e-300, 1.0 - 1e-16))
+/// Φ⁻¹(u), the standard normal quantile, with u kept inside (0, 1) so that a truncated draw at
+/// its range's edge stays finite.
+fn standard_normal_quantile(u: f64) -> f64 {
+    normal_quantile(u.clamp(1e-300, 1.0 - 1e-16))
 }
 
 /// A per-axis box size: each edge drawn independently.
