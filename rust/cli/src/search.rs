@@ -179,7 +179,7 @@ enum Command {
         #[arg(long, default_value = "models/keypoint-slim")]
         model: PathBuf,
         /// The pose fit: paper, fast, robust or size.
-        #[arg(long, default_value = "paper", value_parser = ["paper", "fast", "robust", "size"])]
+        #[arg(long, default_value = "paper", value_parser = clap::builder::PossibleValuesParser::new(sut::FIT_NAMES))]
         fit: String,
         #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
         backend: BackendKind,
@@ -215,7 +215,7 @@ struct RunArgs {
     #[arg(long)]
     whole_frames: bool,
     /// The pose fit under test: paper (the paper's search over the 5 best peaks), fast, robust, size.
-    #[arg(long, default_value = "paper", value_parser = ["paper", "fast", "robust", "size"])]
+    #[arg(long, default_value = "paper", value_parser = clap::builder::PossibleValuesParser::new(sut::FIT_NAMES))]
     fit: String,
     /// Failure predicate: paper[:T] (the paper's error over diag²/3 above T, default 0.005),
     /// cube-mssd[:F] (the corners' real displacement, the cube-group corner MSSD, above F ×

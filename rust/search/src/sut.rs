@@ -127,17 +127,24 @@ impl Predicate {
     }
 }
 
+/// The fits a search can put under test, by the names `--fit` takes (short forms of
+/// [`Method::name`]).
+pub const FITS: [(&str, Method); 4] = [
+    ("paper", Method::PaperExact),
+    ("fast", Method::FastExact),
+    ("robust", Method::Robust),
+    ("size", Method::SizeAndPose),
+];
+
+/// The `--fit` names, in [`FITS`]' order.
+pub const FIT_NAMES: [&str; 4] = [FITS[0].0, FITS[1].0, FITS[2].0, FITS[3].0];
+
 /// The fit the pipeline uses, as the CLI names it.
 pub fn method_named(name: &str) -> Result<Method, String> {
-    match name {
-        "paper" => Ok(Method::PaperExact),
-        "fast" => Ok(Method::FastExact),
-        "robust" => Ok(Method::Robust),
-        "size" => Ok(Method::SizeAndPose),
-        other => Err(format!(
-            "unknown fit '{other}': use paper, fast, robust or size"
-        )),
-    }
+    FITS.iter()
+        .find(|(fit, _)| *fit == name)
+        .map(|(_, method)| *method)
+        .ok_or_else(|| format!("unknown fit '{name}': use {}", FIT_NAMES.join(", ")))
 }
 
 /// How far the fitted pose is from the truth.
