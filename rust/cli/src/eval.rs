@@ -12,14 +12,13 @@ use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::data;
-use boxpose_learn::evaluation::{self, CropSource, InstanceEval};
+use boxpose_learn::evaluation::{self, CropSource, Crops, InstanceEval};
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::{self, SegmenterModel};
 use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::plots;
-use crate::predict::Crops;
 use boxpose_learn::fit_table::{self, FitRow};
 
 #[derive(clap::Args)]

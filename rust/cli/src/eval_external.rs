@@ -16,7 +16,7 @@ use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 
 use crate::plots;
-use crate::predict::Crops;
+use boxpose_learn::evaluation::Crops;
 
 /// Settings of one `eval --sut` run.
 pub struct Settings<'a> {

@@ -21,7 +21,7 @@ use anyhow::{Context, bail};
 use boxpose_data::{Dataset, Frame, Intrinsics};
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;
-use boxpose_learn::evaluation::true_pose;
+use boxpose_learn::evaluation::{Crops, true_pose};
 use boxpose_learn::inference::{KeypointModel, Perception};
 use boxpose_learn::prediction::{self, BoxFit, Target};
 use boxpose_learn::segmentation::SegmenterModel;
@@ -29,14 +29,6 @@ use nalgebra::Point3;
 use serde_json::json;
 
 use crate::plots::{self, OverlayBox};
-
-#[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum Crops {
-    /// Around each ground-truth box's visible bounding box, at its mask's median depth.
-    Gt,
-    /// Around each box the instance segmenter finds, at its predicted mask's median depth.
-    Predicted,
-}
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum SizeFit {

@@ -209,7 +209,7 @@ struct RunArgs {
     seed: u64,
     /// Where the keypoint network's crop comes from: the target's ground-truth box, or the segmenter.
     #[arg(long, value_enum, default_value = "gt")]
-    crops: CropsArg,
+    crops: Crops,
     /// Render whole frames even with ground-truth crops (by default only the region the
     /// network's window reaches is rendered): the reference for `make bench-search`.
     #[arg(long)]
@@ -313,14 +313,6 @@ enum SamplerArg {
     Ce,
     /// Subset simulation (adaptive multilevel splitting) with level-preserving Markov chains.
     Splitting,
-}
-
-#[derive(Clone, Copy, clap::ValueEnum)]
-enum CropsArg {
-    /// The target's ground-truth visible bounding box.
-    Gt,
-    /// The segmenter's detection of the target (a miss is a failure).
-    Predicted,
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
@@ -560,10 +552,7 @@ fn print_summary(out: &Path, summary: &Summary) {
 /// The run's settings from the command line: with another system under test, the networks and
 /// the fit are its own.
 fn run_settings(args: &RunArgs) -> RunSettings {
-    let crops = match args.crops {
-        CropsArg::Gt => Crops::Gt,
-        CropsArg::Predicted => Crops::Predicted,
-    };
+    let crops = args.crops;
     RunSettings {
         sampler: match args.sampler {
             SamplerArg::Mc => Sampler::Mc,
@@ -622,7 +611,7 @@ fn check_run_args(args: &RunArgs) -> anyhow::Result<()> {
     } else {
         KeypointModel::check_folder(&args.model)
             .with_context(|| format!("--model {}", args.model.display()))?;
-        if matches!(args.crops, CropsArg::Predicted) {
+        if args.crops == Crops::Predicted {
             SegmenterModel::check_folder(&args.segmenter)
                 .with_context(|| format!("--segmenter {}", args.segmenter.display()))?;
         }

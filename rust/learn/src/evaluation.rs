@@ -287,7 +287,21 @@ pub fn summarize(evals: &[InstanceEval]) -> Summary {
     }
 }
 
-/// Where the keypoint network's crops come from.
+/// Where the keypoint network's crops come from, as every command and a search run name it
+/// (`--crops gt|predicted`; `gt`/`predicted` in run.json).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum Crops {
+    /// Around each ground-truth box's visible bounding box, at its mask's median depth: the
+    /// keypoint network and the fit alone.
+    Gt,
+    /// Around each box the instance segmenter finds (matched to the truth at mask IoU ≥ 0.5), at
+    /// its predicted mask's median depth; eval and the search count a box it misses as failed.
+    Predicted,
+}
+
+/// Where the keypoint network's crops come from, with the segmenter that makes them.
 #[derive(Clone, Copy)]
 pub enum CropSource<'a> {
     /// Each box's ground-truth visible mask and box.

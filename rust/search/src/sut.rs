@@ -23,15 +23,8 @@ use crate::external::{self, Answer, ExternalSut};
 use crate::scene::{self, TARGET_OBJECT_ID};
 use crate::space::SearchSpace;
 
-/// Where the keypoint network's crop comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Crops {
-    /// The target's ground-truth visible bounding box: the keypoint network and the fit alone.
-    Gt,
-    /// The segmenter's detection matched to the target (mask IoU ≥ 0.5); a miss is a failure.
-    Predicted,
-}
+/// Where the keypoint network's crop comes from (one enum for every command).
+pub use boxpose_learn::evaluation::Crops;
 
 /// When a sample counts as a failure of the pipeline.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
