@@ -24,9 +24,7 @@ def _reexports(src: Path) -> dict[str, str]:
     found: dict[str, str] = {}
     if not lib.exists():
         return found
-    for module, items in re.findall(
-        r"pub use ([a-z_]+)::\{?([^;}]*)\}?;", lib.read_text()
-    ):
+    for module, items in re.findall(r"pub use ([a-z_]+)::\{?([^;}]*)\}?;", lib.read_text()):
         for item in re.split(r"[,\s]+", items):
             if item:
                 found[item.split("::")[-1]] = module
