@@ -24,7 +24,6 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
     let run = Run::open(run_dir)?;
     let (rows, _) = run.rows()?;
     anyhow::ensure!(!rows.is_empty(), "{}: no sample yet", run_dir.display());
-    let settings = &run.record.settings;
     let out = run_dir.join("report");
     let tmp = run_dir.join(format!("report.tmp-{}", std::process::id()));
     if tmp.exists() {
@@ -32,6 +31,33 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
     }
     std::fs::create_dir_all(&tmp).with_context(|| tmp.display().to_string())?;
 
+    let figures = draw_figures(&run, &rows, &tmp)?;
+    let mut failing: Vec<&SampleRow> = rows.iter().filter(|r| r.failed).collect();
+    failing.sort_by(|a, b| {
+        b.level_score()
+            .total_cmp(&a.level_score())
+            .then(a.sample_id.cmp(&b.sample_id))
+    });
+    failing.truncate(worst);
+    let mut drawn = draw_counterexamples(&run, run_dir, &failing, &tmp)?;
+    drawn.sort_by_key(|(id, _, _)| failing.iter().position(|r| r.sample_id == *id));
+
+    let html = page(&run, &rows, &figures, &failing, &drawn)?;
+    std::fs::write(tmp.join("index.html"), html).with_context(|| tmp.display().to_string())?;
+    // the old report stays readable until the new one replaces it in one step
+    boxpose_data::publish_folder(&tmp, &out)?;
+    println!("report: {}", out.join("index.html").display());
+    Ok(())
+}
+
+/// The run's figures in `tmp`, each with its caption: the error histogram (weighted for
+/// importance sampling), the estimate against samples spent, and the parameter map.
+fn draw_figures(
+    run: &Run,
+    rows: &[SampleRow],
+    tmp: &Path,
+) -> anyhow::Result<Vec<(&'static str, &'static str)>> {
+    let settings = &run.record.settings;
     // the samples that follow the nominal (Monte Carlo, splitting's first stage) or that the
     // weights bring back to it (the cross-entropy final stage)
     let estimating: Vec<&SampleRow> = rows
@@ -79,7 +105,7 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
         figures.push(("error_hist.png", "Error histogram (the paper's Fig. 6), threshold dashed; importance-sampling runs weight each sample by p/q, so the bars estimate the nominal distribution."));
     }
 
-    let curve = estimate_curve(&rows, &run)?;
+    let curve = estimate_curve(rows, run)?;
     if curve.len() >= 2 {
         plots::estimate_curve(
             &tmp.join("estimate.png"),
@@ -112,14 +138,17 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
         plots::parameter_map(&tmp.join("parameters.png"), &panel_names, &points)?;
         figures.push(("parameters.png", "Where failures sit: each valid sample's failure score (> 0 fails; nothing fitted at the top) against each parameter's nominal quantile Φ(z); failures red."));
     }
+    Ok(figures)
+}
 
-    let mut failing: Vec<&SampleRow> = rows.iter().filter(|r| r.failed).collect();
-    failing.sort_by(|a, b| {
-        b.level_score()
-            .total_cmp(&a.level_score())
-            .then(a.sample_id.cmp(&b.sample_id))
-    });
-    failing.truncate(worst);
+/// Each failing sample whose frame the run kept, drawn in `tmp` (its overlay, ground-truth sheet
+/// and 3D view), as (sample id, overlay file, re-render command).
+fn draw_counterexamples(
+    run: &Run,
+    run_dir: &Path,
+    failing: &[&SampleRow],
+    tmp: &Path,
+) -> anyhow::Result<Vec<(i64, String, String)>> {
     let counterexamples = run_dir.join("counterexamples");
     let mut drawn = Vec::new();
     if !failing.is_empty() && counterexamples.is_dir() {
@@ -187,14 +216,7 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
             drawn.push((row.sample_id, name, command));
         }
     }
-    drawn.sort_by_key(|(id, _, _)| failing.iter().position(|r| r.sample_id == *id));
-
-    let html = page(&run, &rows, &figures, &failing, &drawn)?;
-    std::fs::write(tmp.join("index.html"), html).with_context(|| tmp.display().to_string())?;
-    // the old report stays readable until the new one replaces it in one step
-    boxpose_data::publish_folder(&tmp, &out)?;
-    println!("report: {}", out.join("index.html").display());
-    Ok(())
+    Ok(drawn)
 }
 
 /// (samples spent, p̂, CI low, CI high) at up to [`CURVE_POINTS`] prefixes of the estimating stage.
