@@ -190,7 +190,7 @@ fn draw_counterexamples(
             )?;
             let sheet = format!("sample-{}-sheet.png", row.sample_id);
             let extras = crate::view::sample_sheet(
-                &run,
+                run,
                 row,
                 format!("sample {} of {}", row.sample_id, run_dir.display()),
             );
