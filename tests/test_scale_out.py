@@ -104,7 +104,7 @@ def alive(pid: int) -> bool:
 
 
 def batch_file(batch: str) -> str:
-    """Batch K:B's file name in the run folder (`Run::batch_name` in rust/search/src/run.rs)."""
+    """Batch K:B's file name in the run folder (`Run::batch_name` in rust/search/src/run/mod.rs)."""
     iteration, index = batch.split(":")
     return f"iter-{int(iteration):04d}-batch-{int(index):05d}.parquet"
 

@@ -177,7 +177,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         return run_external(args, spec, dataset_path);
     }
     // its own earlier output is rewritten (its stale files removed below)
-    let _claim = crate::output_folder::claim(&args.out, "--out", "eval", &["eval.parquet"])?;
+    let _claim = boxpose_data::output_folder::claim(&args.out, "--out", "eval", &["eval.parquet"])?;
     let mut model = KeypointModel::load(&args.model, args.backend.device()?)?;
     if let Some(radius) = args.peak_refine_radius {
         model.config.peak_refine_radius = radius;
@@ -216,7 +216,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             &segmentation_json,
             serde_json::to_string_pretty(&evaluated.detections.scores())?.as_bytes(),
         )?,
-        None => crate::output_folder::remove_stale(&segmentation_json)?,
+        None => boxpose_data::output_folder::remove_stale(&segmentation_json)?,
     }
     print_report(
         args,
@@ -340,7 +340,7 @@ fn write_histogram(
     ];
     let histogram = args.out.join("paper_error_hist.png");
     if !series.iter().any(|(_, e)| e.iter().any(|v| *v > 0.0)) {
-        crate::output_folder::remove_stale(&histogram)?;
+        boxpose_data::output_folder::remove_stale(&histogram)?;
         return Ok(None);
     }
     let title = format!(

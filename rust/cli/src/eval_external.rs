@@ -11,7 +11,7 @@ use boxpose_data::Dataset;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::FitOutcome;
 use boxpose_search::external::ExternalSut;
-use boxpose_search::external_eval::{self, ExternalSummary, METHOD};
+use boxpose_search::external_eval::{self, ExternalRow, ExternalSummary, METHOD};
 use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -35,7 +35,8 @@ pub fn run(settings: &Settings) -> anyhow::Result<()> {
     // the system starts (and introduces itself) before the output folder is claimed: one that
     // cannot start leaves nothing behind
     let mut system = ExternalSut::start(settings.spec, settings.timeout)?;
-    let _claim = crate::output_folder::claim(settings.out, "--out", "eval", &["eval.parquet"])?;
+    let _claim =
+        boxpose_data::output_folder::claim(settings.out, "--out", "eval", &["eval.parquet"])?;
     let evaluated = |scene_id: i64| {
         settings
             .held_out
@@ -84,8 +85,24 @@ pub fn run(settings: &Settings) -> anyhow::Result<()> {
         serde_json::to_string_pretty(&summary_json)?.as_bytes(),
     )?;
     for stale in ["segmentation.json", "paper_error_hist.png"] {
-        crate::output_folder::remove_stale(&settings.out.join(stale))?;
+        boxpose_data::output_folder::remove_stale(&settings.out.join(stale))?;
     }
+    draw_histogram(
+        &settings.out.join("paper_error_hist.png"),
+        &rows,
+        &system.name,
+    )?;
+    print_summary(&summary, settings.dataset);
+    println!(
+        "per-instance metrics (method \"{METHOD}\"): {}",
+        settings.out.join("eval.parquet").display()
+    );
+    Ok(())
+}
+
+/// The paper's error of every scored box, normalised as in Fig. 6, as a histogram (none when no
+/// box was scored with a positive error).
+fn draw_histogram(histogram: &Path, rows: &[ExternalRow], name: &str) -> anyhow::Result<()> {
     let errors: Vec<f64> = rows
         .iter()
         .filter_map(|r| match &r.outcome {
@@ -93,25 +110,10 @@ pub fn run(settings: &Settings) -> anyhow::Result<()> {
             _ => None,
         })
         .collect();
-    let histogram = settings.out.join("paper_error_hist.png");
     if errors.iter().any(|e| *e > 0.0) {
-        let title = format!(
-            "paper's error of {} ({} instances)",
-            system.name,
-            rows.len()
-        );
-        plots::error_histogram(
-            &histogram,
-            &title,
-            &[(system.name.as_str(), errors)],
-            PAPER_ERROR_THRESHOLD,
-        )?;
+        let title = format!("paper's error of {} ({} instances)", name, rows.len());
+        plots::error_histogram(histogram, &title, &[(name, errors)], PAPER_ERROR_THRESHOLD)?;
     }
-    print_summary(&summary, settings.dataset);
-    println!(
-        "per-instance metrics (method \"{METHOD}\"): {}",
-        settings.out.join("eval.parquet").display()
-    );
     Ok(())
 }
 

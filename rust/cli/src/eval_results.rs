@@ -54,7 +54,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
 }
 
 fn bop(args: &BopArgs) -> anyhow::Result<()> {
-    let _claim = crate::output_folder::claim(
+    let _claim = boxpose_data::output_folder::claim(
         &args.out,
         "--out",
         "eval-results",

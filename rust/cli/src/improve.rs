@@ -15,10 +15,10 @@ use std::process::Command;
 
 use anyhow::Context;
 use boxpose_learn::backend::BackendKind;
-use boxpose_search::compare::{PairedComparison, compare};
+use boxpose_search::compare::{PairedComparison, Rate, compare};
 use boxpose_search::run::Run;
 
-use crate::output_folder::{IMPROVE_SETTINGS_FILE as SETTINGS_FILE, refuse_foreign};
+use boxpose_data::output_folder::{IMPROVE_SETTINGS_FILE as SETTINGS_FILE, refuse_foreign};
 
 /// Search seeds of the rounds are `seed + 1 + round`; the evaluation's is far from them.
 const EVALUATION_SEED_OFFSET: u64 = 1_000_000;
@@ -431,17 +431,6 @@ fn write_rounds_page(
     held_out: &[Vec<HeldOutComparison>],
 ) -> anyhow::Result<()> {
     use std::fmt::Write as _;
-    let escape = |t: &str| t.replace('&', "&amp;").replace('<', "&lt;");
-    let percent = |r: &boxpose_search::compare::Rate| {
-        format!(
-            "{:.2} % [{:.2}, {:.2}] ({} of {})",
-            100.0 * r.p_hat,
-            100.0 * r.ci95.0,
-            100.0 * r.ci95.1,
-            r.failures,
-            r.samples
-        )
-    };
     let mut h = String::new();
     writeln!(
         h,
@@ -464,23 +453,6 @@ fn write_rounds_page(
          <th>p̂ after</th><th>fixed</th><th>new</th><th>McNemar p</th><th>held out: success before → after (fixed / new, p)</th></tr>"
     )?;
     for ((round, failures, learnt, c), held) in rows.iter().zip(held_out) {
-        let held: Vec<String> = held
-            .iter()
-            .map(|(name, c)| {
-                let success = |r: &boxpose_search::compare::Rate| {
-                    100.0 * (r.samples - r.failures) as f64 / r.samples.max(1) as f64
-                };
-                format!(
-                    "{}: {:.1} → {:.1} % ({} / {}, {:.2e})",
-                    escape(name),
-                    success(&c.before),
-                    success(&c.after),
-                    c.fixed.len(),
-                    c.new.len(),
-                    c.mcnemar_p
-                )
-            })
-            .collect();
         writeln!(
             h,
             "<tr><td>{round}</td><td>{failures}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3e}</td><td>{}</td></tr>",
@@ -490,7 +462,7 @@ fn write_rounds_page(
             c.fixed.len(),
             c.new.len(),
             c.mcnemar_p,
-            held.join("<br>")
+            held_out_cell(held)
         )?;
     }
     writeln!(h, "</table><h2>Each network's evaluation</h2><ul>")?;
@@ -506,6 +478,41 @@ fn write_rounds_page(
         &args.out.join("report.html"),
         h.as_bytes(),
     )?)
+}
+
+fn escape(text: &str) -> String {
+    text.replace('&', "&amp;").replace('<', "&lt;")
+}
+
+/// A failure rate as the rounds page shows it: percent with its interval and counts.
+fn percent(r: &Rate) -> String {
+    format!(
+        "{:.2} % [{:.2}, {:.2}] ({} of {})",
+        100.0 * r.p_hat,
+        100.0 * r.ci95.0,
+        100.0 * r.ci95.1,
+        r.failures,
+        r.samples
+    )
+}
+
+/// One round's held-out pairings: each set's success before → after, fixed / new, McNemar's p.
+fn held_out_cell(held: &[HeldOutComparison]) -> String {
+    let success = |r: &Rate| 100.0 * (r.samples - r.failures) as f64 / r.samples.max(1) as f64;
+    held.iter()
+        .map(|(name, c)| {
+            format!(
+                "{}: {:.1} → {:.1} % ({} / {}, {:.2e})",
+                escape(name),
+                success(&c.before),
+                success(&c.after),
+                c.fixed.len(),
+                c.new.len(),
+                c.mcnemar_p
+            )
+        })
+        .collect::<Vec<_>>()
+        .join("<br>")
 }
 
 fn variants_command(args: &Args, round: usize, search: &Path, out: &Path) -> Vec<String> {

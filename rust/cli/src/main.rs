@@ -9,7 +9,6 @@ mod export;
 mod fit_summary;
 mod improve;
 mod inspect;
-mod output_folder;
 mod plots;
 mod predict;
 mod render;

@@ -52,26 +52,12 @@ pub fn error_histogram(
         path.display()
     );
     let log_threshold = threshold.log10();
-    let lo = all.iter().copied().fold(log_threshold, f64::min).floor();
-    let hi = all
+    let (lo, hi) = decades_spanned(&all, log_threshold);
+    let counts: Vec<Vec<f64>> = logs
         .iter()
-        .copied()
-        .fold(log_threshold, f64::max)
-        .ceil()
-        .max(lo + 1.0);
-    let bins_per_decade = 8.0;
-    let bins = ((hi - lo) * bins_per_decade) as usize;
-    let counts: Vec<Vec<usize>> = logs
-        .iter()
-        .map(|values| {
-            let mut c = vec![0usize; bins];
-            for v in values {
-                c[(((v - lo) * bins_per_decade) as usize).min(bins - 1)] += 1;
-            }
-            c
-        })
+        .map(|values| binned(values.iter().map(|v| (*v, 1.0)), lo, hi))
         .collect();
-    let max_count = counts.iter().flatten().copied().max().unwrap_or(1).max(1) as f64;
+    let max_count = counts.iter().flatten().copied().fold(1.0, f64::max);
 
     let (width, height) = (900u32, 540u32);
     let mut buffer = vec![0u8; (width * height * 3) as usize];
@@ -90,14 +76,19 @@ pub fn error_histogram(
             .y_desc("instances")
             .y_label_formatter(&|y| format!("{y:.0}"))
             .draw()?;
-        let width = 1.0 / bins_per_decade / series.len() as f64;
+        let width = 1.0 / BINS_PER_DECADE / series.len() as f64;
         for (k, ((name, _), c)) in series.iter().zip(&counts).enumerate() {
             let color = SERIES_COLORS[k % SERIES_COLORS.len()];
             chart
-                .draw_series(c.iter().enumerate().filter(|(_, n)| **n > 0).map(|(b, n)| {
-                    let x0 = lo + b as f64 / bins_per_decade + k as f64 * width;
-                    Rectangle::new([(x0, 0.8), (x0 + width, *n as f64)], color.filled())
-                }))?
+                .draw_series(
+                    c.iter()
+                        .enumerate()
+                        .filter(|(_, n)| **n > 0.0)
+                        .map(|(b, n)| {
+                            let x0 = lo + b as f64 / BINS_PER_DECADE + k as f64 * width;
+                            Rectangle::new([(x0, 0.8), (x0 + width, *n)], color.filled())
+                        }),
+                )?
                 .label(format!("{name} ({})", logs[k].len()))
                 .legend(move |(x, y)| {
                     Rectangle::new([(x, y - 5), (x + 12, y + 5)], color.filled())
@@ -120,6 +111,32 @@ pub fn error_histogram(
         root.present()?;
     }
     save_png(path, &buffer, width, height)
+}
+
+/// The error histogram's bins per decade of log10(error).
+const BINS_PER_DECADE: f64 = 8.0;
+
+/// The whole decades [lo, hi] that hold every value and the threshold (at least one decade).
+fn decades_spanned(values: &[f64], threshold: f64) -> (f64, f64) {
+    let lo = values.iter().copied().fold(threshold, f64::min).floor();
+    let hi = values
+        .iter()
+        .copied()
+        .fold(threshold, f64::max)
+        .ceil()
+        .max(lo + 1.0);
+    (lo, hi)
+}
+
+/// The summed weights of `(value, weight)` pairs in [`BINS_PER_DECADE`] bins per decade from
+/// `lo` to `hi` (the last bin takes the upper edge).
+fn binned(values: impl IntoIterator<Item = (f64, f64)>, lo: f64, hi: f64) -> Vec<f64> {
+    let bins = ((hi - lo) * BINS_PER_DECADE) as usize;
+    let mut mass = vec![0.0; bins];
+    for (v, w) in values {
+        mass[(((v - lo) * BINS_PER_DECADE) as usize).min(bins - 1)] += w;
+    }
+    mass
 }
 
 /// One box on the overlay: any of its true corners, NMS peaks and fitted corners.
@@ -226,19 +243,8 @@ pub fn weighted_histogram(
 ) -> anyhow::Result<()> {
     register_font();
     anyhow::ensure!(!values.is_empty(), "no value to plot in {}", path.display());
-    let lo = values.iter().map(|v| v.0).fold(threshold, f64::min).floor();
-    let hi = values
-        .iter()
-        .map(|v| v.0)
-        .fold(threshold, f64::max)
-        .ceil()
-        .max(lo + 1.0);
-    let bins_per_decade = 8.0;
-    let bins = ((hi - lo) * bins_per_decade) as usize;
-    let mut mass = vec![0.0f64; bins];
-    for (v, w) in values {
-        mass[(((v - lo) * bins_per_decade) as usize).min(bins - 1)] += w;
-    }
+    let (lo, hi) = decades_spanned(&values.iter().map(|v| v.0).collect::<Vec<_>>(), threshold);
+    let mass = binned(values.iter().copied(), lo, hi);
     let positive: Vec<f64> = mass.iter().copied().filter(|m| *m > 0.0).collect();
     let floor = positive.iter().copied().fold(f64::INFINITY, f64::min) * 0.5;
     let top = positive.iter().copied().fold(0.0, f64::max) * 2.0;
@@ -265,9 +271,9 @@ pub fn weighted_histogram(
                 .enumerate()
                 .filter(|(_, m)| **m > 0.0)
                 .map(|(b, m)| {
-                    let x0 = lo + b as f64 / bins_per_decade;
+                    let x0 = lo + b as f64 / BINS_PER_DECADE;
                     Rectangle::new(
-                        [(x0, floor), (x0 + 1.0 / bins_per_decade, *m)],
+                        [(x0, floor), (x0 + 1.0 / BINS_PER_DECADE, *m)],
                         color.filled(),
                     )
                 }),
@@ -487,7 +493,12 @@ pub fn frame_sheet(path: &Path, frame: &Frame, extras: &SheetExtras) -> anyhow::
     let header = 56u32;
     let gap = 8u32;
     let text_width = if extras.text.is_empty() { 0 } else { 320 };
-    let width = (3 * w + 2 * gap + text_width).max(560);
+    let legend = sheet_legend(extras.overlay.is_some());
+    let legend_width = 6 + legend
+        .iter()
+        .map(|(_, name)| legend_step(name))
+        .sum::<i32>() as u32;
+    let width = (3 * w + 2 * gap + text_width).max(legend_width).max(560);
     let height = (h + header).max(header + 16 * extras.text.len() as u32 + 8);
     let mut buffer = vec![255u8; (width * height * 3) as usize];
     {
@@ -495,118 +506,19 @@ pub fn frame_sheet(path: &Path, frame: &Frame, extras: &SheetExtras) -> anyhow::
         let font = ("sans-serif", 14).into_font();
         root.draw(&Text::new(extras.title.clone(), (6, 4), font.clone()))?;
         let mut x = 6;
-        for (_, color, name) in VISIBILITY_COLORS {
+        for (color, name) in legend {
             root.draw(&Circle::new((x + 5, 32), 5, color.filled()))?;
             root.draw(&Text::new(name, (x + 14, 25), font.clone()))?;
-            x += 24 + 8 * name.len() as i32;
-        }
-        if extras.overlay.is_some() {
-            for (color, name) in [(PEAKS_COLOR, "NMS peaks"), (FITTED_COLOR, "fitted box")] {
-                root.draw(&Circle::new((x + 5, 32), 5, color.filled()))?;
-                root.draw(&Text::new(name, (x + 14, 25), font.clone()))?;
-                x += 24 + 8 * name.len() as i32;
-            }
+            x += legend_step(name);
         }
         let panels = root.margin(header, 0, 0, 0);
         let panel = |i: u32| {
             let x0 = (i * (w + gap)) as i32;
             panels.clone().shrink((x0, 0), (w, h))
         };
-        let pixels = |colour: &dyn Fn(usize) -> RGBColor| -> Vec<((i32, i32), RGBColor)> {
-            (0..frame.width * frame.height)
-                .map(|i| {
-                    (
-                        ((i % frame.width) as i32, (i / frame.width) as i32),
-                        colour(i),
-                    )
-                })
-                .collect()
-        };
-        let rgb = panel(0);
-        for (xy, c) in
-            pixels(&|i| RGBColor(frame.rgb[3 * i], frame.rgb[3 * i + 1], frame.rgb[3 * i + 2]))
-        {
-            rgb.draw_pixel(xy, &c)?;
-        }
-        for instance in &frame.instances {
-            let px = |c: [f64; 2]| (c[0].round() as i32, c[1].round() as i32);
-            for (a, b) in box_edges() {
-                rgb.draw(&PathElement::new(
-                    vec![px(instance.corners_px[a]), px(instance.corners_px[b])],
-                    WHITE.mix(0.6).stroke_width(1),
-                ))?;
-            }
-            for (corner, visibility) in instance.corners_px.iter().zip(instance.visibility) {
-                let color = VISIBILITY_COLORS
-                    .iter()
-                    .find(|(v, _, _)| *v == visibility)
-                    .map_or(BLACK, |(_, c, _)| *c);
-                rgb.draw(&Circle::new(px(*corner), 3, color.filled()))?;
-            }
-        }
-        if let Some(overlay) = &extras.overlay {
-            let only_fit = OverlayBox {
-                truth: None,
-                peaks: overlay.peaks.clone(),
-                fitted: overlay.fitted,
-            };
-            draw_overlay(&rgb, &frame.intrinsics, std::slice::from_ref(&only_fit))?;
-        }
-        // the 2nd to 98th percentile of the surfaces' depths: a far floor or wall does not
-        // flatten the boxes into one grey
-        let mut surfaces: Vec<f32> = frame.depth.iter().copied().filter(|d| *d > 0.0).collect();
-        surfaces.sort_by(f32::total_cmp);
-        let percentile = |q: f64| surfaces[((surfaces.len() - 1) as f64 * q).round() as usize];
-        let (near, far) = if surfaces.is_empty() {
-            (0.0, 0.0)
-        } else {
-            (percentile(0.02), percentile(0.98))
-        };
-        let depth = panel(1);
-        for (xy, c) in pixels(&|i| {
-            let d = frame.depth[i];
-            if d <= 0.0 {
-                return BLACK;
-            }
-            let t = if far > near {
-                ((far - d) / (far - near)).clamp(0.0, 1.0)
-            } else {
-                1.0
-            };
-            let v = (40.0 + 215.0 * t) as u8;
-            RGBColor(v, v, v)
-        }) {
-            depth.draw_pixel(xy, &c)?;
-        }
-        if !surfaces.is_empty() {
-            depth.draw(&Text::new(
-                format!("depth {near:.2}–{far:.2} m"),
-                (4, 4),
-                font.clone().color(&RED),
-            ))?;
-        }
-        let masks = panel(2);
-        let mask_color = |label: u16| -> RGBColor {
-            if label == 0 {
-                return BLACK;
-            }
-            // golden-angle hues: neighbouring ids far apart
-            let hue = (f64::from(label) * 0.618_034).fract();
-            let (r, g, b) = hsl_to_rgb(hue, 0.65, 0.55);
-            RGBColor(r, g, b)
-        };
-        for (xy, c) in pixels(&|i| mask_color(frame.instance_mask[i])) {
-            masks.draw_pixel(xy, &c)?;
-        }
-        for instance in &frame.instances {
-            if let Some([x0, y0, x1, y1]) = instance.visible_bbox {
-                masks.draw(&Text::new(
-                    instance.object_id.to_string(),
-                    ((x0 + x1) / 2 - 4, (y0 + y1) / 2 - 7),
-                    font.clone().color(&WHITE),
-                ))?;
-            }
-        }
+        draw_truth_panel(&panel(0), frame, extras.overlay.as_ref())?;
+        draw_depth_panel(&panel(1), frame, &font)?;
+        draw_mask_panel(&panel(2), frame, &font)?;
         let text_x = (3 * w + 2 * gap + 10) as i32;
         for (line, text) in extras.text.iter().enumerate() {
             root.draw(&Text::new(
@@ -618,6 +530,129 @@ pub fn frame_sheet(path: &Path, frame: &Frame, extras: &SheetExtras) -> anyhow::
         root.present()?;
     }
     save_png(path, &buffer, width, height)
+}
+
+/// The sheet's legend entries: the visibility states, and a sample's peaks and fit.
+fn sheet_legend(overlay: bool) -> Vec<(RGBColor, &'static str)> {
+    let mut legend: Vec<_> = VISIBILITY_COLORS.iter().map(|(_, c, n)| (*c, *n)).collect();
+    if overlay {
+        legend.extend([(PEAKS_COLOR, "NMS peaks"), (FITTED_COLOR, "fitted box")]);
+    }
+    legend
+}
+
+/// The width in pixels one legend entry takes (its dot, its name at 14 px, a space).
+fn legend_step(name: &str) -> i32 {
+    24 + 8 * name.len() as i32
+}
+
+type Panel<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+
+/// Paints every pixel of the frame-sized `panel` with `colour(pixel index)`.
+fn fill_panel(
+    panel: &Panel,
+    frame: &Frame,
+    colour: impl Fn(usize) -> RGBColor,
+) -> anyhow::Result<()> {
+    for i in 0..frame.width * frame.height {
+        let xy = ((i % frame.width) as i32, (i / frame.width) as i32);
+        panel.draw_pixel(xy, &colour(i))?;
+    }
+    Ok(())
+}
+
+/// The RGB image, every box's true edges, its corners coloured by visibility, and a search
+/// sample's peaks and fitted box.
+fn draw_truth_panel(
+    panel: &Panel,
+    frame: &Frame,
+    overlay: Option<&OverlayBox>,
+) -> anyhow::Result<()> {
+    fill_panel(panel, frame, |i| {
+        RGBColor(frame.rgb[3 * i], frame.rgb[3 * i + 1], frame.rgb[3 * i + 2])
+    })?;
+    let px = |c: [f64; 2]| (c[0].round() as i32, c[1].round() as i32);
+    for instance in &frame.instances {
+        for (a, b) in box_edges() {
+            panel.draw(&PathElement::new(
+                vec![px(instance.corners_px[a]), px(instance.corners_px[b])],
+                WHITE.mix(0.6).stroke_width(1),
+            ))?;
+        }
+        for (corner, visibility) in instance.corners_px.iter().zip(instance.visibility) {
+            let color = VISIBILITY_COLORS
+                .iter()
+                .find(|(v, _, _)| *v == visibility)
+                .map_or(BLACK, |(_, c, _)| *c);
+            panel.draw(&Circle::new(px(*corner), 3, color.filled()))?;
+        }
+    }
+    if let Some(overlay) = overlay {
+        let only_fit = OverlayBox {
+            truth: None,
+            peaks: overlay.peaks.clone(),
+            fitted: overlay.fitted,
+        };
+        draw_overlay(panel, &frame.intrinsics, std::slice::from_ref(&only_fit))?;
+    }
+    Ok(())
+}
+
+/// The depth, near bright and no surface black, scaled between the 2nd and 98th percentile of
+/// the surfaces' depths: a far floor or wall does not flatten the boxes into one grey.
+fn draw_depth_panel(panel: &Panel, frame: &Frame, font: &FontDesc) -> anyhow::Result<()> {
+    let mut surfaces: Vec<f32> = frame.depth.iter().copied().filter(|d| *d > 0.0).collect();
+    surfaces.sort_by(f32::total_cmp);
+    let percentile = |q: f64| surfaces[((surfaces.len() - 1) as f64 * q).round() as usize];
+    let (near, far) = if surfaces.is_empty() {
+        (0.0, 0.0)
+    } else {
+        (percentile(0.02), percentile(0.98))
+    };
+    fill_panel(panel, frame, |i| {
+        let d = frame.depth[i];
+        if d <= 0.0 {
+            return BLACK;
+        }
+        let t = if far > near {
+            ((far - d) / (far - near)).clamp(0.0, 1.0)
+        } else {
+            1.0
+        };
+        let v = (40.0 + 215.0 * t) as u8;
+        RGBColor(v, v, v)
+    })?;
+    if !surfaces.is_empty() {
+        panel.draw(&Text::new(
+            format!("depth {near:.2}–{far:.2} m"),
+            (4, 4),
+            font.clone().color(&RED),
+        ))?;
+    }
+    Ok(())
+}
+
+/// The instance masks, a colour per box (golden-angle hues: neighbouring ids far apart), each
+/// box's object_id at the centre of its visible bounding box.
+fn draw_mask_panel(panel: &Panel, frame: &Frame, font: &FontDesc) -> anyhow::Result<()> {
+    fill_panel(panel, frame, |i| match frame.instance_mask[i] {
+        0 => BLACK,
+        label => {
+            let hue = (f64::from(label) * 0.618_034).fract();
+            let (r, g, b) = hsl_to_rgb(hue, 0.65, 0.55);
+            RGBColor(r, g, b)
+        }
+    })?;
+    for instance in &frame.instances {
+        if let Some([x0, y0, x1, y1]) = instance.visible_bbox {
+            panel.draw(&Text::new(
+                instance.object_id.to_string(),
+                ((x0 + x1) / 2 - 4, (y0 + y1) / 2 - 7),
+                font.clone().color(&WHITE),
+            ))?;
+        }
+    }
+    Ok(())
 }
 
 /// RGB bytes of a hue, saturation and lightness in [0, 1].

@@ -104,8 +104,12 @@ pub struct Args {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     // its own earlier predictions are replaced
-    let _claim =
-        crate::output_folder::claim(&args.out, "--out", "predict", &["predictions.parquet"])?;
+    let _claim = boxpose_data::output_folder::claim(
+        &args.out,
+        "--out",
+        "predict",
+        &["predictions.parquet"],
+    )?;
     let model = KeypointModel::load(&args.model, args.backend.device()?)?;
     let (frame, targets) = match (&args.dataset, &args.rgb) {
         (Some(dataset), None) => {

@@ -8,7 +8,7 @@ use anyhow::{Context, bail};
 use boxpose_data::arrow::array::{Array, AsArray};
 use boxpose_data::arrow::record_batch::RecordBatch;
 use boxpose_data::{DataError, Dataset, Pose, schema, shard_file_name, write_shard};
-use boxpose_render::{RenderRequest, Renderer, scene_rows};
+use boxpose_render::{RenderRequest, Rendered, Renderer, scene_rows};
 
 /// Re-render frames of one scene of a dataset with the embedded Blender.
 ///
@@ -111,7 +111,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     }
     // The rendered rows are written as the folder's only shards (`part-00000-of-00001`), which
     // would replace another dataset's rows or an earlier render's: no marker is its own.
-    let _claim = crate::output_folder::claim(&args.out, "--out", "render", &[])?;
+    let _claim = boxpose_data::output_folder::claim(&args.out, "--out", "render", &[])?;
     let (scenes, objects) = scene_rows(&args.dataset, args.scene)
         .with_context(|| format!("reading scene {} of {}", args.scene, args.dataset.display()))?;
     check_frames(&args.dataset, args.scene, &args.frames)?;
@@ -127,51 +127,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     );
     let (mut frames, mut instances) = (Vec::new(), Vec::new());
     for &frame_id in &args.frames {
-        let request = RenderRequest {
-            frame_id,
-            samples: args.samples,
-            denoise: args.denoise,
-            crop: args.crop,
-            sensor_depth: args.sensor_depth,
-            poses: args.poses.clone(),
-            crop_object: None,
-        };
-        let t = Instant::now();
-        let out = renderer.render(&request)?;
-        let seconds = t.elapsed().as_secs_f64();
-        let f = &out.frames;
-        // the renderer's rows pass the same validation as a dataset shard before anything is read
-        let source = Path::new("<embedded Blender render>");
-        let decoded = boxpose_data::decode_frames(source, f, &out.instances)?;
-        let frame = decoded
-            .first()
-            .context("the renderer returned no frame row")?;
-        let (width, height, samples, fx) = (
-            frame.width,
-            frame.height,
-            frame.samples,
-            frame.intrinsics.fx,
-        );
-        let stem = format!("scene-{:06}-frame-{frame_id:03}", args.scene);
-        // created once the first render succeeded: a refused request leaves nothing behind
-        std::fs::create_dir_all(&args.out)
-            .with_context(|| format!("creating {}", args.out.display()))?;
-        write_png(&args.out.join(format!("{stem}-rgb.png")), f, "rgb_png")?;
-        write_png(
-            &args.out.join(format!("{stem}-mask.png")),
-            f,
-            "instance_mask_png",
-        )?;
-        let seen = frame
-            .instances
-            .iter()
-            .filter(|i| i.visible_pixels > 0)
-            .count();
-        println!(
-            "{stem}: {width}×{height} px (fx {fx:.1}), {samples} samples, {seen}/{} boxes visible, {seconds:.2} s → {}",
-            out.instances.num_rows(),
-            args.out.join(format!("{stem}-rgb.png")).display()
-        );
+        let out = render_frame(&mut renderer, args, frame_id)?;
         frames.push(out.frames);
         instances.push(out.instances);
     }
@@ -183,6 +139,57 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     write_shard(&args.out, &schema::FRAMES, &name, &frames)?;
     println!("rows: {}", args.out.display());
     Ok(())
+}
+
+/// Renders frame `frame_id` of the loaded scene, checks its rows as a dataset shard's, writes its
+/// RGB and mask PNGs into `--out` and prints a line about it.
+fn render_frame(renderer: &mut Renderer, args: &Args, frame_id: i32) -> anyhow::Result<Rendered> {
+    let request = RenderRequest {
+        frame_id,
+        samples: args.samples,
+        denoise: args.denoise,
+        crop: args.crop,
+        sensor_depth: args.sensor_depth,
+        poses: args.poses.clone(),
+        crop_object: None,
+    };
+    let t = Instant::now();
+    let out = renderer.render(&request)?;
+    let seconds = t.elapsed().as_secs_f64();
+    let f = &out.frames;
+    // the renderer's rows pass the same validation as a dataset shard before anything is read
+    let source = Path::new("<embedded Blender render>");
+    let decoded = boxpose_data::decode_frames(source, f, &out.instances)?;
+    let frame = decoded
+        .first()
+        .context("the renderer returned no frame row")?;
+    let (width, height, samples, fx) = (
+        frame.width,
+        frame.height,
+        frame.samples,
+        frame.intrinsics.fx,
+    );
+    let stem = format!("scene-{:06}-frame-{frame_id:03}", args.scene);
+    // created once the first render succeeded: a refused request leaves nothing behind
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("creating {}", args.out.display()))?;
+    write_png(&args.out.join(format!("{stem}-rgb.png")), f, "rgb_png")?;
+    write_png(
+        &args.out.join(format!("{stem}-mask.png")),
+        f,
+        "instance_mask_png",
+    )?;
+    let seen = frame
+        .instances
+        .iter()
+        .filter(|i| i.visible_pixels > 0)
+        .count();
+    println!(
+        "{stem}: {width}×{height} px (fx {fx:.1}), {samples} samples, {seen}/{} boxes visible, {seconds:.2} s → {}",
+        out.instances.num_rows(),
+        args.out.join(format!("{stem}-rgb.png")).display()
+    );
+    Ok(out)
 }
 
 /// Checks that every requested frame is one of the scene's frames in the dataset: an unknown id

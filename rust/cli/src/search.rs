@@ -8,7 +8,6 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
-use boxpose_data::schema;
 use boxpose_learn::backend::BackendKind;
 use boxpose_learn::inference::KeypointModel;
 use boxpose_learn::segmentation::SegmenterModel;
@@ -638,7 +637,12 @@ fn variants(
         "--sigma {sigma} must be finite and non-negative"
     );
     // before the run is read: a folder of another dataset or run is refused whatever the run
-    let _claim = crate::output_folder::claim(out, "--out", "search variants", &VARIANTS_OUTPUT)?;
+    let _claim = boxpose_data::output_folder::claim(
+        out,
+        "--out",
+        "search variants",
+        &boxpose_search::variants::OUTPUT,
+    )?;
     let run = Run::open(run_dir)?;
     let inside_run = std::path::absolute(out)?.starts_with(std::path::absolute(run_dir)?);
     anyhow::ensure!(
@@ -654,7 +658,12 @@ fn variants(
         "{}: no valid sample failed, so there is nothing to vary",
         run_dir.display()
     );
-    claim_variants_folder(out, &run, per_failure, sigma, seed)?;
+    let draw = VariantDraw {
+        per_failure,
+        sigma,
+        seed,
+    };
+    boxpose_search::variants::claim_folder(out, &run, &draw)?;
     let space = system::space_of(&run)?;
     let mut sut = system::load(&space, &run.record.settings, None, None, threads, backend)?;
     // Whole frames: a training frame shows every box, not only the target's region.
@@ -662,11 +671,6 @@ fn variants(
     let bar = ProgressBar::new(failures.len() as u64).with_style(ProgressStyle::with_template(
         "rendering variants {bar:30} {pos}/{len} failures [{elapsed_precise}<{eta_precise}]",
     )?);
-    let draw = VariantDraw {
-        per_failure,
-        sigma,
-        seed,
-    };
     let written =
         boxpose_search::variants::write(&space, &mut sut, &failures, &draw, out, || bar.inc(1))?;
     bar.finish_and_clear();
@@ -684,55 +688,6 @@ fn variants(
     Ok(())
 }
 
-/// What search variants writes into its --out, and may find there when it resumes.
-const VARIANTS_OUTPUT: [&str; 5] = [
-    schema::SCENES.name,
-    schema::OBJECTS.name,
-    schema::FRAMES.name,
-    schema::INSTANCES.name,
-    crate::output_folder::VARIANTS_FILE,
-];
-
-/// Resumes only its own shards: the folder records the run and draw it holds (`variants.json`,
-/// written before the first shard), and a folder holding another dataset, another run or the
-/// variants of other settings is refused, untouched.
-fn claim_variants_folder(
-    out: &Path,
-    run: &Run,
-    per_failure: usize,
-    sigma: f64,
-    seed: u64,
-) -> anyhow::Result<()> {
-    use crate::output_folder::{VARIANTS_FILE, refuse_foreign};
-    let claim = serde_json::json!({
-        "run": run.record,
-        "per_failure": per_failure,
-        "sigma": sigma,
-        "seed": seed,
-    });
-    let path = out.join(VARIANTS_FILE);
-    if path.is_file() {
-        let found: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path)?)
-            .with_context(|| format!("{}: unreadable", path.display()))?;
-        anyhow::ensure!(
-            found == claim,
-            "--out {} holds variants of another run or other settings (its {VARIANTS_FILE}): \
-             choose a new folder for --out, or rerun with that run and its --per-failure, \
-             --sigma and --seed to resume",
-            out.display()
-        );
-    } else {
-        // tables without the claim are another dataset's (or an older command's)
-        refuse_foreign(out, "--out", "search variants", &[VARIANTS_FILE])?;
-        std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
-        boxpose_data::write_file_atomically(
-            &path,
-            serde_json::to_string_pretty(&claim)?.as_bytes(),
-        )?;
-    }
-    Ok(())
-}
-
 fn replay(
     run_dir: &Path,
     sample: i64,
@@ -741,7 +696,7 @@ fn replay(
     threads: usize,
     backend: BackendKind,
 ) -> anyhow::Result<()> {
-    let _claim = crate::output_folder::claim(out, "--out", "search replay", &[])?;
+    let _claim = boxpose_data::output_folder::claim(out, "--out", "search replay", &[])?;
     let run = Run::open(run_dir)?;
     let (rows, _) = run.rows()?;
     let recorded = rows

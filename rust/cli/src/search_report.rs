@@ -7,7 +7,7 @@ use std::path::Path;
 
 use anyhow::Context;
 use boxpose_data::Dataset;
-use boxpose_search::run::{Run, SampleRow, Sampler, estimate};
+use boxpose_search::run::{Run, RunSettings, SampleRow, Sampler, estimate};
 use boxpose_search::sut::Predicate;
 use boxpose_search_stats::stats::normal_cdf as standard_normal_cdf;
 use nalgebra::Point3;
@@ -57,6 +57,29 @@ fn draw_figures(
     rows: &[SampleRow],
     tmp: &Path,
 ) -> anyhow::Result<Vec<(&'static str, &'static str)>> {
+    let mut figures = Vec::new();
+    figures.extend(draw_error_histogram(run, rows, tmp)?);
+    let curve = estimate_curve(rows, run)?;
+    if curve.len() >= 2 {
+        plots::estimate_curve(
+            &tmp.join("estimate.png"),
+            "P(fail | valid) against samples spent (95% CI)",
+            &curve,
+        )?;
+        figures.push(("estimate.png", "The estimate and its 95% interval as samples are spent (cross-entropy: tuning samples first, counted in the budget)."));
+    }
+
+    figures.extend(draw_parameter_map(run, rows, tmp)?);
+    Ok(figures)
+}
+
+/// The error histogram of the samples that follow the nominal, weighted by p/q for importance
+/// sampling, with the predicate's threshold; none when no sample has a positive error.
+fn draw_error_histogram(
+    run: &Run,
+    rows: &[SampleRow],
+    tmp: &Path,
+) -> anyhow::Result<Option<(&'static str, &'static str)>> {
     let settings = &run.record.settings;
     // the samples that follow the nominal (Monte Carlo, splitting's first stage) or that the
     // weights bring back to it (the cross-entropy final stage)
@@ -85,36 +108,36 @@ fn draw_figures(
                 .map(|v| (v.log10(), r.log_weight.exp()))
         })
         .collect();
-    let mut figures = Vec::new();
-    if !weighted.is_empty() {
-        let title = match settings.sampler {
-            Sampler::Mc => format!("{metric_name}, {} scored samples", weighted.len()),
-            Sampler::Ce => format!("{metric_name}, {} samples weighted by p/q", weighted.len()),
-            Sampler::Splitting => format!(
-                "{metric_name}, {} first-stage (nominal) samples",
-                weighted.len()
-            ),
-        };
-        plots::weighted_histogram(
-            &tmp.join("error_hist.png"),
-            &title,
-            &format!("log10({metric_name})"),
-            &weighted,
-            threshold.log10(),
-        )?;
-        figures.push(("error_hist.png", "Error histogram (the paper's Fig. 6), threshold dashed; importance-sampling runs weight each sample by p/q, so the bars estimate the nominal distribution."));
+    if weighted.is_empty() {
+        return Ok(None);
     }
+    let title = match settings.sampler {
+        Sampler::Mc => format!("{metric_name}, {} scored samples", weighted.len()),
+        Sampler::Ce => format!("{metric_name}, {} samples weighted by p/q", weighted.len()),
+        Sampler::Splitting => format!(
+            "{metric_name}, {} first-stage (nominal) samples",
+            weighted.len()
+        ),
+    };
+    plots::weighted_histogram(
+        &tmp.join("error_hist.png"),
+        &title,
+        &format!("log10({metric_name})"),
+        &weighted,
+        threshold.log10(),
+    )?;
+    Ok(Some((
+        "error_hist.png",
+        "Error histogram (the paper's Fig. 6), threshold dashed; importance-sampling runs weight each sample by p/q, so the bars estimate the nominal distribution.",
+    )))
+}
 
-    let curve = estimate_curve(rows, run)?;
-    if curve.len() >= 2 {
-        plots::estimate_curve(
-            &tmp.join("estimate.png"),
-            "P(fail | valid) against samples spent (95% CI)",
-            &curve,
-        )?;
-        figures.push(("estimate.png", "The estimate and its 95% interval as samples are spent (cross-entropy: tuning samples first, counted in the budget)."));
-    }
-
+/// Each valid sample's failure score against each scalar parameter's nominal quantile.
+fn draw_parameter_map(
+    run: &Run,
+    rows: &[SampleRow],
+    tmp: &Path,
+) -> anyhow::Result<Option<(&'static str, &'static str)>> {
     let names = &run.record.dimensions;
     let scalar: Vec<usize> = (0..names.len())
         .filter(|&d| !names[d].contains(".orientation."))
@@ -133,12 +156,15 @@ fn draw_figures(
             )
         })
         .collect();
-    if !points.is_empty() {
-        let panel_names: Vec<&str> = scalar.iter().map(|&d| names[d].as_str()).collect();
-        plots::parameter_map(&tmp.join("parameters.png"), &panel_names, &points)?;
-        figures.push(("parameters.png", "Where failures sit: each valid sample's failure score (> 0 fails; nothing fitted at the top) against each parameter's nominal quantile Φ(z); failures red."));
+    if points.is_empty() {
+        return Ok(None);
     }
-    Ok(figures)
+    let panel_names: Vec<&str> = scalar.iter().map(|&d| names[d].as_str()).collect();
+    plots::parameter_map(&tmp.join("parameters.png"), &panel_names, &points)?;
+    Ok(Some((
+        "parameters.png",
+        "Where failures sit: each valid sample's failure score (> 0 fails; nothing fitted at the top) against each parameter's nominal quantile Φ(z); failures red.",
+    )))
 }
 
 /// Each failing sample whose frame the run kept, drawn in `tmp` (its overlay, ground-truth sheet
@@ -364,7 +390,50 @@ fn page(
         },
         escape(&s.predicate.to_string())
     )?;
-    match summary.as_ref().and_then(|v| v.get("estimate")) {
+    estimate_section(&mut h, s, summary.as_ref(), rows)?;
+    splitting_section(&mut h, summary.as_ref())?;
+    for warning in summary
+        .as_ref()
+        .and_then(|v| v.get("warnings"))
+        .and_then(|v| v.as_array())
+        .into_iter()
+        .flatten()
+    {
+        writeln!(
+            h,
+            "<p style=\"color:#b00\"><b>Warning:</b> {}</p>",
+            escape(warning.as_str().unwrap_or_default())
+        )?;
+    }
+    for (file, caption) in figures {
+        writeln!(
+            h,
+            "<figure><img src=\"{file}\"><figcaption>{}</figcaption></figure>",
+            escape(caption)
+        )?;
+    }
+    counterexamples_section(&mut h, run, failing, drawn)?;
+    writeln!(
+        h,
+        "<h2>Parameters</h2><p>z's dimensions, in order: {}.</p></body></html>",
+        run.record
+            .dimensions
+            .iter()
+            .map(|d| format!("<code>{}</code>", escape(d)))
+            .collect::<Vec<_>>()
+            .join(", ")
+    )?;
+    Ok(h)
+}
+
+/// The estimate with its interval and weight diagnostics, or why there is none yet.
+fn estimate_section(
+    h: &mut String,
+    s: &RunSettings,
+    summary: Option<&serde_json::Value>,
+    rows: &[SampleRow],
+) -> anyhow::Result<()> {
+    match summary.and_then(|v| v.get("estimate")) {
         Some(e) => {
             let f = |k: &str| e.get(k).and_then(|v| v.as_f64()).unwrap_or(f64::NAN);
             let ci = e.get("ci95").and_then(|v| v.as_array()).map_or(
@@ -407,8 +476,12 @@ fn page(
             rows.len()
         )?,
     }
+    Ok(())
+}
+
+/// Subset simulation's stages, when the run is one.
+fn splitting_section(h: &mut String, summary: Option<&serde_json::Value>) -> anyhow::Result<()> {
     if let Some(levels) = summary
-        .as_ref()
         .and_then(|v| v.pointer("/splitting/levels"))
         .and_then(|v| v.as_array())
     {
@@ -433,26 +506,16 @@ fn page(
         }
         writeln!(h, "</table>")?;
     }
-    for warning in summary
-        .as_ref()
-        .and_then(|v| v.get("warnings"))
-        .and_then(|v| v.as_array())
-        .into_iter()
-        .flatten()
-    {
-        writeln!(
-            h,
-            "<p style=\"color:#b00\"><b>Warning:</b> {}</p>",
-            escape(warning.as_str().unwrap_or_default())
-        )?;
-    }
-    for (file, caption) in figures {
-        writeln!(
-            h,
-            "<figure><img src=\"{file}\"><figcaption>{}</figcaption></figure>",
-            escape(caption)
-        )?;
-    }
+    Ok(())
+}
+
+/// The worst counterexamples: their errors, parameter values and figures.
+fn counterexamples_section(
+    h: &mut String,
+    run: &Run,
+    failing: &[&SampleRow],
+    drawn: &[(i64, String, String)],
+) -> anyhow::Result<()> {
     writeln!(h, "<h2>Worst counterexamples</h2>")?;
     if failing.is_empty() {
         writeln!(h, "<p>No failing sample.</p>")?;
@@ -486,7 +549,7 @@ fn page(
             )?;
         }
         writeln!(h, "</table>")?;
-        parameter_table(&mut h, &run.record.dimensions, failing)?;
+        parameter_table(h, &run.record.dimensions, failing)?;
         for (id, file, command) in drawn {
             let view = file.replace(".png", "-3d.png");
             let sheet = file.replace(".png", "-sheet.png");
@@ -499,15 +562,5 @@ fn page(
             )?;
         }
     }
-    writeln!(
-        h,
-        "<h2>Parameters</h2><p>z's dimensions, in order: {}.</p></body></html>",
-        run.record
-            .dimensions
-            .iter()
-            .map(|d| format!("<code>{}</code>", escape(d)))
-            .collect::<Vec<_>>()
-            .join(", ")
-    )?;
-    Ok(h)
+    Ok(())
 }

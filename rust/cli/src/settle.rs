@@ -6,8 +6,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use boxpose_data::{Dataset, Object, Scene};
-use boxpose_physics::{RecipePhysics, SceneDescription, Settler, down_face};
+use boxpose_data::{Dataset, Object, Pose, Scene};
+use boxpose_physics::{RecipePhysics, SceneDescription, SettleOutcome, Settler, down_face};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
@@ -151,29 +151,9 @@ fn settle_scene(
     let compile_start = Instant::now();
     let mut settler = Settler::new(&description, &recipe.settle)?;
     let compile_s = compile_start.elapsed().as_secs_f64();
-    let outcome = settler.settle()?;
-    let mut walls = vec![outcome.certificate.wall_time_s];
-    if args.bench {
-        let initial = description.initial_poses();
-        for _ in 1..args.repeat {
-            walls.push(settler.settle_from(&initial)?.certificate.wall_time_s);
-        }
-    }
-    walls.sort_by(f64::total_cmp);
+    let (outcome, walls) = settle_timed(&mut settler, &description, args)?;
     let wall_s = walls[walls.len() / 2];
-
-    let mut faces_agree = 0;
-    let mut diffs = Vec::new();
-    for (o, p) in objects.iter().zip(&outcome.poses) {
-        faces_agree += usize::from(down_face(o.world_box.quat_wxyz).0 == down_face(p.quat_wxyz).0);
-        let d = (0..3)
-            .map(|k| (o.world_box.translation[k] - p.translation[k]).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        diffs.push(d);
-    }
-    let max_diff = diffs.iter().copied().fold(0.0, f64::max);
-    let mean_diff = diffs.iter().sum::<f64>() / diffs.len().max(1) as f64;
+    let (faces_agree, max_diff, mean_diff) = agreement(&objects, &outcome.poses);
     let n = objects.len();
     let c = &outcome.certificate;
     let line = if args.json {
@@ -226,6 +206,43 @@ fn settle_scene(
         },
         line,
     ))
+}
+
+/// Settles the scene once, and with `--bench` `--repeat` − 1 more times from the same initial
+/// poses: the first outcome and every run's wall time, sorted (the median is the middle one).
+fn settle_timed(
+    settler: &mut Settler,
+    description: &SceneDescription,
+    args: &Args,
+) -> anyhow::Result<(SettleOutcome, Vec<f64>)> {
+    let outcome = settler.settle()?;
+    let mut walls = vec![outcome.certificate.wall_time_s];
+    if args.bench {
+        let initial = description.initial_poses();
+        for _ in 1..args.repeat {
+            walls.push(settler.settle_from(&initial)?.certificate.wall_time_s);
+        }
+    }
+    walls.sort_by(f64::total_cmp);
+    Ok((outcome, walls))
+}
+
+/// How MuJoCo's settled poses agree with Drake's: boxes resting on the same face, and the
+/// largest and mean distance between their centres.
+fn agreement(objects: &[Object], poses: &[Pose]) -> (usize, f64, f64) {
+    let mut faces_agree = 0;
+    let mut diffs = Vec::new();
+    for (o, p) in objects.iter().zip(poses) {
+        faces_agree += usize::from(down_face(o.world_box.quat_wxyz).0 == down_face(p.quat_wxyz).0);
+        let d = (0..3)
+            .map(|k| (o.world_box.translation[k] - p.translation[k]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        diffs.push(d);
+    }
+    let max_diff = diffs.iter().copied().fold(0.0, f64::max);
+    let mean_diff = diffs.iter().sum::<f64>() / diffs.len().max(1) as f64;
+    (faces_agree, max_diff, mean_diff)
 }
 
 fn verdict(stable: bool, why: Option<&str>) -> String {

@@ -64,8 +64,13 @@ impl RunArgs {
     /// A run folder resumes its own checkpoint; a dataset or another command's run is refused
     /// before the run writes its config.toml into it, and a second training into the same
     /// folder while this one runs.
-    fn claim_out(&self, command: &str) -> anyhow::Result<crate::output_folder::Claim> {
-        crate::output_folder::claim(&self.out, "--out", command, &["config.toml", "checkpoint"])
+    fn claim_out(&self, command: &str) -> anyhow::Result<boxpose_data::output_folder::Claim> {
+        Ok(boxpose_data::output_folder::claim(
+            &self.out,
+            "--out",
+            command,
+            &["config.toml", "checkpoint"],
+        )?)
     }
 
     fn override_config(&self, data: &mut DataConfig, o: &mut OptimizerConfig) {

@@ -4,6 +4,9 @@ use std::path::PathBuf;
 /// what to do, so a dataset builder never has to read a backtrace.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
+    /// A writing command's output folder holds another command's output, or is in use.
+    #[error("{0}")]
+    OutputFolder(String),
     #[error("dataset folder {0} does not exist (generate one with `make scenes`)")]
     MissingFolder(PathBuf),
     #[error("{0}: no `{1}` shards in this dataset folder")]

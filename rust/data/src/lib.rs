@@ -2,10 +2,12 @@
 //! table (`scenes/`, `objects/`, `frames/`, `instances/`). [`schema`] defines every column once,
 //! [`support`] the geometry each `support` value means, [`recipe`] what a scene recipe may hold;
 //! [`write_shard`] writes a shard atomically; [`Dataset`] opens a folder, validates every shard
-//! against the schema and yields decoded frames joined with their instances.
+//! against the schema and yields decoded frames joined with their instances; [`output_folder`]
+//! is the check and lock every writing command takes of its output folder.
 
 pub mod arrow;
 mod error;
+pub mod output_folder;
 mod reader;
 pub mod recipe;
 mod rows;

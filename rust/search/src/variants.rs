@@ -5,13 +5,14 @@
 
 use std::path::Path;
 
+use boxpose_data::output_folder::{VARIANTS_FILE, refuse_foreign};
 use boxpose_data::{Object, Scene, schema, shard_file_name, write_shard};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 
 use crate::error::{Result, SearchError};
-use crate::run::SampleRow;
+use crate::run::{Run, SampleRow};
 use crate::space::SearchSpace;
 use crate::sut::Evaluate;
 
@@ -43,6 +44,58 @@ impl VariantDraw {
             .collect();
         Ok((z, failure.seed.wrapping_add(k as i64)))
     }
+}
+
+/// What `search variants` writes into its output folder, and may find there when it resumes.
+pub const OUTPUT: [&str; 5] = [
+    schema::SCENES.name,
+    schema::OBJECTS.name,
+    schema::FRAMES.name,
+    schema::INSTANCES.name,
+    VARIANTS_FILE,
+];
+
+/// Claims `out` for the variants of `run` drawn by `draw`, so that a resume continues only its
+/// own shards: the folder records the run and draw it holds (`variants.json`, written before the
+/// first shard), and a folder holding another dataset, another run or the variants of other
+/// settings is refused, untouched.
+pub fn claim_folder(out: &Path, run: &Run, draw: &VariantDraw) -> Result<()> {
+    let claim = serde_json::json!({
+        "run": run.record,
+        "per_failure": draw.per_failure,
+        "sigma": draw.sigma,
+        "seed": draw.seed,
+    });
+    let path = out.join(VARIANTS_FILE);
+    let io = |e: std::io::Error| SearchError::Io {
+        path: path.clone(),
+        message: e.to_string(),
+    };
+    if path.is_file() {
+        let text = std::fs::read_to_string(&path).map_err(io)?;
+        let found: serde_json::Value =
+            serde_json::from_str(&text).map_err(|e| SearchError::Io {
+                path: path.clone(),
+                message: format!("unreadable: {e}"),
+            })?;
+        if found != claim {
+            return Err(SearchError::Io {
+                path: out.to_path_buf(),
+                message: format!(
+                    "--out holds variants of another run or other settings (its \
+                     {VARIANTS_FILE}): choose a new folder for --out, or rerun with that run and \
+                     its --per-failure, --sigma and --seed to resume"
+                ),
+            });
+        }
+    } else {
+        // tables without the claim are another dataset's (or an older command's)
+        refuse_foreign(out, "--out", "search variants", &[VARIANTS_FILE])?;
+        std::fs::create_dir_all(out).map_err(io)?;
+        let text = serde_json::to_string_pretty(&claim).expect("a claim serialises");
+        boxpose_data::write_file_atomically(&path, text.as_bytes())?;
+    }
+    Ok(())
 }
 
 /// Draws, settles and renders the variants of `failures` with `system` into the dataset folder

@@ -1,13 +1,12 @@
 //! The one check every writing command makes of its output folder before it writes: a folder
 //! holding another dataset or another command's run is refused, so that no command replaces or
-//! mixes into what it did not write (issue 31, item 2). Each command names the markers it writes
+//! mixes into what it did not write . Each command names the markers it writes
 //! itself, which it may find and rewrite or resume (eval rewriting its own earlier output).
 
 use std::path::Path;
 
-use anyhow::Context;
-
-use boxpose_data::schema;
+use crate::error::{DataError, Result};
+use crate::schema;
 
 /// What the search variants command writes beside its tables: which run and draw they hold, so a
 /// resume can tell its own shards from another dataset's.
@@ -37,12 +36,7 @@ const MARKERS: [(&str, &str); 14] = [
 /// Refuses `folder` (the value of `flag`) when it holds a marker of another dataset or run, any
 /// marker but the command's `own`. Checked before anything is created, so a refused command
 /// leaves the folder as it found it.
-pub fn refuse_foreign(
-    folder: &Path,
-    flag: &str,
-    command: &str,
-    own: &[&str],
-) -> anyhow::Result<()> {
+pub fn refuse_foreign(folder: &Path, flag: &str, command: &str, own: &[&str]) -> Result<()> {
     let held: Vec<(&str, &str)> = MARKERS
         .into_iter()
         .filter(|(name, _)| !own.contains(name) && folder.join(name).exists())
@@ -51,12 +45,12 @@ pub fn refuse_foreign(
         return Ok(());
     };
     let names: Vec<&str> = held.iter().map(|(name, _)| *name).collect();
-    anyhow::bail!(
+    Err(DataError::OutputFolder(format!(
         "{flag} {} already holds {what} ({}): {command} would replace or mix into output it did \
          not write; choose a new or empty folder for {flag}",
         folder.display(),
         names.join(", ")
-    )
+    )))
 }
 
 /// A writing command's hold on its output folder: [`claim`] checked that it holds no other
@@ -79,40 +73,50 @@ impl Drop for Claim {
 
 /// [`refuse_foreign`], then the folder (created if missing) locked for this process: a second
 /// `boxpose` writing into it at the same time is refused, naming the folder.
-pub fn claim(folder: &Path, flag: &str, command: &str, own: &[&str]) -> anyhow::Result<Claim> {
+pub fn claim(folder: &Path, flag: &str, command: &str, own: &[&str]) -> Result<Claim> {
     refuse_foreign(folder, flag, command, own)?;
     let created = if folder.exists() {
         None
     } else {
-        std::fs::create_dir_all(folder)
-            .map_err(|e| anyhow::anyhow!("{flag} {}: cannot create it: {e}", folder.display()))?;
+        std::fs::create_dir_all(folder).map_err(|e| {
+            refused(format!(
+                "{flag} {}: cannot create it: {e}",
+                folder.display()
+            ))
+        })?;
         Some(folder.to_path_buf())
     };
     let claim = Claim {
         _locked: std::fs::File::open(folder)
-            .map_err(|e| anyhow::anyhow!("{flag} {}: cannot open it: {e}", folder.display()))?,
+            .map_err(|e| refused(format!("{flag} {}: cannot open it: {e}", folder.display())))?,
         created,
     };
     match claim._locked.try_lock() {
         Ok(()) => Ok(claim),
-        Err(std::fs::TryLockError::WouldBlock) => anyhow::bail!(
+        Err(std::fs::TryLockError::WouldBlock) => Err(refused(format!(
             "{flag} {}: another boxpose command is writing into it now; wait for it to end, or \
              choose another folder for {flag}",
             folder.display()
-        ),
-        Err(std::fs::TryLockError::Error(e)) => {
-            anyhow::bail!("{flag} {}: cannot lock it: {e}", folder.display())
-        }
+        ))),
+        Err(std::fs::TryLockError::Error(e)) => Err(refused(format!(
+            "{flag} {}: cannot lock it: {e}",
+            folder.display()
+        ))),
     }
 }
 
 /// Removes an output an earlier run into the same folder wrote and this one does not, so that
 /// the folder never mixes two runs' results.
-pub(crate) fn remove_stale(path: &Path) -> anyhow::Result<()> {
+pub fn remove_stale(path: &Path) -> Result<()> {
     match std::fs::remove_file(path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-            Err(e).with_context(|| format!("removing the stale {}", path.display()))
-        }
+        Err(source) if source.kind() != std::io::ErrorKind::NotFound => Err(DataError::Io {
+            path: path.to_path_buf(),
+            source,
+        }),
         _ => Ok(()),
     }
+}
+
+fn refused(message: String) -> DataError {
+    DataError::OutputFolder(message)
 }
