@@ -1,4 +1,4 @@
-"""The quarter-turn experiment's table (docs/learning.md, "Quarter turns"): `boxpose eval` runs of
+"""The quarter-turn experiment's table (docs/log/2026-12-04-quarter-turns-tape.md): `boxpose eval` runs of
 several networks on the same held-out boxes, scored on the boxes whose top face is near-square
 (|dx − dy| < 1 cm, the pair that the tape and label of `materials.tape_along = "long"` tell
 apart): the share fitted with the right quarter turn (the robust fit's exact MSSD < 0.1 d) with
