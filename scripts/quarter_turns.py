@@ -1,11 +1,11 @@
-"""The quarter-turn experiment's table (docs/log/2026-12-04-quarter-turns-tape.md): `boxpose eval` runs of
-several networks on the same held-out boxes, scored on the boxes whose top face is near-square
-(|dx − dy| < 1 cm, the pair that the tape and label of `materials.tape_along = "long"` tell
-apart): the share fitted with the right quarter turn (the robust fit's exact MSSD < 0.1 d) with
-its 95 % Clopper–Pearson interval, every box's cube MSSD < 0.1 d beside it, and McNemar's exact
-test of each run against the first, paired box by box.
+"""The quarter-turn experiment's table (docs/log/2026-12-04-quarter-turns-tape.md): `boxpose eval`
+runs of several networks on the same held-out boxes, scored on the boxes whose top face is near-
+square (|dx − dy| < 1 cm, the pair that the tape and label of `materials.tape_along = "long"`
+tell apart): the share fitted with the right quarter turn (the robust fit's exact MSSD < 0.1 d)
+with its 95 % Clopper–Pearson interval, every box's cube MSSD < 0.1 d beside it, and McNemar's
+exact test of each run against the first, paired box by box.
 
-    python scripts/quarter_turns.py DATASET NAME=EVAL_DIR NAME=EVAL_DIR ...
+python scripts/quarter_turns.py DATASET NAME=EVAL_DIR NAME=EVAL_DIR ...
 
 Reads Parquet with pandas only (boxpose itself is not needed)."""
 
