@@ -6,6 +6,7 @@ import math
 import re
 import subprocess
 import tempfile
+import time
 import tomllib
 from pathlib import Path
 
@@ -312,3 +313,135 @@ def test_non_contiguous_arrays_are_read_correctly(order):
     strided[:, ::2] = points
     fit = boxpose.kabsch(points, strided[:, ::2])
     assert np.allclose(fit, np.eye(4), atol=1e-12)
+
+
+# --- every function of the module, at and past its limits, against a timer --------------------
+
+# A call on inputs at its documented limits returns or is refused in well under this on the loaded
+# 2-core CI machine (the slowest, robust_fit at its cap of 60 points crowded at the corners, took
+# 0.8 s there); past them it is refused at once. A regression to unbounded work fails here.
+CALL_SECONDS = 5.0
+TIMED = settings(
+    max_examples=12, derandomize=True, deadline=None, suppress_health_check=[HealthCheck.too_slow]
+)
+BOX = (0.3, 0.2, 0.1)
+
+
+def returns_or_refuses_in_time(name, call):
+    start = time.perf_counter()
+    refused_or_returned(call)
+    seconds = time.perf_counter() - start
+    assert seconds < CALL_SECONDS, f"{name} took {seconds:.1f} s"
+
+
+def peaks(seed, count, spread):
+    """`count` points around a box's corners (spread in metres) and their scores."""
+    rng = np.random.default_rng(seed)
+    corners = boxpose.box_corners(BOX) + [0.0, 0.0, 1.0]
+    points = corners[np.arange(count) % 8] + rng.normal(scale=spread, size=(count, 3))
+    return points, rng.random(count).astype(np.float32)
+
+
+@TIMED
+@given(
+    count=st.integers(0, 70),
+    spread=st.sampled_from([0.003, 0.2]),
+    seed=st.integers(0, 2**31),
+)
+def test_the_fits_at_and_past_their_point_caps_answer_in_time(count, spread, seed):
+    """robust_fit takes at most 60 points, fit_pose_and_size 40: 70 is past both."""
+    points, scores = peaks(seed, count, spread)
+    for name, call in [
+        ("robust_fit", lambda: boxpose.robust_fit(BOX, points)),
+        ("robust_fit fixed", lambda: boxpose.robust_fit(BOX, points, method="fixed_threshold")),
+        ("fit_pose_and_size", lambda: boxpose.fit_pose_and_size(points[: count * 2 // 3])),
+        (
+            "fit_pose_and_size least_squares",
+            lambda: boxpose.fit_pose_and_size(points[: count * 2 // 3], method="least_squares"),
+        ),
+    ]:
+        returns_or_refuses_in_time(name, call)
+
+
+@TIMED
+@given(count=st.integers(0, 2000), m=st.integers(-1, 12), seed=st.integers(0, 2**31))
+def test_the_correspondence_searches_answer_in_time_for_any_m(count, m, seed):
+    """m is 3 to 8 (8 points against 8 corners: 40,320 assignments); the points any number."""
+    points, scores = peaks(seed, count, 0.05)
+    for name, search in [
+        ("paper_exact_search", boxpose.paper_exact_search),
+        ("fast_exact_search", boxpose.fast_exact_search),
+    ]:
+        returns_or_refuses_in_time(
+            name, lambda search=search: search(BOX, points, scores, m=max(m, 0))
+        )
+
+
+@TIMED
+@given(count=st.integers(0, 200_000), seed=st.integers(0, 2**31))
+def test_the_linear_functions_answer_in_time_for_many_points(count, seed):
+    """kabsch, umeyama and back_project are linear in the points: no cap, no long call."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(size=(count, 3)), rng.normal(size=(count, 3))
+    returns_or_refuses_in_time("kabsch", lambda: boxpose.kabsch(a, b))
+    returns_or_refuses_in_time("umeyama", lambda: boxpose.umeyama(a, b))
+    returns_or_refuses_in_time(
+        "back_project",
+        lambda: boxpose.back_project(np.abs(a), (500, 500, 320, 240), (0, 0, 1, 1), (1, 0.5, 0.01)),
+    )
+
+
+@TIMED
+@given(
+    shape=st.tuples(st.integers(0, 64), st.integers(0, 128), st.integers(0, 128)),
+    count=st.integers(0, 10**9),
+    sigma=st.floats(1e-3, 1e3),
+    refine_radius=st.integers(0, 10**9),
+    centres=st.integers(0, 64),
+)
+def test_the_heatmap_functions_answer_in_time(shape, count, sigma, refine_radius, centres):
+    """nms on the largest heatmap a network here makes (and past it), any count and radius;
+    training targets of as many centres as a crop holds, any σ up to the volume's size."""
+    heatmap = np.random.default_rng(0).random(shape, dtype=np.float32)
+    returns_or_refuses_in_time(
+        "nms",
+        lambda: boxpose.nms(heatmap, count=count, sigma=sigma, refine_radius=refine_radius),
+    )
+    at = np.random.default_rng(1).uniform(-5, 130, size=(centres, 3))
+    returns_or_refuses_in_time(
+        "render_target_heatmap",
+        lambda: boxpose.render_target_heatmap(shape, at, min(sigma, 20.0)),
+    )
+
+
+@TIMED
+@given(
+    side=st.integers(0, 3000),
+    images=st.integers(0, 50),
+    detections=st.integers(0, 300),
+    truths=st.integers(0, 100),
+    pose=st.sampled_from([np.eye(4), np.full((4, 4), np.nan), np.diag([1e300, 1, 1, 1])]),
+)
+def test_the_metrics_answer_in_time(side, images, detections, truths, pose):
+    """Every metric on any pose, masks up to 3000² and COCO AP over up to 50 images of 300
+    detections against 100 true boxes."""
+    corners = boxpose.box_corners(BOX)
+    for name, call in [
+        ("box_corners", lambda: boxpose.box_corners((1e300, -1.0, np.nan))),
+        ("paper_error", lambda: boxpose.paper_error(BOX, pose, corners)),
+        ("add_s", lambda: boxpose.add_s(BOX, pose, np.eye(4))),
+        ("mssd", lambda: boxpose.mssd(BOX, pose, np.eye(4))),
+        ("cube_mssd", lambda: boxpose.cube_mssd(BOX, pose, BOX, np.eye(4))),
+        ("rotation_error_deg", lambda: boxpose.rotation_error_deg(BOX, pose, np.eye(4))),
+        ("translation_error", lambda: boxpose.translation_error(pose, np.eye(4))),
+        ("iou_3d", lambda: boxpose.iou_3d(BOX, pose, (1e9, 1e-9, 1.0), np.eye(4))),
+    ]:
+        returns_or_refuses_in_time(name, call)
+    mask = np.ones((side, side), bool)
+    returns_or_refuses_in_time("mask_iou", lambda: boxpose.mask_iou(mask, mask))
+    rng = np.random.default_rng(side)
+    scored = [
+        (rng.random(detections).astype(np.float32), rng.random((detections, truths)))
+        for _ in range(images)
+    ]
+    returns_or_refuses_in_time("average_precision", lambda: boxpose.average_precision(scored, 0.5))

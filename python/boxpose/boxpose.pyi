@@ -94,7 +94,12 @@ def nms(
     """Peaks of a (D, H, W) heatmap: (coords (N, 3) as (z_bin, v, u), scores (N,))."""
 
 def render_target_heatmap(shape: tuple[int, int, int], centres: _Real, sigma: float) -> _F32:
-    """A (D, H, W) training target: a 3D Gaussian at each (z_bin, v, u) centre, max-combined."""
+    """A (D, H, W) training target: a 3D Gaussian at each (z_bin, v, u) centre, max-combined.
+
+    At most 2^30 voxels. Each Gaussian reaches 3 `sigma` voxels, so many centres or a wide
+    `sigma` take time in proportion: the call releases the GIL and answers Ctrl-C between parts
+    of about 8 million voxel updates.
+    """
 
 def back_project(coords: _Real, intrinsics: _Params, crop: _Params, depth_bins: _Params) -> _F64:
     """Camera-frame points (N, 3) of voxel coordinates (N, 3) as (z_bin, v, u) in a crop.
@@ -110,7 +115,8 @@ def umeyama(source: _Real, target: _Real) -> tuple[float, _F64]:
     """Least-squares similarity transform: (scale, 4 × 4 rigid part)."""
 
 def paper_exact_search(size: _Size, points: _Real, scores: _Real, m: int = 5) -> _CorrespondenceFit:
-    """The paper's search over every assignment of the `m` best points to the 8 corners."""
+    """The paper's search over every assignment of the `m` best points (3 ≤ m ≤ 8) to the 8
+    corners."""
 
 def fast_exact_search(size: _Size, points: _Real, scores: _Real, m: int = 5) -> _CorrespondenceFit:
     """Same optimum as `paper_exact_search`, by symmetry reduction and branch-and-bound."""

@@ -265,31 +265,40 @@ pub fn render_target_heatmap(
     centres: &[VoxelCoord],
     sigma: f64,
 ) -> Result<Vec<f32>> {
+    let mut volume = vec![0.0f32; dims.voxel_count()?];
+    add_targets(&mut volume, dims, centres, sigma)?;
+    Ok(volume)
+}
+
+/// Max-combines the Gaussians of [`render_target_heatmap`] at `centres` into `volume` (of
+/// `dims`), so that a caller can draw many centres in parts, e.g. checking for an interrupt
+/// between them; the work of each centre is [`target_support_voxels`].
+pub fn add_targets(
+    volume: &mut [f32],
+    dims: HeatmapDims,
+    centres: &[VoxelCoord],
+    sigma: f64,
+) -> Result<()> {
     let voxel_count = dims.voxel_count()?;
+    if volume.len() != voxel_count {
+        return Err(GeometryError::InvalidParameter {
+            name: "volume",
+            reason: "its length is not the dims' voxel count",
+        });
+    }
     ensure_positive("sigma", sigma)?;
     ensure_finite(
         "target centres",
         centres.iter().flat_map(|c| [&c.z_bin, &c.v, &c.u]),
     )?;
-    let mut volume = vec![0.0f32; voxel_count];
     let reach = GAUSSIAN_TRUNCATION_SIGMAS * sigma;
-    // Voxel indices within `reach` of `centre` along one axis of length `len` (empty when none).
-    let span = |centre: f64, len: usize| {
-        let lo = (centre - reach).ceil().max(0.0);
-        let hi = (centre + reach).floor().min(len as f64 - 1.0);
-        if lo > hi {
-            0..0
-        } else {
-            lo as usize..hi as usize + 1
-        }
-    };
     let gauss = |d: f64| (-(d * d) / (2.0 * sigma * sigma)).exp();
     for c in centres {
-        for z in span(c.z_bin, dims.depth) {
+        for z in target_span(c.z_bin, reach, dims.depth) {
             let gz = gauss(z as f64 - c.z_bin);
-            for v in span(c.v, dims.height) {
+            for v in target_span(c.v, reach, dims.height) {
                 let gzv = gz * gauss(v as f64 - c.v);
-                for u in span(c.u, dims.width) {
+                for u in target_span(c.u, reach, dims.width) {
                     let value = (gzv * gauss(u as f64 - c.u)) as f32;
                     let cell = &mut volume[dims.index(z, v, u)];
                     *cell = cell.max(value);
@@ -297,7 +306,27 @@ pub fn render_target_heatmap(
             }
         }
     }
-    Ok(volume)
+    Ok(())
+}
+
+/// How many voxels the target Gaussian at `centre` touches: its truncated support clipped to the
+/// volume, the work of drawing it (0 for a centre whose support misses the volume).
+pub fn target_support_voxels(dims: HeatmapDims, centre: &VoxelCoord, sigma: f64) -> usize {
+    let reach = GAUSSIAN_TRUNCATION_SIGMAS * sigma;
+    target_span(centre.z_bin, reach, dims.depth).len()
+        * target_span(centre.v, reach, dims.height).len()
+        * target_span(centre.u, reach, dims.width).len()
+}
+
+/// Voxel indices within `reach` of `centre` along one axis of length `len` (empty when none).
+fn target_span(centre: f64, reach: f64, len: usize) -> std::ops::Range<usize> {
+    let lo = (centre - reach).ceil().max(0.0);
+    let hi = (centre + reach).floor().min(len as f64 - 1.0);
+    if lo > hi || lo.is_nan() || hi.is_nan() {
+        0..0
+    } else {
+        lo as usize..hi as usize + 1
+    }
 }
 
 /// Pinhole intrinsics of the full image, in pixels (OpenCV: pixel centres at integer coordinates).

@@ -294,7 +294,9 @@ fn nms<'py>(
 }
 
 /// A (D, H, W) float32 training target: a 3D Gaussian (peak 1, `sigma` voxels) at each centre
-/// given as (z_bin, v, u), max-combined.
+/// given as (z_bin, v, u), max-combined. The centres are drawn in parts of about
+/// [`TARGET_WORK_PER_PART`] voxel updates, without the GIL, with a Ctrl-C check between parts:
+/// many centres or a wide `sigma` cost time in proportion, and stay interruptible.
 #[pyfunction]
 fn render_target_heatmap<'py>(
     py: Python<'py>,
@@ -315,11 +317,35 @@ fn render_target_heatmap<'py>(
         height: shape.1,
         width: shape.2,
     };
-    let volume = heatmap::render_target_heatmap(dims, &centres, sigma).map_err(value_error)?;
+    let mut volume = vec![0.0f32; dims.voxel_count().map_err(value_error)?];
+    // an empty first part checks sigma and the centres before any work
+    heatmap::add_targets(&mut volume, dims, &[], sigma).map_err(value_error)?;
+    let mut rest = centres.as_slice();
+    while !rest.is_empty() {
+        let mut work = 0;
+        let part = rest
+            .iter()
+            .take_while(|c| {
+                work += heatmap::target_support_voxels(dims, c, sigma);
+                work <= TARGET_WORK_PER_PART
+            })
+            .count()
+            .max(1);
+        let (now, later) = rest.split_at(part);
+        py.detach(|| heatmap::add_targets(&mut volume, dims, now, sigma))
+            .map_err(value_error)?;
+        py.check_signals()?;
+        rest = later;
+    }
     let array = numpy::ndarray::Array3::from_shape_vec(shape, volume)
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
     Ok(array.into_pyarray(py))
 }
+
+/// Voxel updates `render_target_heatmap` does between two Ctrl-C checks (about 0.1 s on one
+/// core). One centre is never split, so a single Gaussian as wide as the volume (at most 2^30
+/// voxels) is the longest uninterruptible step.
+const TARGET_WORK_PER_PART: usize = 1 << 23;
 
 fn voxel_grid(intrinsics: [f64; 4], crop: [f64; 4], depth_bins: [f64; 3]) -> VoxelGrid {
     VoxelGrid {
