@@ -168,6 +168,44 @@ def test_a_killed_run_resumes_to_identical_samples(mc_run, spaces, boxpose_bin, 
     assert all((batches / name).stat().st_mtime_ns == mtime for name, mtime in committed.items())
 
 
+def test_ctrl_c_ends_a_search_at_once(spaces, boxpose_bin, tmp_path):
+    """The embedded Python turned SIGINT into a KeyboardInterrupt that Blender's render engine
+    caught and printed, so a Ctrl-C left the search running to its last sample. Now it ends the
+    process at once (status 130, as SIGINT's default action), and the batches committed before
+    it stay for the resume."""
+    out = tmp_path / "run"
+    args = [boxpose_bin, "search", spaces["single"], "--out", out, "--samples", 400]
+    args += ["--batch-size", 2, "--seed", 3, "--threads", 1]
+    process = subprocess.Popen(
+        list(map(str, args)),
+        cwd=REPO,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        # as a terminal starts it: a CI job started in the background inherits SIGINT ignored
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    batches = out / "batches" / "samples"
+    deadline = time.time() + 300
+    while (
+        not (batches.is_dir() and any(batches.glob("*.parquet")))
+        and time.time() < deadline
+        and process.poll() is None
+    ):
+        time.sleep(0.02)
+    assert process.poll() is None, "the search ended before its first batch was seen"
+    process.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    try:
+        _, stderr = process.communicate(timeout=30)
+    finally:
+        process.kill()
+    answered = time.monotonic() - sent
+    assert process.returncode == 130, stderr
+    assert "interrupted" in stderr and answered < 5.0, (answered, stderr)
+    assert not (out / "samples.parquet").exists() and any(batches.glob("*.parquet"))
+
+
 def test_two_shards_merge_to_the_single_process_table(mc_run, spaces, boxpose_bin, tmp_path):
     out = tmp_path / "run"
     args = [spaces["single"], "--out", out, "--fail-when", "mssd:0.05", *MC, "--num-shards", 2]

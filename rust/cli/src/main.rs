@@ -9,6 +9,7 @@ mod export;
 mod fit_summary;
 mod improve;
 mod inspect;
+mod interrupt;
 mod plots;
 mod predict;
 mod render;
@@ -107,6 +108,7 @@ enum Command {
 fn main() -> std::process::ExitCode {
     // the binary's choice: Blender's CUDA probe and exit-time leak report are not ours to show
     boxpose_render::quiet_blender_output();
+    interrupt::end_on_interrupt();
     match run(Cli::parse()) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {
