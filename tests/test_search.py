@@ -206,6 +206,26 @@ def test_ctrl_c_ends_a_search_at_once(spaces, boxpose_bin, tmp_path):
     assert not (out / "samples.parquet").exists() and any(batches.glob("*.parquet"))
 
 
+def test_refine_depth_is_a_setting_of_the_run(spaces, boxpose_bin, tmp_path):
+    """`--refine-depth` lays each fit on the depth image: the run records it, a resume without
+    it is refused naming the flag, and the refined poses are not the unrefined ones."""
+    out = tmp_path / "refined"
+    search(boxpose_bin, spaces["single"], "--out", out, "--refine-depth", *MC)
+    assert json.loads((out / "run.json").read_text())["settings"]["refine_depth"] is True
+    refused = search(boxpose_bin, spaces["single"], "--out", out, *MC, check=False)
+    assert refused.returncode == 1
+    assert "--refine-depth is true there, false here" in refused.stderr, refused.stderr
+    plain = tmp_path / "plain"
+    search(boxpose_bin, spaces["single"], "--out", plain, *MC)
+    refined = pd.read_parquet(out / "samples.parquet").set_index("sample_id")
+    unrefined = pd.read_parquet(plain / "samples.parquet").set_index("sample_id")
+    # the same scenes (the same seeds), other poses
+    assert (refined.seed == unrefined.seed).all()
+    fitted = refined.translation_error_m.notna() & unrefined.translation_error_m.notna()
+    assert fitted.any()
+    assert (refined.translation_error_m[fitted] != unrefined.translation_error_m[fitted]).any()
+
+
 def test_two_shards_merge_to_the_single_process_table(mc_run, spaces, boxpose_bin, tmp_path):
     out = tmp_path / "run"
     args = [spaces["single"], "--out", out, "--fail-when", "mssd:0.05", *MC, "--num-shards", 2]

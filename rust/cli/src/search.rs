@@ -213,6 +213,11 @@ struct RunArgs {
     /// network's window reaches is rendered): the reference for `make bench-search`.
     #[arg(long)]
     whole_frames: bool,
+    /// Lay the fitted pose on the depth image: Gauss–Newton on the points of the box's visible
+    /// faces inside its projection (a known-size fit only; a refinement that would turn the box
+    /// by more than 10° is discarded). A setting of the run, kept in run.json.
+    #[arg(long, conflicts_with = "sut")]
+    refine_depth: bool,
     /// The pose fit under test: paper (the paper's search over the 5 best peaks), fast, robust, size.
     #[arg(long, default_value = "paper", value_parser = clap::builder::PossibleValuesParser::new(sut::FIT_NAMES))]
     fit: String,
@@ -563,6 +568,7 @@ fn run_settings(args: &RunArgs) -> RunSettings {
         seed: args.seed,
         crops,
         whole_frames: args.whole_frames || args.sut.is_some(),
+        refine_depth: args.refine_depth,
         fit: match args.sut {
             Some(_) => EXTERNAL_FIT.into(),
             None => args.fit.clone(),

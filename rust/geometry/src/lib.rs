@@ -14,6 +14,7 @@
 //! - [`size_fit`]: pose and box size together, for boxes of unknown size.
 //! - [`metrics`]: the paper's error (step 7) and the usual pose metrics.
 //! - [`pipeline`]: peaks → every pose fit → scores, as each evaluation runs them.
+//! - [`depth_refine`]: a fitted pose laid on the depth image's points of the box's faces.
 //! - [`silhouette`]: a box's amodal silhouette in an image (the exports' amodal masks).
 //! - [`synthetic`]: a perfect network's heatmap of a box and its fits (`eval-geometry`).
 
@@ -23,6 +24,7 @@ pub mod benchmark;
 pub mod box_model;
 pub mod correspondence;
 pub mod depth;
+pub mod depth_refine;
 pub mod detection;
 pub mod error;
 pub mod heatmap;

@@ -12,7 +12,7 @@ use crate::adaptive::FitConfidence;
 use crate::box_model::{CORNER_COUNT, corner_signs};
 use crate::correspondence::{fast_exact_search, paper_exact_search};
 use crate::depth::{self, DepthView};
-use crate::{BoxModel, GeometryError, metrics, robust, size_fit};
+use crate::{BoxModel, GeometryError, depth_refine, metrics, robust, size_fit};
 
 /// Peaks the paper's search fits (m).
 const PAPER_M: usize = 5;
@@ -360,6 +360,27 @@ impl FitRun {
             fitted,
             fit_time_us: start.elapsed().as_secs_f64() * 1e6,
         }
+    }
+}
+
+impl FitRun {
+    /// Lays a known-size fit's pose on the depth image's points of the box's visible faces
+    /// ([`depth_refine::refine_with_depth`]; `boxpose search --refine-depth`). A size fit, a
+    /// failed fit, or a depth image that holds too little of the box leaves the fit as it was.
+    /// The time counts in the fit's.
+    pub fn refine_with_depth(&mut self, points: &[Point3<f64>], view: &DepthView) {
+        let start = Instant::now();
+        if let Ok(fitted) = &mut self.fitted
+            && !fitted.fits_size
+            && let Some(refined) =
+                depth_refine::refine_with_depth(&fitted.model, &fitted.pose, view)
+        {
+            fitted.pose = refined.pose;
+            if let Some(residuals) = &mut fitted.residuals {
+                *residuals = nearest_corner_distances(&fitted.model, &fitted.pose, points);
+            }
+        }
+        self.fit_time_us += start.elapsed().as_secs_f64() * 1e6;
     }
 }
 

@@ -266,6 +266,7 @@ pub fn agreement(runs: &[Run]) -> Result<Agreement> {
             run.record.recipe_toml.clone(),
             s.crops,
             s.whole_frames,
+            s.refine_depth,
             s.fit.clone(),
             s.predicate,
             s.model.clone(),

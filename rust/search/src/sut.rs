@@ -294,6 +294,8 @@ pub struct SystemUnderTest {
     /// Render whole frames even for ground-truth crops (the reference the region renders are
     /// measured against).
     pub whole_frames: bool,
+    /// Lay the fit on the depth image ([`FitRun::refine_with_depth`]).
+    pub refine_depth: bool,
 }
 
 impl SystemUnderTest {
@@ -321,6 +323,7 @@ impl SystemUnderTest {
             crops,
             min_visible_fraction: 0.25,
             whole_frames: false,
+            refine_depth: false,
         })
     }
 
@@ -339,6 +342,7 @@ impl SystemUnderTest {
             crops,
             min_visible_fraction: 0.25,
             whole_frames: true,
+            refine_depth: false,
         })
     }
 }
@@ -414,14 +418,12 @@ impl Evaluate for SystemUnderTest {
                     }
                     _ => CropSource::GroundTruth,
                 };
-                let (perceived, peaks) = perceive(
-                    model,
-                    *method,
-                    crops,
-                    &frame,
-                    instance,
-                    &mut outcome.seconds,
-                )?;
+                let fit = FitChoice {
+                    method: *method,
+                    refine_depth: self.refine_depth,
+                };
+                let (perceived, peaks) =
+                    perceive(model, fit, crops, &frame, instance, &mut outcome.seconds)?;
                 (Ok(perceived), peaks)
             }
             Perceiver::External(system) => {
@@ -499,7 +501,7 @@ impl SystemUnderTest {
 /// with the fit under test scored against its truth.
 fn perceive(
     model: &KeypointModel,
-    method: Method,
+    fit: FitChoice,
     crops: CropSource,
     frame: &Frame,
     instance: &Instance,
@@ -512,7 +514,11 @@ fn perceive(
         return Ok((Perceived::NotDetected, Vec::new()));
     };
     let known = BoxModel::new(Vector3::from(instance.size))?;
-    let (fit, points) = perceive_crop(model, method, frame, crop, known)?;
+    let (mut run, points) = perceive_crop(model, fit.method, frame, crop, known)?;
+    if fit.refine_depth {
+        run.refine_with_depth(&points, &boxpose_learn::data::depth_view(frame));
+    }
+    let fit = run;
     seconds.inference = start.elapsed().as_secs_f64() - fit.fit_time_us / 1e6;
 
     let start = Instant::now();
@@ -522,6 +528,13 @@ fn perceive(
         perceived(outcome, instance.size, true),
         corner_list(&points),
     ))
+}
+
+/// The fit under test, and whether its pose is laid on the depth image.
+#[derive(Debug, Clone, Copy)]
+struct FitChoice {
+    method: Method,
+    refine_depth: bool,
 }
 
 /// This project's perception of one box on `crop`: the network, its NMS peaks back-projected

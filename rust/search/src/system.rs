@@ -63,5 +63,6 @@ pub fn load(
     let mut sut =
         SystemUnderTest::new(space, renderer, network, segmenter, settings.crops, method)?;
     sut.whole_frames = settings.whole_frames;
+    sut.refine_depth = settings.refine_depth;
     Ok(sut)
 }

@@ -121,6 +121,7 @@ fn settings(sampler: Sampler, samples: usize, batch_size: usize) -> RunSettings 
         seed: 7,
         crops: Crops::Gt,
         whole_frames: false,
+        refine_depth: false,
         fit: "paper".into(),
         predicate: Predicate::default(),
         ce: CeConfig {

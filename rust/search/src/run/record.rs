@@ -50,6 +50,10 @@ pub struct RunSettings {
     /// region render's, so it is part of the run's identity).
     #[serde(default)]
     pub whole_frames: bool,
+    /// The fit's pose laid on the depth image's points of the box's visible faces
+    /// (`--refine-depth`; [`boxpose_geometry::depth_refine`]).
+    #[serde(default)]
+    pub refine_depth: bool,
     /// The pose fit: paper, fast, robust or size.
     pub fit: String,
     pub predicate: Predicate,
@@ -293,6 +297,7 @@ mod tests {
                 seed: 3,
                 crops: Crops::Gt,
                 whole_frames: false,
+                refine_depth: false,
                 fit: "paper".into(),
                 predicate: Predicate::default(),
                 ce: CeConfig::default(),
