@@ -392,6 +392,13 @@ def test_ctrl_c_interrupts_a_loop_of_fits_at_their_caps():
         "    boxpose.robust_fit((0.2, 0.15, 0.1), p)\n"
         "    boxpose.fit_pose_and_size(p[:40])\n"
     )
+    returncode, _, stderr, _ = interrupted(script, timeout=15)
+    assert returncode != 0 and "KeyboardInterrupt" in stderr, stderr
+
+
+def interrupted(script: str, timeout: float) -> tuple[int, str, str, float]:
+    """Runs `script` in a fresh interpreter, sends it Ctrl-C half a second after it prints
+    `started`: its status, stdout, stderr and the seconds it took to end after the Ctrl-C."""
     process = subprocess.Popen(
         [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
     )
@@ -399,10 +406,12 @@ def test_ctrl_c_interrupts_a_loop_of_fits_at_their_caps():
         assert process.stdout.readline().strip() == "started"
         time.sleep(0.5)
         process.send_signal(signal.SIGINT)
-        _, stderr = process.communicate(timeout=15)
+        sent = time.monotonic()
+        stdout, stderr = process.communicate(timeout=timeout)
+        answered = time.monotonic() - sent
     finally:
         process.kill()
-    assert process.returncode != 0 and "KeyboardInterrupt" in stderr, stderr
+    return process.returncode, stdout, stderr, answered
 
 
 def test_ctrl_c_interrupts_a_long_target_heatmap():
@@ -417,19 +426,8 @@ def test_ctrl_c_interrupts_a_long_target_heatmap():
         "boxpose.render_target_heatmap((32, 64, 64), centres, 50.0)\n"
         "print('finished', flush=True)\n"
     )
-    process = subprocess.Popen(
-        [sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-    )
-    try:
-        assert process.stdout.readline().strip() == "started"
-        time.sleep(0.5)
-        process.send_signal(signal.SIGINT)
-        sent = time.monotonic()
-        stdout, stderr = process.communicate(timeout=30)
-        answered = time.monotonic() - sent
-    finally:
-        process.kill()
-    assert process.returncode != 0 and "KeyboardInterrupt" in stderr, stderr
+    returncode, stdout, stderr, answered = interrupted(script, timeout=30)
+    assert returncode != 0 and "KeyboardInterrupt" in stderr, stderr
     assert "finished" not in stdout
     assert answered < 5.0, f"Ctrl-C answered after {answered:.1f} s"
 

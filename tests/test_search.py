@@ -128,6 +128,20 @@ def test_monte_carlo_run_writes_its_tables_estimate_and_report(mc_run, boxpose_b
         )
 
 
+def wait_for_a_batch(process: subprocess.Popen, run: Path) -> Path:
+    """Waits (up to 5 minutes) until the search `process` committed a batch into `run`, or ended;
+    the run's folder of committed sample batches."""
+    batches = run / "batches" / "samples"
+    deadline = time.time() + 300
+    while (
+        not (batches.is_dir() and any(batches.glob("*.parquet")))
+        and time.time() < deadline
+        and process.poll() is None
+    ):
+        time.sleep(0.02)
+    return batches
+
+
 def test_a_killed_run_resumes_to_identical_samples(mc_run, spaces, boxpose_bin, tmp_path):
     out = tmp_path / "run"
     args = [
@@ -143,14 +157,7 @@ def test_a_killed_run_resumes_to_identical_samples(mc_run, spaces, boxpose_bin, 
     process = subprocess.Popen(
         args, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
     )
-    batches = out / "batches" / "samples"
-    deadline = time.time() + 300
-    while (
-        not (batches.is_dir() and any(batches.glob("*.parquet")))
-        and time.time() < deadline
-        and process.poll() is None
-    ):
-        time.sleep(0.02)
+    batches = wait_for_a_batch(process, out)
     # Frozen after its first batch, so that an idle machine cannot finish the run before the
     # kill (found: CI's idle run did); a stopped process still holds its lock.
     os.killpg(process.pid, signal.SIGSTOP)
@@ -185,14 +192,7 @@ def test_ctrl_c_ends_a_search_at_once(spaces, boxpose_bin, tmp_path):
         # as a terminal starts it: a CI job started in the background inherits SIGINT ignored
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
     )
-    batches = out / "batches" / "samples"
-    deadline = time.time() + 300
-    while (
-        not (batches.is_dir() and any(batches.glob("*.parquet")))
-        and time.time() < deadline
-        and process.poll() is None
-    ):
-        time.sleep(0.02)
+    batches = wait_for_a_batch(process, out)
     assert process.poll() is None, "the search ended before its first batch was seen"
     process.send_signal(signal.SIGINT)
     sent = time.monotonic()

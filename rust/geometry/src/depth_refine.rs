@@ -210,15 +210,25 @@ mod tests {
     const WIDTH: usize = 320;
     const HEIGHT: usize = 240;
 
+    /// What a ray that misses the box meets.
+    #[derive(Clone, Copy)]
+    enum Background {
+        /// A wall facing the camera at this depth.
+        Wall(f32),
+        /// A floor in the plane of the box's bottom face (the box rests on it).
+        Floor,
+    }
+
     /// Planar depth of the box at `pose` as a pinhole camera sees it: each pixel's ray against the
-    /// box (slab test), else a wall at `wall_m`.
-    fn render(model: &BoxModel, pose: &Isometry3<f64>, wall_m: f32) -> Vec<f32> {
+    /// box (slab test), else against the background.
+    fn render(model: &BoxModel, pose: &Isometry3<f64>, background: Background) -> Vec<f32> {
         let [fx, fy, cx, cy] = INTRINSICS;
         let half = model.size() * 0.5;
         let inverse = pose.inverse();
-        let mut depth = vec![wall_m; WIDTH * HEIGHT];
+        let mut depth = vec![0.0f32; WIDTH * HEIGHT];
         for v in 0..HEIGHT {
             for u in 0..WIDTH {
+                // the ray's z-component is 1, so a distance along it is a planar depth
                 let ray = Vector3::new((u as f64 - cx) / fx, (v as f64 - cy) / fy, 1.0);
                 let (origin, direction) = (inverse * Point3::origin(), inverse.rotation * ray);
                 let (mut near, mut far) = (0.0f64, f64::INFINITY);
@@ -230,9 +240,15 @@ mod tests {
                     near = near.max(a.min(b));
                     far = far.min(a.max(b));
                 }
-                if near <= far && (near as f32) < wall_m {
-                    depth[v * WIDTH + u] = near as f32; // the ray's z-component is 1
-                }
+                let behind = match background {
+                    Background::Wall(wall_m) => wall_m as f64,
+                    Background::Floor => {
+                        let floor = (-half[2] - origin[2]) / direction[2];
+                        if floor > 0.0 { floor } else { 0.0 }
+                    }
+                };
+                let hit = near <= far && (behind == 0.0 || near < behind);
+                depth[v * WIDTH + u] = if hit { near } else { behind } as f32;
             }
         }
         depth
@@ -261,7 +277,7 @@ mod tests {
     #[test]
     fn a_few_degrees_and_millimetres_off_are_brought_back_to_the_depth() {
         let model = BoxModel::new(Vector3::from(SIZE)).unwrap();
-        let depth = render(&model, &truth(), 2.0);
+        let depth = render(&model, &truth(), Background::Wall(2.0));
         // turned about its own centre, and shifted
         let off = Isometry3::from_parts(
             Translation3::from(truth().translation.vector + Vector3::new(0.004, -0.003, 0.005)),
@@ -284,7 +300,7 @@ mod tests {
     #[test]
     fn the_true_pose_stays_where_it_is() {
         let model = BoxModel::new(Vector3::from(SIZE)).unwrap();
-        let depth = render(&model, &truth(), 2.0);
+        let depth = render(&model, &truth(), Background::Wall(2.0));
         let refined = refine_with_depth(&model, &truth(), &view(&depth)).expect("refined");
         assert!(rotation_error_deg(&refined.pose, &truth()) < 0.1);
         assert!((refined.pose.translation.vector - truth().translation.vector).norm() < 5e-4);
@@ -297,7 +313,7 @@ mod tests {
         assert!(refine_with_depth(&model, &truth(), &view(&empty)).is_none());
         // a box far from where the depth image has one: no point within the gate
         let elsewhere = Isometry3::translation(0.0, 0.0, 0.5) * truth();
-        let depth = render(&model, &truth(), 2.0);
+        let depth = render(&model, &truth(), Background::Wall(2.0));
         assert!(refine_with_depth(&model, &elsewhere, &view(&depth)).is_none());
     }
 
@@ -323,36 +339,6 @@ mod tests {
         world_camera.inverse()
     }
 
-    /// As [`render`], the box resting on a floor in the plane of its bottom face.
-    fn render_on_floor(model: &BoxModel, pose: &Isometry3<f64>) -> Vec<f32> {
-        let [fx, fy, cx, cy] = INTRINSICS;
-        let half = model.size() * 0.5;
-        let inverse = pose.inverse();
-        let mut depth = vec![0.0f32; WIDTH * HEIGHT];
-        for v in 0..HEIGHT {
-            for u in 0..WIDTH {
-                let ray = Vector3::new((u as f64 - cx) / fx, (v as f64 - cy) / fy, 1.0);
-                let (origin, direction) = (inverse * Point3::origin(), inverse.rotation * ray);
-                let (mut near, mut far) = (0.0f64, f64::INFINITY);
-                for k in 0..3 {
-                    let (a, b) = (
-                        (-half[k] - origin[k]) / direction[k],
-                        (half[k] - origin[k]) / direction[k],
-                    );
-                    near = near.max(a.min(b));
-                    far = far.min(a.max(b));
-                }
-                let floor = (-half[2] - origin[2]) / direction[2];
-                let mut t = if floor > 0.0 { floor } else { 0.0 };
-                if near <= far {
-                    t = near;
-                }
-                depth[v * WIDTH + u] = t as f32;
-            }
-        }
-        depth
-    }
-
     #[test]
     fn on_a_floor_the_faces_fix_what_they_can_and_hold_the_rest() {
         // a flat box seen from 57° above: from azimuth 30° three faces show, from 80° the top and
@@ -360,7 +346,7 @@ mod tests {
         let model = BoxModel::new(Vector3::new(0.195, 0.089, 0.049)).unwrap();
         for (azimuth_deg, worst_shift_m) in [(30.0, 1e-5), (80.0, 0.0016)] {
             let truth = on_floor_view(57.0, azimuth_deg, 0.75);
-            let depth = render_on_floor(&model, &truth);
+            let depth = render(&model, &truth, Background::Floor);
             for shift in [Vector3::x(), Vector3::y(), Vector3::z()] {
                 let off = Isometry3::from_parts(
                     Translation3::from(truth.translation.vector + 0.0015 * shift),
