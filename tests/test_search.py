@@ -11,6 +11,7 @@ import os
 import shutil
 import signal
 import subprocess
+import sys
 import time
 import tomllib
 from pathlib import Path
@@ -224,6 +225,26 @@ def test_refine_depth_is_a_setting_of_the_run(spaces, boxpose_bin, tmp_path):
     fitted = refined.translation_error_m.notna() & unrefined.translation_error_m.notna()
     assert fitted.any()
     assert (refined.translation_error_m[fitted] != unrefined.translation_error_m[fitted]).any()
+
+
+def test_a_run_kept_as_a_reference_pairs_with_itself(mc_run, tmp_path):
+    """scripts/search_reference.py keeps a run's summaries as docs/reference/ holds them and pairs
+    two kept runs sample by sample: a run against itself has no discordant pair."""
+    script = REPO / "scripts" / "search_reference.py"
+    kept = tmp_path / "kept"
+    keep = [sys.executable, script, "keep", mc_run, kept]
+    subprocess.run(list(map(str, keep)), check=True, capture_output=True)
+    errors = pd.read_csv(kept / "errors.csv.gz")
+    samples = pd.read_parquet(mc_run / "samples.parquet")
+    assert list(errors.sample_id) == list(samples.sample_id)
+    assert np.allclose(errors.paper_error_normalized, samples.paper_error_normalized, rtol=1e-5)
+    failures = json.loads((kept / "failures.json").read_text())
+    assert [f["sample_id"] for f in failures] == list(samples.sample_id[samples.failed])
+    assert {"run.json", "summary.json", "error_hist.png"} <= {p.name for p in kept.iterdir()}
+    pair = [sys.executable, script, "pair", kept / "errors.csv.gz", kept / "errors.csv.gz"]
+    r = subprocess.run(list(map(str, pair)), check=True, capture_output=True, text=True)
+    assert "6 paired samples" in r.stdout
+    assert r.stdout.count("fixed 0, new 0, McNemar p = 1") == 4, r.stdout
 
 
 def test_two_shards_merge_to_the_single_process_table(mc_run, spaces, boxpose_bin, tmp_path):
