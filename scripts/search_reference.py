@@ -8,7 +8,8 @@
     python scripts/search_reference.py pair BEFORE/errors.csv.gz AFTER/errors.csv.gz
         pairs two runs of the same inputs (same space and seed: equal sample ids and seeds, checked)
         and prints, under each predicate, the failures of each with their 95 % Clopper–Pearson
-        interval, the discordant pairs and McNemar's exact test.
+        interval, the discordant pairs and McNemar's exact test; and the median, 99th percentile
+        and largest paper error, rotation and translation error of each.
 
 Reads Parquet with pandas only (boxpose itself is not needed)."""
 
@@ -93,6 +94,12 @@ def pair(before_path: Path, after_path: Path) -> None:
             cells.append(f"{label} {k} ({k / n:.2e} [{low:.2e}, {high:.2e}])")
         p = mcnemar_exact(fixed, new)
         print(f"  {name}: {', '.join(cells)}; fixed {fixed}, new {new}, McNemar p = {p:.2g}")
+    for column in ["paper_error_normalized", "rotation_error_deg", "translation_error_m"]:
+        quantiles = [
+            f"{label} " + " / ".join(f"{errors[column].quantile(q):.3g}" for q in (0.5, 0.99, 1.0))
+            for label, errors in [("before", before), ("after", after)]
+        ]
+        print(f"  {column} median / 99 % / max: {'; '.join(quantiles)}")
 
 
 def main() -> None:
