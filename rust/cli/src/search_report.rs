@@ -386,6 +386,10 @@ fn page(
         },
         match &s.sut {
             Some(spec) => format!("system under test <code>{}</code>", escape(spec)),
+            None if s.refine_depth => format!(
+                "fit <b>{}</b> laid on the depth image (<code>--refine-depth</code>)",
+                escape(&s.fit)
+            ),
             None => format!("fit <b>{}</b>", escape(&s.fit)),
         },
         escape(&s.predicate.to_string())
