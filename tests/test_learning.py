@@ -322,6 +322,30 @@ def test_eval_writes_metrics_a_summary_and_the_error_histogram(
     assert "corner recall" in r.stdout and "robust" in r.stdout
 
 
+def test_eval_refine_depth_lays_the_known_size_fits_on_the_depth_image(
+    tiny_dataset, boxpose_bin, tmp_path
+):
+    """`eval --refine-depth` (as `search --refine-depth`): the shipped network's known-size fits
+    move onto the rendered depth of the box's faces and get closer to the truth; the size fits,
+    which it leaves alone, stay as they were."""
+    rows = {}
+    for name, flags in [("plain", []), ("refined", ["--refine-depth"])]:
+        out = tmp_path / name
+        args = ["--out", out, "--min-visible-fraction", "0.05", *flags]
+        run_boxpose(boxpose_bin, "eval", tiny_dataset, *args)
+        rows[name] = pd.read_parquet(out / "eval.parquet")
+    keys = ["scene_id", "frame_id", "object_id", "method"]
+    paired = rows["plain"].merge(rows["refined"], on=keys, suffixes=("", "_refined"))
+    assert len(paired) == len(rows["plain"]) > 0
+    moved = paired.translation_error_m != paired.translation_error_m_refined
+    size_fits = paired.method.isin(["size_and_pose", "size_and_pose_ls"])
+    assert not moved[size_fits].any()
+    robust = paired[paired.method == "robust"]
+    assert moved[paired.method == "robust"].mean() > 0.5
+    assert robust.translation_error_m_refined.median() < robust.translation_error_m.median()
+    assert robust.rotation_error_deg_refined.median() < robust.rotation_error_deg.median()
+
+
 def test_eval_held_out_keeps_only_the_held_out_scenes(trained, tiny_dataset, boxpose_bin, tmp_path):
     everything = tmp_path / "all"
     held_out = tmp_path / "held_out"

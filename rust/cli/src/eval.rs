@@ -52,6 +52,10 @@ pub struct Args {
     /// position (0: the voxel centre), instead of the model's `peak_refine_radius`.
     #[arg(long, value_name = "VOXELS")]
     peak_refine_radius: Option<usize>,
+    /// Lay each known-size fit on the depth image (the points of the box's visible faces), as
+    /// `boxpose search --refine-depth` does.
+    #[arg(long)]
+    refine_depth: bool,
     /// Crops per forward pass.
     #[arg(long, default_value_t = 16)]
     batch_size: usize,
@@ -62,7 +66,7 @@ pub struct Args {
     /// `python:MODULE:CALLABLE`. It gets each box's whole frame (with --crops gt its visible box
     /// and mask too) and answers a pose; its rows (method `external`) pair with an own `eval`
     /// run's in `eval compare --method robust,external`. A crash or timeout is counted apart.
-    #[arg(long, value_name = "SPEC", conflicts_with_all = ["model", "segmenter", "peak_refine_radius", "batch_size", "backend"])]
+    #[arg(long, value_name = "SPEC", conflicts_with_all = ["model", "segmenter", "peak_refine_radius", "refine_depth", "batch_size", "backend"])]
     sut: Option<String>,
     /// Seconds the --sut process may take to answer one box (or to start).
     #[arg(long, default_value_t = 60.0, value_name = "SECONDS", requires = "sut")]
@@ -292,7 +296,14 @@ fn evaluate(
             .filter(|i| data::is_target(i, args.min_visible_fraction))
             .collect();
         let crops = segmenter.map_or(CropSource::GroundTruth, CropSource::Segmenter);
-        let evaluated = evaluation::evaluate_frame(model, frame, &chosen, crops, args.batch_size)?;
+        let evaluated = evaluation::evaluate_frame(
+            model,
+            frame,
+            &chosen,
+            crops,
+            args.batch_size,
+            args.refine_depth,
+        )?;
         if let Some(detections) = &evaluated.detections {
             out.detections.add(frame, detections);
         }

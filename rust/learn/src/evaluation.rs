@@ -379,13 +379,16 @@ pub struct FrameEvaluation {
 /// Evaluates the keypoint network on `instances` of `frame`, on crops from `crops` (a box the
 /// segmenter missed scores as missed), `batch_size` crops per forward pass: every fit of
 /// [`Method::ALL`], perceived by [`inference::perceive`] (mirror ties settled with the frame's
-/// depth image).
+/// depth image); with `refine_depth`, each known-size fit then laid on the depth image
+/// ([`boxpose_geometry::pipeline::FitRun::refine_with_depth`], as `boxpose search
+/// --refine-depth`).
 pub fn evaluate_frame(
     model: &KeypointModel,
     frame: &Frame,
     instances: &[&Instance],
     crops: CropSource,
     batch_size: usize,
+    refine_depth: bool,
 ) -> Result<FrameEvaluation, LearnError> {
     let FrameCrops { crops, detections } = instance_crops(&model.config, frame, instances, crops)?;
     let queries = instances
@@ -401,8 +404,16 @@ pub fn evaluate_frame(
             )
         })
         .collect::<Result<Vec<_>, _>>()?;
-    let mut perceptions =
-        inference::perceive(model, frame, &queries, &Method::ALL, batch_size)?.into_iter();
+    let mut perceptions = inference::perceive(model, frame, &queries, &Method::ALL, batch_size)?;
+    if refine_depth {
+        let depth = data::depth_view(frame);
+        for perception in &mut perceptions {
+            for fit in &mut perception.fits {
+                fit.refine_with_depth(&perception.points, &depth);
+            }
+        }
+    }
+    let mut perceptions = perceptions.into_iter();
     let evals = instances
         .iter()
         .zip(&crops)
