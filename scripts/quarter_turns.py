@@ -22,7 +22,23 @@ NEAR_SQUARE_M = 0.01
 
 
 def binomial_cdf(k: int, n: int, p: float) -> float:
-    return sum(math.comb(n, i) * p**i * (1 - p) ** (n - i) for i in range(k + 1))
+    """P(X ≤ k) for X ~ Binomial(n, p), its terms in log space (comb(n, i) overflows a float
+    for the counts of a 20,000-sample run)."""
+    if p <= 0.0:
+        return 1.0
+    if p >= 1.0:
+        return 1.0 if k >= n else 0.0
+    log_p, log_q = math.log(p), math.log1p(-p)
+    log_n = math.lgamma(n + 1)
+    return min(
+        1.0,
+        sum(
+            math.exp(
+                log_n - math.lgamma(i + 1) - math.lgamma(n - i + 1) + i * log_p + (n - i) * log_q
+            )
+            for i in range(min(k, n) + 1)
+        ),
+    )
 
 
 def _bisect(below, steps: int = 60) -> float:
