@@ -1114,6 +1114,57 @@ def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings
     assert other.returncode == 1 and "--steps is 1 there, 2 here" in other.stderr
 
 
+def test_improve_fine_tunes_the_segmenter_beside_the_keypoint_network(
+    tiny_network, failing_run, spaces, boxpose_bin, tmp_path
+):
+    """With --segmenter-config a round that learns fine-tunes the segmenter too, from the one the
+    round searched with, on the same failing scenes and variants, and the next evaluation crops
+    with the new segmenter. (A one-step tiny segmenter finds no box, so every sample fails.)"""
+    tiny_segmenter = tmp_path / "segmenter"
+    run_boxpose(
+        boxpose_bin, "train-segmenter", "--config", REPO / "configs" / "segmenter-tiny.toml",
+        "--dataset", failing_run / "counterexamples", "--steps", 1, "--validate-every", 1,
+        "--out", tiny_segmenter,
+    )  # fmt: skip
+    out = tmp_path / "loop"
+    command = [
+        str(boxpose_bin), "improve", str(spaces["single"]), "--out", str(out),
+        "--model", str(tiny_network), "--config", str(REPO / "configs" / "tiny.toml"),
+        "--segmenter", str(tiny_segmenter / "model"), "--crops", "predicted",
+        "--segmenter-config", str(REPO / "configs" / "segmenter-tiny.toml"),
+        "--segmenter-steps", "1", "--rounds", "1", "--search-samples", "2", "--eval-samples", "2",
+        "--batch-size", "2", "--per-failure", "1", "--steps", "1", "--batch-size-train", "1",
+        "--threads", "1",
+    ]  # fmt: skip
+    r = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    round_dir = out / "round-00"
+    tuned = round_dir / "train-segmenter"
+    assert (tuned / "model" / "segmenter.toml").is_file()
+    assert f"--init {tiny_segmenter / 'model'}" in r.stdout
+    # the segmenter learnt from the round's failing scenes and their variants
+    data = tomllib.loads((tuned / "config.toml").read_text())["data"]["datasets"]
+    assert str(round_dir / "search" / "counterexamples") in data
+    assert str(round_dir / "variants") in data
+    # the first network's evaluation cropped with the old segmenter, the second's with the new
+    segmenters = [
+        json.loads((out / "eval" / f"model-{k}" / "run.json").read_text())["settings"]["segmenter"]
+        for k in (0, 1)
+    ]
+    assert segmenters == [str(tiny_segmenter / "model"), str(tuned / "model")]
+    settings = json.loads((out / "improve.json").read_text())
+    assert settings["segmenter_steps"] == 1
+    assert "both fine-tuned" in (out / "report.html").read_text()
+
+    # the segmenter only crops with --crops predicted: tuning it on ground-truth crops is refused
+    gt = [*command]
+    gt[gt.index("predicted")] = "gt"
+    gt[gt.index(str(out))] = str(tmp_path / "gt")
+    r = subprocess.run(gt, cwd=REPO, capture_output=True, text=True)
+    assert r.returncode == 1 and "needs --crops predicted" in r.stderr
+    assert not (tmp_path / "gt").exists()
+
+
 def test_fine_tuning_from_another_network_is_one_clear_error(failing_run, boxpose_bin, tmp_path):
     r = run_boxpose(
         boxpose_bin,

@@ -1,7 +1,8 @@
 //! `boxpose improve`: the closed loop. Each round searches the space with the current keypoint
 //! network, renders variants around every failure, fine-tunes the network on them (with the
-//! counterexamples themselves, every earlier round's, and the original data), and judges the new
-//! network against the old on fresh inputs that no round picked variants from: one Monte Carlo
+//! counterexamples themselves, every earlier round's, and the original data) — and with
+//! `--segmenter-config` the segmenter on the same scenes — and judges the new networks against
+//! the old on fresh inputs that no round picked variants from: one Monte Carlo
 //! evaluation seed for every network, so rounds compare pair by pair (`search compare`).
 //!
 //! Every step is one `boxpose` command run as a child process in its own folder of the run, and
@@ -23,6 +24,13 @@ use boxpose_data::output_folder::{IMPROVE_SETTINGS_FILE as SETTINGS_FILE, refuse
 /// Search seeds of the rounds are `seed + 1 + round`; the evaluation's is far from them.
 const EVALUATION_SEED_OFFSET: u64 = 1_000_000;
 
+/// The networks of one step of the loop: the keypoint network, and the segmenter that crops
+/// for it (with --crops predicted).
+struct Networks {
+    model: PathBuf,
+    segmenter: Option<PathBuf>,
+}
+
 #[derive(clap::Args)]
 #[command(
     about = "The closed loop: search → variants → fine-tune → paired evaluation, round after round",
@@ -31,12 +39,13 @@ const EVALUATION_SEED_OFFSET: u64 = 1_000_000;
         Each round: (1) `search SPACE` with the current network (--search-samples, a seed of its own per \
         round); (2) `search variants` around every failure (--per-failure scenes, --sigma); (3) `train \
         --init` from the current network on the counterexamples and variants of this and every earlier \
-        round plus --dataset (the original data; the mix is instance by instance, or --learnt-repeat copies of the learnt sets); (4) a Monte Carlo \
-        evaluation of the new network on --eval-samples fresh samples whose seed no round searched with, \
+        round plus --dataset (the original data; the mix is instance by instance, or --learnt-repeat copies of the learnt sets), \
+        and with --segmenter-config `train-segmenter --init` from the current segmenter on the same data; (4) a Monte Carlo \
+        evaluation of the new networks on --eval-samples fresh samples whose seed no round searched with, \
         the same for every network, paired with the previous network's (`search compare`: p̂ before and \
         after with their intervals, fixed and new failures, McNemar's exact p). A round without failures \
         keeps its network.\n\n\
-        RUN/round-NN/{search,variants,train}, RUN/eval/model-K (network K: 0 is --model), \
+        RUN/round-NN/{search,variants,train,train-segmenter}, RUN/eval/model-K (network K: 0 is --model), \
         RUN/round-NN/compare.json, RUN/rounds.csv and RUN/report.html (the rounds, linking each network's evaluation report). Re-run the same command to resume; other \
         settings are refused.",
     after_help = "Example:\n  \
@@ -52,9 +61,20 @@ pub struct Args {
     /// The keypoint network the loop starts from.
     #[arg(long, default_value = "models/keypoint-slim")]
     model: PathBuf,
-    /// Segmenter folder (with --crops predicted); it is not fine-tuned.
+    /// Segmenter folder (with --crops predicted); fine-tuned too with --segmenter-config.
     #[arg(long)]
     segmenter: Option<PathBuf>,
+    /// Fine-tune the segmenter too, with this training config (its [segmenter] must be
+    /// --segmenter's, e.g. configs/segmenter-slim.toml): every round that learns trains it from
+    /// the current segmenter on the same data as the keypoint network (the failing scenes, their
+    /// variants and --dataset), so that boxes it missed, merged or split are learnt from; the
+    /// round's searches and evaluations then use both new networks. Needs --segmenter and
+    /// --crops predicted.
+    #[arg(long, value_name = "CONFIG", requires = "segmenter")]
+    segmenter_config: Option<PathBuf>,
+    /// The segmenter's fine-tuning steps per round (with --segmenter-config).
+    #[arg(long, default_value_t = 1000, requires = "segmenter_config")]
+    segmenter_steps: usize,
     /// Where the keypoint network's crop comes from: gt or predicted (the segmenter's).
     #[arg(long, default_value = "gt", value_parser = ["gt", "predicted"])]
     crops: String,
@@ -155,6 +175,10 @@ impl Args {
             settings["held_out_datasets"] = serde_json::json!(self.held_out_datasets);
             settings["held_out"] = self.held_out.into();
         }
+        if let Some(config) = &self.segmenter_config {
+            settings["segmenter_config"] = serde_json::json!(config);
+            settings["segmenter_steps"] = self.segmenter_steps.into();
+        }
         settings
     }
 }
@@ -170,6 +194,20 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         "--model {}: not a keypoint network folder (no network.toml)",
         args.model.display()
     );
+    if args.segmenter_config.is_some() {
+        anyhow::ensure!(
+            args.crops == "predicted",
+            "--segmenter-config fine-tunes the segmenter that crops for the keypoint network: \
+             it needs --crops predicted"
+        );
+    }
+    if let Some(segmenter) = &args.segmenter {
+        anyhow::ensure!(
+            segmenter.join("segmenter.toml").is_file(),
+            "--segmenter {}: not a segmenter folder (no segmenter.toml)",
+            segmenter.display()
+        );
+    }
     let names: std::collections::BTreeSet<String> = args
         .held_out_datasets
         .iter()
@@ -186,31 +224,30 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     let _lock = lock(&args.out)?;
     claim(&args.out, &args.settings())?;
 
-    let mut model = args.model.clone();
+    let mut networks = Networks {
+        model: args.model.clone(),
+        segmenter: args.segmenter.clone(),
+    };
     let mut learnt_from: Vec<PathBuf> = Vec::new();
     let mut rows = Vec::new();
     let mut held_out = Vec::new();
-    evaluate(args, 0, &model)?;
+    evaluate(args, 0, &networks)?;
     for round in 0..args.rounds {
         let dir = args.out.join(format!("round-{round:02}"));
         let search = dir.join("search");
-        let failures = search_round(args, round, &model, &search)?;
+        let failures = search_round(args, round, &networks, &search)?;
         let learnt = if failures > 0 {
             let variants = dir.join("variants");
             boxpose(&variants_command(args, round, &search, &variants))?;
             learnt_from.push(search.join("counterexamples"));
             learnt_from.push(variants);
-            let train = dir.join("train");
-            if !train.join("model").join("network.toml").is_file() {
-                boxpose(&train_command(args, &model, &learnt_from, &train))?;
-            }
-            model = train.join("model");
+            networks = fine_tune(args, &networks, &learnt_from, &dir)?;
             true
         } else {
-            println!("round {round}: no failure in the search, the network stays as it is");
+            println!("round {round}: no failure in the search, the networks stay as they are");
             false
         };
-        evaluate(args, round + 1, &model)?;
+        evaluate(args, round + 1, &networks)?;
         let comparison = compare(
             &Run::open(&evaluation_dir(args, round))?,
             &Run::open(&evaluation_dir(args, round + 1))?,
@@ -226,9 +263,16 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     write_rounds(&args.out.join("rounds.csv"), &rows)?;
     write_rounds_page(args, &rows, &held_out)?;
     println!(
-        "{}: rounds.csv, report.html; the last network is {}",
+        "{}: rounds.csv, report.html; the last network is {}{}",
         args.out.display(),
-        model.display()
+        networks.model.display(),
+        networks
+            .segmenter
+            .filter(|_| args.segmenter_config.is_some())
+            .map_or(String::new(), |s| format!(
+                ", the last segmenter {}",
+                s.display()
+            ))
     );
     Ok(())
 }
@@ -286,15 +330,57 @@ fn evaluation_dir(args: &Args, network: usize) -> PathBuf {
     args.out.join("eval").join(format!("model-{network}"))
 }
 
-/// The arguments of a Monte Carlo `boxpose search` of the loop's space with `model`.
-fn search_command(args: &Args, model: &Path, samples: usize, seed: u64, out: &Path) -> Vec<String> {
+/// A round's fine-tuning from `networks` on `learnt_from` and --dataset, in `dir`: the keypoint
+/// network, and with --segmenter-config the segmenter (each step kept when done); the new networks.
+fn fine_tune(
+    args: &Args,
+    networks: &Networks,
+    learnt_from: &[PathBuf],
+    dir: &Path,
+) -> anyhow::Result<Networks> {
+    let train = dir.join("train");
+    if !train.join("model").join("network.toml").is_file() {
+        boxpose(&train_command(args, &networks.model, learnt_from, &train))?;
+    }
+    let mut segmenter = networks.segmenter.clone();
+    if let (Some(config), Some(current)) = (&args.segmenter_config, &networks.segmenter) {
+        let segmenter_train = dir.join("train-segmenter");
+        if !segmenter_train
+            .join("model")
+            .join("segmenter.toml")
+            .is_file()
+        {
+            boxpose(&segmenter_train_command(
+                args,
+                config,
+                current,
+                learnt_from,
+                &segmenter_train,
+            ))?;
+        }
+        segmenter = Some(segmenter_train.join("model"));
+    }
+    Ok(Networks {
+        model: train.join("model"),
+        segmenter,
+    })
+}
+
+/// The arguments of a Monte Carlo `boxpose search` of the loop's space with `networks`.
+fn search_command(
+    args: &Args,
+    networks: &Networks,
+    samples: usize,
+    seed: u64,
+    out: &Path,
+) -> Vec<String> {
     let mut command: Vec<String> = vec![
         "search".into(),
         args.space.clone(),
         "--out".into(),
         path_arg(out),
         "--model".into(),
-        path_arg(model),
+        path_arg(&networks.model),
         "--samples".into(),
         samples.to_string(),
         "--batch-size".into(),
@@ -312,17 +398,28 @@ fn search_command(args: &Args, model: &Path, samples: usize, seed: u64, out: &Pa
         "--backend".into(),
         args.backend.name().into(),
     ];
-    if let Some(segmenter) = &args.segmenter {
+    if let Some(segmenter) = &networks.segmenter {
         command.extend(["--segmenter".into(), path_arg(segmenter)]);
     }
     command
 }
 
 /// Round `round`'s search (resumed, or read when done); returns its number of valid failures.
-fn search_round(args: &Args, round: usize, model: &Path, out: &Path) -> anyhow::Result<usize> {
+fn search_round(
+    args: &Args,
+    round: usize,
+    networks: &Networks,
+    out: &Path,
+) -> anyhow::Result<usize> {
     if !out.join("summary.json").is_file() {
         let seed = args.seed + 1 + round as u64;
-        boxpose(&search_command(args, model, args.search_samples, seed, out))?;
+        boxpose(&search_command(
+            args,
+            networks,
+            args.search_samples,
+            seed,
+            out,
+        ))?;
     }
     let (rows, _) = Run::open(out)?.rows()?;
     Ok(rows.iter().filter(|r| r.valid && r.failed).count())
@@ -330,11 +427,17 @@ fn search_round(args: &Args, round: usize, model: &Path, out: &Path) -> anyhow::
 
 /// Network `network`'s evaluation on the loop's common evaluation inputs and on every held-out
 /// dataset (resumed, or kept).
-fn evaluate(args: &Args, network: usize, model: &Path) -> anyhow::Result<()> {
+fn evaluate(args: &Args, network: usize, networks: &Networks) -> anyhow::Result<()> {
     let out = evaluation_dir(args, network);
     if !out.join("summary.json").is_file() {
         let seed = args.seed + EVALUATION_SEED_OFFSET;
-        boxpose(&search_command(args, model, args.eval_samples, seed, &out))?;
+        boxpose(&search_command(
+            args,
+            networks,
+            args.eval_samples,
+            seed,
+            &out,
+        ))?;
     }
     for dataset in &args.held_out_datasets {
         let out = held_out_dir(args, network, dataset);
@@ -349,13 +452,13 @@ fn evaluate(args: &Args, network: usize, model: &Path) -> anyhow::Result<()> {
             "--crops".into(),
             args.crops.clone(),
             "--model".into(),
-            path_arg(model),
+            path_arg(&networks.model),
             "--out".into(),
             path_arg(&out),
             "--backend".into(),
             args.backend.name().into(),
         ];
-        if let Some(segmenter) = &args.segmenter {
+        if let Some(segmenter) = &networks.segmenter {
             command.extend(["--segmenter".into(), path_arg(segmenter)]);
         }
         boxpose(&command)?;
@@ -437,10 +540,21 @@ fn write_rounds_page(
         "<!doctype html><html><head><meta charset=\"utf-8\"><title>boxpose improve: {space}</title>\
          <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}table{{border-collapse:collapse}}\
          td,th{{border:1px solid #ccc;padding:3px 8px;text-align:right}}</style></head><body>\
-         <h1>The loop on <code>{space}</code></h1><p>From <code>{model}</code>, fit {fit}, {crops} crops; a sample \
+         <h1>The loop on <code>{space}</code></h1><p>From <code>{model}</code>{segmenter}, fit {fit}, {crops} crops; a sample \
          fails when {fail}. Each round is judged on the same {n} evaluation samples (seed {seed}), never searched.</p>",
         space = escape(&args.space),
         model = escape(&args.model.display().to_string()),
+        segmenter = match (&args.segmenter, &args.segmenter_config) {
+            (Some(s), Some(_)) => format!(
+                " and the segmenter <code>{}</code>, both fine-tuned in every round that learns",
+                escape(&s.display().to_string())
+            ),
+            (Some(s), None) => format!(
+                " with the segmenter <code>{}</code> (not fine-tuned)",
+                escape(&s.display().to_string())
+            ),
+            _ => String::new(),
+        },
         fit = escape(&args.fit),
         crops = escape(&args.crops),
         fail = escape(&args.fail_when),
@@ -554,8 +668,43 @@ fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path)
     if let Some(batch) = args.batch_size_train {
         command.extend(["--batch-size".into(), batch.to_string()]);
     }
+    command.extend(training_data(args, learnt_from));
+    command
+}
+
+/// The segmenter's fine-tuning from `segmenter` on the keypoint network's data; its batch size
+/// is its config's (whole frames, not crops).
+fn segmenter_train_command(
+    args: &Args,
+    config: &Path,
+    segmenter: &Path,
+    learnt_from: &[PathBuf],
+    out: &Path,
+) -> Vec<String> {
+    let mut command: Vec<String> = vec![
+        "train-segmenter".into(),
+        "--config".into(),
+        path_arg(config),
+        "--init".into(),
+        path_arg(segmenter),
+        "--steps".into(),
+        args.segmenter_steps.to_string(),
+        "--learning-rate".into(),
+        args.learning_rate.to_string(),
+        "--out".into(),
+        path_arg(out),
+        "--backend".into(),
+        args.backend.name().into(),
+    ];
+    command.extend(training_data(args, learnt_from));
+    command
+}
+
+/// `--dataset` for --dataset and every learnt set, and the mix (`--repeat`) of a fine-tuning.
+fn training_data(args: &Args, learnt_from: &[PathBuf]) -> Vec<String> {
+    let mut arguments = Vec::new();
     for dataset in args.datasets.iter().chain(learnt_from) {
-        command.extend(["--dataset".into(), path_arg(dataset)]);
+        arguments.extend(["--dataset".into(), path_arg(dataset)]);
     }
     if args.learnt_repeat != 1 {
         let counts: Vec<String> = std::iter::repeat_n("1".to_string(), args.datasets.len())
@@ -564,9 +713,9 @@ fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path)
                 learnt_from.len(),
             ))
             .collect();
-        command.extend(["--repeat".into(), counts.join(",")]);
+        arguments.extend(["--repeat".into(), counts.join(",")]);
     }
-    command
+    arguments
 }
 
 fn path_arg(path: &Path) -> String {
