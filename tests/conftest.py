@@ -91,11 +91,13 @@ def render_synthetic_dataset(
     *,
     shared_size_in_scene_0: bool = False,
     tape_along: str | None = None,
+    sensor_depth: bool = False,
 ) -> Path:
     """Two synthetic scenes (2 boxes spread out, 3 boxes stacked), two views each, rendered by the
     Python worker into the dataset folder `root`. With `shared_size_in_scene_0`, scene 0's two
     boxes get one square-based size (one BOP obj_id with 7 discrete symmetries); `tape_along`
-    sets the recipe's materials.tape_along (absent by default, as in the shipped recipes)."""
+    sets the recipe's materials.tape_along (absent by default, as in the shipped recipes);
+    `sensor_depth` renders the simulated sensor's depth channel too."""
     import boxpose_io
     from blender_scripts.synthetic import synthetic_scene
 
@@ -104,6 +106,9 @@ def render_synthetic_dataset(
         recipe_toml = recipe_toml.replace(
             "[materials]\n", f'[materials]\ntape_along = "{tape_along}"\n'
         )
+    if sensor_depth:
+        recipe_toml = recipe_toml.replace("sensor_depth = false", "sensor_depth = true")
+        assert "sensor_depth = true" in recipe_toml
     rows = [
         synthetic_scene(k, recipe_toml, 2 + k, seed=40 + k, stack=k == 1, spread_m=0.1)
         for k in range(2)

@@ -266,3 +266,45 @@ def test_eval_refuses_a_system_that_cannot_start_before_any_output(frames, boxpo
     r = run_boxpose(boxpose_bin, "eval", frames, "--sut", "exec:true", "--out", out, check=False)
     assert r.returncode != 0 and "did not introduce itself" in r.stderr, r.stderr
     assert not out.exists()
+
+
+@pytest.fixture(scope="module")
+def sensor_frames(tmp_path_factory) -> Path:
+    """The same two scenes with the simulated sensor's depth channel rendered too."""
+    root = tmp_path_factory.mktemp("eval_sensor") / "frames"
+    return render_synthetic_dataset(root, 128, 96, sensor_depth=True)
+
+
+def test_eval_perceives_the_sensor_depth_and_sends_it_to_another_system(
+    sensor_frames, frames, boxpose_bin, tmp_path
+):
+    """`eval --sensor-depth` perceives the frames' simulated sensor depth instead of the exact
+    one: other poses than the exact depth's, the same depth sent to another system (the own
+    pipeline through the protocol answers as the own eval), and a dataset without the channel is
+    one clear error that leaves nothing behind."""
+    exact, sensor, protocol = tmp_path / "exact", tmp_path / "sensor", tmp_path / "protocol"
+    run_boxpose(boxpose_bin, "eval", sensor_frames, "--batch-size", 1, "--out", exact)
+    run_boxpose(
+        boxpose_bin, "eval", sensor_frames, "--batch-size", 1, "--sensor-depth", "--out", sensor
+    )
+    serve = f"exec:{boxpose_bin} search serve --fit robust"
+    run_boxpose(
+        boxpose_bin, "eval", sensor_frames, "--sut", serve, "--sensor-depth", "--out", protocol
+    )
+    keys = ["scene_id", "frame_id", "object_id"]
+    a = pd.read_parquet(exact / "eval.parquet").query("method == 'robust'").set_index(keys)
+    b = pd.read_parquet(sensor / "eval.parquet").query("method == 'robust'").set_index(keys)
+    c = pd.read_parquet(protocol / "eval.parquet").set_index(keys)
+    assert a.index.tolist() == b.index.tolist() == c.index.tolist() and len(a) >= 4
+    fitted = a.translation_error_m.notna() & b.translation_error_m.notna()
+    assert fitted.any()
+    assert (a.translation_error_m[fitted] != b.translation_error_m[fitted]).any()
+    assert b.fit_error.isna().tolist() == c.fit_error.isna().tolist()
+    for column in ("paper_error", "cube_mssd_m", "translation_error_m"):
+        np.testing.assert_allclose(b[column], c[column], rtol=1e-9, atol=1e-12, err_msg=column)
+
+    missing = tmp_path / "no-sensor"
+    r = run_boxpose(boxpose_bin, "eval", frames, "--sensor-depth", "--out", missing, check=False)
+    assert r.returncode == 1 and "has no sensor depth" in r.stderr, r.stderr
+    assert str(frames) in r.stderr and "sensor_depth = true" in r.stderr
+    assert not missing.exists()

@@ -227,6 +227,31 @@ def test_refine_depth_is_a_setting_of_the_run(spaces, boxpose_bin, tmp_path):
     assert (refined.translation_error_m[fitted] != unrefined.translation_error_m[fitted]).any()
 
 
+def test_sensor_depth_is_a_setting_of_the_run_and_what_the_perception_reads(
+    spaces, boxpose_bin, tmp_path
+):
+    """`--sensor-depth` perceives the simulated structured-light depth: the run records it, the
+    samples' renders carry the sensor channel, the perception of the same scenes differs from the
+    exact depth's, and `search agree` counts it another event."""
+    every_sample_fails = ["--fail-when", "mssd:0.000001", *MC]  # so that every frame is kept
+    sensor, exact = tmp_path / "sensor", tmp_path / "exact"
+    search(boxpose_bin, spaces["single"], "--out", sensor, "--sensor-depth", *every_sample_fails)
+    search(boxpose_bin, spaces["single"], "--out", exact, *every_sample_fails)
+    assert json.loads((sensor / "run.json").read_text())["settings"]["sensor_depth"] is True
+    assert json.loads((exact / "run.json").read_text())["settings"]["sensor_depth"] is False
+    frames = pd.read_parquet(sensor / "counterexamples" / "frames")
+    assert len(frames) > 0 and frames.sensor_depth_m_f32le.notna().all()
+    assert pd.read_parquet(exact / "counterexamples" / "frames").sensor_depth_m_f32le.isna().all()
+    a = pd.read_parquet(sensor / "samples.parquet").set_index("sample_id")
+    b = pd.read_parquet(exact / "samples.parquet").set_index("sample_id")
+    assert (a.seed == b.seed).all()  # the same scenes
+    fitted = a.translation_error_m.notna() & b.translation_error_m.notna()
+    assert fitted.any()
+    assert (a.translation_error_m[fitted] != b.translation_error_m[fitted]).any()
+    r = search(boxpose_bin, "agree", exact, sensor, check=False)
+    assert r.returncode == 1 and "another event" in r.stderr
+
+
 def test_a_run_kept_as_a_reference_pairs_with_itself(mc_run, tmp_path):
     """scripts/search_reference.py keeps a run's summaries as docs/reference/ holds them and pairs
     two kept runs sample by sample: a run against itself has no discordant pair."""

@@ -56,6 +56,11 @@ pub struct Args {
     /// `boxpose search --refine-depth` does.
     #[arg(long)]
     refine_depth: bool,
+    /// Perceive the frames' simulated sensor depth (`sensor_depth_m_f32le`, rendered with the
+    /// recipe's `[render] sensor_depth = true`) instead of the exact render depth, as `boxpose
+    /// search --sensor-depth` does; poses are scored against the exact truth.
+    #[arg(long)]
+    sensor_depth: bool,
     /// Crops per forward pass.
     #[arg(long, default_value_t = 16)]
     batch_size: usize,
@@ -251,7 +256,26 @@ fn run_external(args: &Args, spec: &str, dataset: &Path) -> anyhow::Result<()> {
         crops: args.crops,
         min_visible_fraction: args.min_visible_fraction,
         held_out: args.held_out,
+        sensor_depth: args.sensor_depth,
     })
+}
+
+/// With `sensor`, puts `frame`'s simulated sensor depth in place of its exact depth
+/// ([`boxpose_data::Frame::use_sensor_depth`]), or says that `dataset` has none.
+pub fn perceived_depth(
+    frame: &mut boxpose_data::Frame,
+    sensor: bool,
+    dataset: &Path,
+) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !sensor || frame.use_sensor_depth(),
+        "{}: scene {} frame {} has no sensor depth (`sensor_depth_m_f32le`); --sensor-depth needs \
+         a dataset rendered with `[render] sensor_depth = true` in its recipe",
+        dataset.display(),
+        frame.scene_id,
+        frame.frame_id
+    );
+    Ok(())
 }
 
 /// What evaluating a dataset's boxes gives: a row per box and fit, each box's evaluation, and the
@@ -286,10 +310,12 @@ fn evaluate(
         detections: segmentation::DetectionScorer::default(),
     };
     for frame in frames {
-        let frame = &frame?;
+        let mut frame = frame?;
         if !evaluated_scene(frame.scene_id) {
             continue;
         }
+        perceived_depth(&mut frame, args.sensor_depth, dataset.root())?;
+        let frame = &frame;
         let chosen: Vec<_> = frame
             .instances
             .iter()

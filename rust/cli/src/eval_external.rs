@@ -27,6 +27,8 @@ pub struct Settings<'a> {
     pub crops: Crops,
     pub min_visible_fraction: f32,
     pub held_out: Option<u32>,
+    /// Send the frames' simulated sensor depth instead of the exact one.
+    pub sensor_depth: bool,
 }
 
 pub fn run(settings: &Settings) -> anyhow::Result<()> {
@@ -49,10 +51,12 @@ pub fn run(settings: &Settings) -> anyhow::Result<()> {
     )?);
     let mut rows = Vec::new();
     for frame in frames {
-        let frame = &frame?;
+        let mut frame = frame?;
         if !evaluated(frame.scene_id) {
             continue;
         }
+        crate::eval::perceived_depth(&mut frame, settings.sensor_depth, settings.dataset)?;
+        let frame = &frame;
         for instance in frame
             .instances
             .iter()

@@ -218,6 +218,13 @@ struct RunArgs {
     /// by more than 10° is discarded). A setting of the run, kept in run.json.
     #[arg(long, conflicts_with = "sut")]
     refine_depth: bool,
+    /// Perceive the simulated structured-light depth instead of the exact render depth: the
+    /// recipe's sensor model (projector shadows, no return at depth edges and grazing angles,
+    /// disparity noise growing with depth²), read by the network, the mirror check,
+    /// --refine-depth and a --sut alike. Poses are still scored against the exact truth. A
+    /// setting of the run, kept in run.json.
+    #[arg(long)]
+    sensor_depth: bool,
     /// The pose fit under test: paper (the paper's search over the 5 best peaks), fast, robust, size.
     #[arg(long, default_value = "paper", value_parser = clap::builder::PossibleValuesParser::new(sut::FIT_NAMES))]
     fit: String,
@@ -569,6 +576,7 @@ fn run_settings(args: &RunArgs) -> RunSettings {
         crops,
         whole_frames: args.whole_frames || args.sut.is_some(),
         refine_depth: args.refine_depth,
+        sensor_depth: args.sensor_depth,
         fit: match args.sut {
             Some(_) => EXTERNAL_FIT.into(),
             None => args.fit.clone(),

@@ -391,6 +391,10 @@ fn page(
                 escape(&s.fit)
             ),
             None => format!("fit <b>{}</b>", escape(&s.fit)),
+        } + if s.sensor_depth {
+            ", perceiving the simulated sensor's depth (<code>--sensor-depth</code>)"
+        } else {
+            ""
         },
         escape(&s.predicate.to_string())
     )?;

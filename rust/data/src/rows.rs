@@ -360,6 +360,21 @@ impl Frame {
         }
     }
 
+    /// Puts the simulated sensor's depth (`sensor_depth_m_f32le`: projector shadows, edge and
+    /// grazing dropouts, disparity noise; 0 where it measures nothing) in place of the exact
+    /// render depth, so that whatever perceives the frame reads what a camera would measure; the
+    /// ground truth (instances, masks) is untouched. False, and the frame unchanged, when it has
+    /// no sensor depth.
+    pub fn use_sensor_depth(&mut self) -> bool {
+        match self.sensor_depth.take() {
+            Some(sensor) => {
+                self.depth = sensor;
+                true
+            }
+            None => false,
+        }
+    }
+
     /// Row `row` of `batch`, whose first row is row `first_row` of the shard at `path`.
     pub(crate) fn from_row(
         path: &Path,

@@ -267,6 +267,7 @@ pub fn agreement(runs: &[Run]) -> Result<Agreement> {
             s.crops,
             s.whole_frames,
             s.refine_depth,
+            s.sensor_depth,
             s.fit.clone(),
             s.predicate,
             s.model.clone(),
@@ -280,8 +281,8 @@ pub fn agreement(runs: &[Run]) -> Result<Agreement> {
             return Err(SearchError::Run {
                 path: run.dir.clone(),
                 problem: format!(
-                    "it estimates another event than {}: the space, recipe, crops, networks, fit \
-                     and predicate must be equal (the sampler, seed and budget may differ)",
+                    "it estimates another event than {}: the space, recipe, crops, networks, fit, \
+                     depth and predicate must be equal (the sampler, seed and budget may differ)",
                     first.dir.display()
                 ),
             });

@@ -296,6 +296,9 @@ pub struct SystemUnderTest {
     pub whole_frames: bool,
     /// Lay the fit on the depth image ([`FitRun::refine_with_depth`]).
     pub refine_depth: bool,
+    /// Perceive the simulated sensor's depth instead of the exact render depth
+    /// ([`boxpose_data::Frame::use_sensor_depth`]).
+    pub sensor_depth: bool,
 }
 
 impl SystemUnderTest {
@@ -324,6 +327,7 @@ impl SystemUnderTest {
             min_visible_fraction: 0.25,
             whole_frames: false,
             refine_depth: false,
+            sensor_depth: false,
         })
     }
 
@@ -343,6 +347,7 @@ impl SystemUnderTest {
             min_visible_fraction: 0.25,
             whole_frames: true,
             refine_depth: false,
+            sensor_depth: false,
         })
     }
 }
@@ -464,11 +469,12 @@ impl SystemUnderTest {
         loop {
             let request = RenderRequest {
                 crop_object: margins.first().map(|&m| (TARGET_OBJECT_ID, m)),
+                sensor_depth: self.sensor_depth.then_some(true),
                 ..RenderRequest::default()
             };
             let rendered = self.renderer.render(&request)?;
             let source = std::path::PathBuf::from(format!("<render of sample scene {scene_id}>"));
-            let frame =
+            let mut frame =
                 boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
                     .pop()
                     .ok_or_else(|| {
@@ -476,6 +482,11 @@ impl SystemUnderTest {
                             "scene {scene_id}: the renderer returned no frame"
                         ))
                     })?;
+            if self.sensor_depth && !frame.use_sensor_depth() {
+                return Err(SearchError::Sample(format!(
+                    "scene {scene_id}: the renderer returned no sensor depth"
+                )));
+            }
             let covered = match (
                 request.crop_object,
                 frame

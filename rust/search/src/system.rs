@@ -50,7 +50,10 @@ pub fn load(
             Some(system) => system,
             None => ExternalSut::start(spec, DEFAULT_SUT_TIMEOUT)?,
         };
-        return SystemUnderTest::external(space, Renderer::new(threads)?, system, settings.crops);
+        let mut sut =
+            SystemUnderTest::external(space, Renderer::new(threads)?, system, settings.crops)?;
+        sut.sensor_depth = settings.sensor_depth;
+        return Ok(sut);
     }
     let method = sut::method_named(&settings.fit).map_err(SearchError::Sample)?;
     let device = backend.device()?;
@@ -64,5 +67,6 @@ pub fn load(
         SystemUnderTest::new(space, renderer, network, segmenter, settings.crops, method)?;
     sut.whole_frames = settings.whole_frames;
     sut.refine_depth = settings.refine_depth;
+    sut.sensor_depth = settings.sensor_depth;
     Ok(sut)
 }

@@ -122,6 +122,7 @@ fn settings(sampler: Sampler, samples: usize, batch_size: usize) -> RunSettings 
         crops: Crops::Gt,
         whole_frames: false,
         refine_depth: false,
+        sensor_depth: false,
         fit: "paper".into(),
         predicate: Predicate::default(),
         ce: CeConfig {

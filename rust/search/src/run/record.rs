@@ -54,6 +54,10 @@ pub struct RunSettings {
     /// (`--refine-depth`; [`boxpose_geometry::depth_refine`]).
     #[serde(default)]
     pub refine_depth: bool,
+    /// The perception reads the simulated sensor's depth (`--sensor-depth`;
+    /// [`boxpose_data::Frame::use_sensor_depth`]), not the exact render depth.
+    #[serde(default)]
+    pub sensor_depth: bool,
     /// The pose fit: paper, fast, robust or size.
     pub fit: String,
     pub predicate: Predicate,
@@ -298,6 +302,7 @@ mod tests {
                 crops: Crops::Gt,
                 whole_frames: false,
                 refine_depth: false,
+                sensor_depth: false,
                 fit: "paper".into(),
                 predicate: Predicate::default(),
                 ce: CeConfig::default(),
