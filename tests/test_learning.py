@@ -9,6 +9,7 @@ import re
 import shutil
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -17,7 +18,7 @@ import pytest
 from PIL import Image
 
 import boxpose_io
-from conftest import REPO, peak_rss_mb, run_boxpose
+from conftest import REPO, peak_rss_mb, render_synthetic_dataset, run_boxpose
 
 
 @pytest.fixture(scope="module")
@@ -330,7 +331,7 @@ def test_eval_refine_depth_lays_the_known_size_fits_on_the_depth_image(
     which it leaves alone, stay as they were."""
     rows = {}
     for name, flags in [("plain", []), ("refined", ["--refine-depth"])]:
-        out = tmp_path / name
+        out = tmp_path / f"run-{name}"
         args = ["--out", out, "--min-visible-fraction", "0.05", *flags]
         run_boxpose(boxpose_bin, "eval", tiny_dataset, *args)
         rows[name] = pd.read_parquet(out / "eval.parquet")
@@ -554,3 +555,35 @@ def test_training_and_evaluation_hold_a_bounded_part_of_a_large_dataset(
     history = pd.read_csv(tmp_path / "run" / "history.csv")
     assert history.corner_recall.notna().all()
     assert train < decoded_mb / 2 and evaluate < decoded_mb / 2
+
+
+def test_training_reads_the_sensor_depth_as_often_as_asked(tiny_dataset, boxpose_bin, tmp_path):
+    """`[augment] sensor_depth = 1` trains every crop on its frame's simulated sensor depth: on a
+    dataset rendered with the channel the same seed's losses differ from the exact depth's; on
+    one without it the exact depth is read and nothing else changes (no random draw is spent).
+    The segmenter, whose frames do not read it, refuses the key."""
+    sensed = render_synthetic_dataset(tmp_path / "sensed", 64, 64, sensor_depth=True)
+    config = (REPO / "configs" / "tiny.toml").read_text()
+    assert "depth_dropout = 0.02\n" in config
+    sensor_config = tmp_path / "sensor.toml"
+    sensor_config.write_text(
+        config.replace("depth_dropout = 0.02\n", "depth_dropout = 0.02\nsensor_depth = 1.0\n")
+    )
+
+    def losses(config: Path, dataset: Path, name: str) -> list[float]:
+        out = tmp_path / f"run-{name}"
+        run_boxpose(boxpose_bin, "train", "--config", config, "--dataset", dataset, "--out", out)
+        return pd.read_csv(out / "history.csv").train_loss.tolist()
+
+    exact_config = REPO / "configs" / "tiny.toml"
+    assert losses(sensor_config, sensed, "sensed") != losses(exact_config, sensed, "exact")
+    assert losses(sensor_config, tiny_dataset, "none") == losses(exact_config, tiny_dataset, "ref")
+
+    segmenter_config = tmp_path / "segmenter.toml"
+    text = (REPO / "configs" / "segmenter-tiny.toml").read_text()
+    segmenter_config.write_text(text.replace("[augment]\n", "[augment]\nsensor_depth = 0.5\n"))
+    r = run_boxpose(
+        boxpose_bin, "train-segmenter", "--config", segmenter_config, "--dataset", sensed,
+        "--out", tmp_path / "seg", check=False,
+    )  # fmt: skip
+    assert r.returncode == 1 and "sensor_depth = 0.5" in r.stderr, r.stderr

@@ -225,6 +225,9 @@ def test_refine_depth_is_a_setting_of_the_run(spaces, boxpose_bin, tmp_path):
     fitted = refined.translation_error_m.notna() & unrefined.translation_error_m.notna()
     assert fitted.any()
     assert (refined.translation_error_m[fitted] != unrefined.translation_error_m[fitted]).any()
+    # the same scenes perceived otherwise: the two runs pair sample by sample
+    search(boxpose_bin, "compare", plain, out, "--json", tmp_path / "compare.json")
+    assert json.loads((tmp_path / "compare.json").read_text())["pairs"] == len(refined)
 
 
 def test_sensor_depth_is_a_setting_of_the_run_and_what_the_perception_reads(
@@ -250,6 +253,9 @@ def test_sensor_depth_is_a_setting_of_the_run_and_what_the_perception_reads(
     assert (a.translation_error_m[fitted] != b.translation_error_m[fitted]).any()
     r = search(boxpose_bin, "agree", exact, sensor, check=False)
     assert r.returncode == 1 and "another event" in r.stderr
+    # but the same scenes: the two runs pair sample by sample
+    search(boxpose_bin, "compare", exact, sensor, "--json", tmp_path / "compare.json")
+    assert json.loads((tmp_path / "compare.json").read_text())["pairs"] == len(a)
 
 
 def test_a_run_kept_as_a_reference_pairs_with_itself(mc_run, tmp_path):

@@ -5,8 +5,9 @@
 //! holds hundreds of measured points on the box's visible faces. [`refine_with_depth`] moves the
 //! pose to lay the box's camera-facing faces on them: Gauss–Newton on the pose (a twist in the
 //! camera frame, point-to-plane residuals to the nearest face, Cauchy weights), from the fit's
-//! pose, using only the pixels inside the box's projection whose points lie within a gate of its
-//! surface, so the support and neighbouring boxes do not pull it. It refines, it does not
+//! pose, using only the pixels of the box's own mask (ground truth or the segmenter's) inside its
+//! projection whose points lie within a gate of its surface, so the support and neighbouring
+//! boxes do not pull it. It refines, it does not
 //! search: a result that moves the box by more than [`MAX_ROTATION_DEG`] or a fraction of its
 //! shortest side is discarded, and too few points leave the pose as it was.
 
@@ -45,14 +46,16 @@ pub struct DepthRefinement {
     pub rms_m: f64,
 }
 
-/// `pose` of the box `model` refined against `view` (see the module), or None when the depth
-/// image does not hold enough of the box or the refinement would move it too far.
+/// `pose` of the box `model` refined against `view` (see the module) on the pixels `belongs`
+/// marks as the box's (row-major pixel index: its mask), or None when the depth image does not
+/// hold enough of the box or the refinement would move it too far.
 pub fn refine_with_depth(
     model: &BoxModel,
     pose: &Isometry3<f64>,
     view: &DepthView,
+    belongs: impl Fn(usize) -> bool,
 ) -> Option<DepthRefinement> {
-    let observed = observed_points(model, pose, view)?;
+    let observed = observed_points(model, pose, view, belongs)?;
     let half = model.size() * 0.5;
     let mut refined = *pose;
     let mut last = (0, f64::INFINITY);
@@ -90,11 +93,13 @@ pub fn refine_with_depth(
 }
 
 /// The camera-frame points of the depth pixels inside the box's projection at `pose` (its
-/// corners' bounding rectangle), sampled on a grid of at most [`MAX_SAMPLES`] pixels.
+/// corners' bounding rectangle) that `belongs` marks as the box's, sampled on a grid of at most
+/// [`MAX_SAMPLES`] pixels of that rectangle.
 fn observed_points(
     model: &BoxModel,
     pose: &Isometry3<f64>,
     view: &DepthView,
+    belongs: impl Fn(usize) -> bool,
 ) -> Option<Vec<Point3<f64>>> {
     let [fx, fy, cx, cy] = view.intrinsics;
     let (mut u0, mut v0, mut u1, mut v1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
@@ -114,7 +119,8 @@ fn observed_points(
     let mut points = Vec::new();
     for v in (v0..=v1).step_by(stride) {
         for u in (u0..=u1).step_by(stride) {
-            let Some(&z) = view.depth_m.get(v * view.width + u) else {
+            let pixel = v * view.width + u;
+            let Some(&z) = view.depth_m.get(pixel).filter(|_| belongs(pixel)) else {
                 continue;
             };
             let z = z as f64;
@@ -222,36 +228,67 @@ mod tests {
     /// Planar depth of the box at `pose` as a pinhole camera sees it: each pixel's ray against the
     /// box (slab test), else against the background.
     fn render(model: &BoxModel, pose: &Isometry3<f64>, background: Background) -> Vec<f32> {
+        render_boxes(&[(model, *pose)], background).0
+    }
+
+    /// Planar depth of several boxes, and per pixel the index + 1 of the box seen there (0: the
+    /// background); a floor lies in the plane of the first box's bottom face.
+    fn render_boxes(
+        boxes: &[(&BoxModel, Isometry3<f64>)],
+        background: Background,
+    ) -> (Vec<f32>, Vec<u8>) {
         let [fx, fy, cx, cy] = INTRINSICS;
-        let half = model.size() * 0.5;
-        let inverse = pose.inverse();
-        let mut depth = vec![0.0f32; WIDTH * HEIGHT];
+        let (mut depth, mut labels) = (vec![0.0f32; WIDTH * HEIGHT], vec![0u8; WIDTH * HEIGHT]);
         for v in 0..HEIGHT {
             for u in 0..WIDTH {
                 // the ray's z-component is 1, so a distance along it is a planar depth
                 let ray = Vector3::new((u as f64 - cx) / fx, (v as f64 - cy) / fy, 1.0);
-                let (origin, direction) = (inverse * Point3::origin(), inverse.rotation * ray);
-                let (mut near, mut far) = (0.0f64, f64::INFINITY);
-                for k in 0..3 {
-                    let (a, b) = (
-                        (-half[k] - origin[k]) / direction[k],
-                        (half[k] - origin[k]) / direction[k],
-                    );
-                    near = near.max(a.min(b));
-                    far = far.min(a.max(b));
-                }
                 let behind = match background {
                     Background::Wall(wall_m) => wall_m as f64,
                     Background::Floor => {
-                        let floor = (-half[2] - origin[2]) / direction[2];
-                        if floor > 0.0 { floor } else { 0.0 }
+                        let (model, pose) = boxes[0];
+                        let inverse = pose.inverse();
+                        let (origin, direction) =
+                            (inverse * Point3::origin(), inverse.rotation * ray);
+                        let floor = (-model.size()[2] * 0.5 - origin[2]) / direction[2];
+                        if floor > 0.0 { floor } else { f64::INFINITY }
                     }
                 };
-                let hit = near <= far && (behind == 0.0 || near < behind);
-                depth[v * WIDTH + u] = if hit { near } else { behind } as f32;
+                let mut nearest = (behind, 0u8);
+                for (k, (model, pose)) in boxes.iter().enumerate() {
+                    if let Some(hit) = ray_hit(model, pose, &ray)
+                        && hit < nearest.0
+                    {
+                        nearest = (hit, k as u8 + 1);
+                    }
+                }
+                let pixel = v * WIDTH + u;
+                depth[pixel] = if nearest.0.is_finite() {
+                    nearest.0 as f32
+                } else {
+                    0.0
+                };
+                labels[pixel] = nearest.1;
             }
         }
-        depth
+        (depth, labels)
+    }
+
+    /// Where the camera ray `ray` (from the origin) enters the box at `pose`, if it does.
+    fn ray_hit(model: &BoxModel, pose: &Isometry3<f64>, ray: &Vector3<f64>) -> Option<f64> {
+        let half = model.size() * 0.5;
+        let inverse = pose.inverse();
+        let (origin, direction) = (inverse * Point3::origin(), inverse.rotation * ray);
+        let (mut near, mut far) = (0.0f64, f64::INFINITY);
+        for k in 0..3 {
+            let (a, b) = (
+                (-half[k] - origin[k]) / direction[k],
+                (half[k] - origin[k]) / direction[k],
+            );
+            near = near.max(a.min(b));
+            far = far.min(a.max(b));
+        }
+        (near <= far).then_some(near)
     }
 
     fn truth() -> Isometry3<f64> {
@@ -284,7 +321,7 @@ mod tests {
             UnitQuaternion::new(Vector3::new(0.05, -0.04, 0.06)) * truth().rotation,
         );
         assert!(rotation_error_deg(&off, &truth()) > 4.0);
-        let refined = refine_with_depth(&model, &off, &view(&depth)).expect("refined");
+        let refined = refine_with_depth(&model, &off, &view(&depth), |_| true).expect("refined");
         assert!(
             rotation_error_deg(&refined.pose, &truth()) < 0.3,
             "{refined:?}"
@@ -301,7 +338,8 @@ mod tests {
     fn the_true_pose_stays_where_it_is() {
         let model = BoxModel::new(Vector3::from(SIZE)).unwrap();
         let depth = render(&model, &truth(), Background::Wall(2.0));
-        let refined = refine_with_depth(&model, &truth(), &view(&depth)).expect("refined");
+        let refined =
+            refine_with_depth(&model, &truth(), &view(&depth), |_| true).expect("refined");
         assert!(rotation_error_deg(&refined.pose, &truth()) < 0.1);
         assert!((refined.pose.translation.vector - truth().translation.vector).norm() < 5e-4);
     }
@@ -310,11 +348,11 @@ mod tests {
     fn no_box_in_the_depth_image_leaves_the_pose_unrefined() {
         let model = BoxModel::new(Vector3::from(SIZE)).unwrap();
         let empty = vec![0.0f32; WIDTH * HEIGHT];
-        assert!(refine_with_depth(&model, &truth(), &view(&empty)).is_none());
+        assert!(refine_with_depth(&model, &truth(), &view(&empty), |_| true).is_none());
         // a box far from where the depth image has one: no point within the gate
         let elsewhere = Isometry3::translation(0.0, 0.0, 0.5) * truth();
         let depth = render(&model, &truth(), Background::Wall(2.0));
-        assert!(refine_with_depth(&model, &elsewhere, &view(&depth)).is_none());
+        assert!(refine_with_depth(&model, &elsewhere, &view(&depth), |_| true).is_none());
     }
 
     /// The box resting on a floor (the plane of its bottom face), the camera `elevation_deg`
@@ -352,7 +390,8 @@ mod tests {
                     Translation3::from(truth.translation.vector + 0.0015 * shift),
                     UnitQuaternion::new(Vector3::new(0.01, -0.01, 0.015)) * truth.rotation,
                 );
-                let refined = refine_with_depth(&model, &off, &view(&depth)).expect("refined");
+                let refined =
+                    refine_with_depth(&model, &off, &view(&depth), |_| true).expect("refined");
                 let moved = (refined.pose.translation.vector - truth.translation.vector).norm();
                 assert!(
                     rotation_error_deg(&refined.pose, &truth) < 0.01,
@@ -360,6 +399,41 @@ mod tests {
                 );
                 assert!(moved <= worst_shift_m, "azimuth {azimuth_deg}: {moved}");
             }
+        }
+    }
+
+    #[test]
+    fn the_box_s_own_mask_keeps_a_leaning_neighbour_from_pulling_it() {
+        // a box on a floor, a second one leaning against its side (turned 12°, its bottom edge
+        // 6 mm up): with every pixel of the projection the neighbour's faces within the gate
+        // pull the box 7–8 mm away; with the box's own mask they take no part
+        let model = BoxModel::new(Vector3::new(0.16, 0.12, 0.08)).unwrap();
+        let truth = on_floor_view(55.0, 35.0, 0.7);
+        let leaning = truth
+            * Isometry3::from_parts(
+                Translation3::new(0.16, 0.0, 0.006),
+                UnitQuaternion::from_euler_angles(0.0, -0.21, 0.0),
+            );
+        let (depth, labels) =
+            render_boxes(&[(&model, truth), (&model, leaning)], Background::Floor);
+        assert!(labels.contains(&2), "the neighbour is in view");
+        for shift in [Vector3::x(), Vector3::y(), Vector3::z()] {
+            let off = Isometry3::from_parts(
+                Translation3::from(truth.translation.vector + truth.rotation * (0.004 * shift)),
+                UnitQuaternion::new(Vector3::new(0.02, -0.03, 0.02)) * truth.rotation,
+            );
+            let moved = |belongs: &dyn Fn(usize) -> bool| {
+                let refined =
+                    refine_with_depth(&model, &off, &view(&depth), belongs).expect("refined");
+                (refined.pose.translation.vector - truth.translation.vector).norm()
+            };
+            let own = moved(&|pixel| labels[pixel] == 1);
+            assert!(own < 1e-4, "own mask, shifted along {shift:?}: {own}");
+            let every = moved(&|_| true);
+            assert!(
+                every > 0.005,
+                "every pixel, shifted along {shift:?}: {every}"
+            );
         }
     }
 }

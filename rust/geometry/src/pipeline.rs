@@ -364,16 +364,21 @@ impl FitRun {
 }
 
 impl FitRun {
-    /// Lays a known-size fit's pose on the depth image's points of the box's visible faces
-    /// ([`depth_refine::refine_with_depth`]; `boxpose search --refine-depth`). A size fit, a
-    /// failed fit, or a depth image that holds too little of the box leaves the fit as it was.
-    /// The time counts in the fit's.
-    pub fn refine_with_depth(&mut self, points: &[Point3<f64>], view: &DepthView) {
+    /// Lays a known-size fit's pose on the depth image's points of the box's visible faces, on
+    /// the pixels `belongs` marks as the box's (its mask; [`depth_refine::refine_with_depth`];
+    /// `boxpose search --refine-depth`). A size fit, a failed fit, or a depth image that holds
+    /// too little of the box leaves the fit as it was. The time counts in the fit's.
+    pub fn refine_with_depth(
+        &mut self,
+        points: &[Point3<f64>],
+        view: &DepthView,
+        belongs: impl Fn(usize) -> bool,
+    ) {
         let start = Instant::now();
         if let Ok(fitted) = &mut self.fitted
             && !fitted.fits_size
             && let Some(refined) =
-                depth_refine::refine_with_depth(&fitted.model, &fitted.pose, view)
+                depth_refine::refine_with_depth(&fitted.model, &fitted.pose, view, belongs)
         {
             fitted.pose = refined.pose;
             if let Some(residuals) = &mut fitted.residuals {

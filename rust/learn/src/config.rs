@@ -196,6 +196,13 @@ pub struct AugmentConfig {
     /// default, draws nothing and leaves the crops as they were.
     #[serde(default)]
     pub rotation_deg: f64,
+    /// The probability that a training crop reads its frame's simulated sensor depth
+    /// (`sensor_depth_m_f32le`: projector shadows, no return at edges and grazing angles,
+    /// disparity noise) instead of the exact render depth, as `--sensor-depth` perceives it; a
+    /// frame rendered without the sensor channel always reads the exact depth. 0, the default,
+    /// draws nothing.
+    #[serde(default)]
+    pub sensor_depth: f64,
 }
 
 impl AugmentConfig {
@@ -207,6 +214,7 @@ impl AugmentConfig {
             ("depth_noise_m", self.depth_noise_m),
             ("depth_dropout", self.depth_dropout),
             ("rotation_deg", self.rotation_deg),
+            ("sensor_depth", self.sensor_depth),
         ];
         if let Some((name, value)) = fields.iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
             return Err(LearnError::Config(format!(
@@ -217,6 +225,12 @@ impl AugmentConfig {
             return Err(LearnError::Config(format!(
                 "[augment] scale {} and color {} must be below 1, depth_dropout {} at most 1",
                 self.scale, self.color, self.depth_dropout
+            )));
+        }
+        if self.sensor_depth > 1.0 {
+            return Err(LearnError::Config(format!(
+                "[augment] sensor_depth = {} is a probability: at most 1",
+                self.sensor_depth
             )));
         }
         if self.rotation_deg > 180.0 {
@@ -406,6 +420,7 @@ mod tests {
             depth_noise_m: 0.002,
             depth_dropout: 0.02,
             rotation_deg: 180.0,
+            sensor_depth: 0.5,
         };
         fine.validate().unwrap();
         for bad in [
@@ -423,6 +438,10 @@ mod tests {
             },
             AugmentConfig {
                 depth_noise_m: 1e40,
+                ..fine.clone()
+            },
+            AugmentConfig {
+                sensor_depth: 1.5,
                 ..fine.clone()
             },
             AugmentConfig {

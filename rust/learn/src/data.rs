@@ -811,6 +811,7 @@ mod tests {
             depth_noise_m: 0.0,
             depth_dropout: 0.0,
             rotation_deg: 180.0,
+            sensor_depth: 0.0,
         };
         let (frame, spot) = spot_frame();
         let instance = &frame.instances[0];

@@ -315,6 +315,30 @@ pub struct FrameCrops {
     /// Per instance asked for, its crop; None for a box the segmenter did not find.
     pub crops: Vec<Option<CropRequest>>,
     pub detections: Option<Vec<Detection>>,
+    /// Per instance asked for, the index of the detection matched to it (with the segmenter).
+    matched: Vec<Option<usize>>,
+}
+
+impl FrameCrops {
+    /// Whether a pixel (row-major index) of `frame` is the box `instance`, the `k`th asked for,
+    /// as its crop saw it: the ground-truth visible mask, or the mask of the segmenter's
+    /// detection matched to it (nothing, for a box it did not find).
+    pub fn mask_of<'a>(
+        &'a self,
+        frame: &'a Frame,
+        instance: &Instance,
+        k: usize,
+    ) -> impl Fn(usize) -> bool + 'a {
+        let detection = self
+            .detections
+            .as_ref()
+            .map(|detections| self.matched[k].map(|d| &detections[d]));
+        let label = u16::try_from(instance.object_id + 1).ok();
+        move |pixel| match detection {
+            Some(found) => found.is_some_and(|d| d.mask.get(pixel) == Some(&true)),
+            None => label.is_some() && frame.instance_mask.get(pixel).copied() == label,
+        }
+    }
 }
 
 /// The crops of `instances` (of `frame`) for the keypoint network, from `source`.
@@ -339,34 +363,42 @@ pub fn instance_crops(
             })
             .collect::<Result<_, _>>()?;
         return Ok(FrameCrops {
+            matched: vec![None; instances.len()],
             crops,
             detections: None,
         });
     };
     let detections = segmenter.segment(&[frame])?.remove(0);
     let found = segmentation::match_detections(frame, &detections, 0.5);
-    let crops = instances
+    let matched = instances
         .iter()
         .map(|instance| {
-            let index = frame
+            frame
                 .instances
                 .iter()
                 .position(|i| i.object_id == instance.object_id)
+                .map(|index| found[index])
                 .ok_or_else(|| {
                     LearnError::Data(format!(
                         "object {} is not in this frame",
                         instance.object_id
                     ))
-                })?;
-            Ok(found[index].and_then(|d| {
+                })
+        })
+        .collect::<Result<Vec<_>, LearnError>>()?;
+    let crops = matched
+        .iter()
+        .map(|found| {
+            found.and_then(|d| {
                 let detection = &detections[d];
                 CropRequest::around(frame, config, detection.bbox, |i| detection.mask[i])
-            }))
+            })
         })
-        .collect::<Result<_, LearnError>>()?;
+        .collect();
     Ok(FrameCrops {
         crops,
         detections: Some(detections),
+        matched,
     })
 }
 
@@ -379,8 +411,9 @@ pub struct FrameEvaluation {
 /// Evaluates the keypoint network on `instances` of `frame`, on crops from `crops` (a box the
 /// segmenter missed scores as missed), `batch_size` crops per forward pass: every fit of
 /// [`Method::ALL`], perceived by [`inference::perceive`] (mirror ties settled with the frame's
-/// depth image); with `refine_depth`, each known-size fit then laid on the depth image
-/// ([`boxpose_geometry::pipeline::FitRun::refine_with_depth`], as `boxpose search
+/// depth image); with `refine_depth`, each known-size fit then laid on the depth image of the
+/// box's own mask, the one its crop came from ([`FrameCrops::mask_of`];
+/// [`boxpose_geometry::pipeline::FitRun::refine_with_depth`], as `boxpose search
 /// --refine-depth`).
 pub fn evaluate_frame(
     model: &KeypointModel,
@@ -390,10 +423,11 @@ pub fn evaluate_frame(
     batch_size: usize,
     refine_depth: bool,
 ) -> Result<FrameEvaluation, LearnError> {
-    let FrameCrops { crops, detections } = instance_crops(&model.config, frame, instances, crops)?;
+    let found = instance_crops(&model.config, frame, instances, crops)?;
+    let crops = &found.crops;
     let queries = instances
         .iter()
-        .zip(&crops)
+        .zip(crops)
         .filter_map(|(instance, crop)| {
             let crop = (*crop)?;
             Some(
@@ -407,16 +441,25 @@ pub fn evaluate_frame(
     let mut perceptions = inference::perceive(model, frame, &queries, &Method::ALL, batch_size)?;
     if refine_depth {
         let depth = data::depth_view(frame);
-        for perception in &mut perceptions {
+        // the perceptions are the found instances', in order
+        let found_instances = instances
+            .iter()
+            .enumerate()
+            .filter(|&(k, _)| crops[k].is_some());
+        for (perception, (k, instance)) in perceptions.iter_mut().zip(found_instances) {
             for fit in &mut perception.fits {
-                fit.refine_with_depth(&perception.points, &depth);
+                fit.refine_with_depth(
+                    &perception.points,
+                    &depth,
+                    found.mask_of(frame, instance, k),
+                );
             }
         }
     }
     let mut perceptions = perceptions.into_iter();
     let evals = instances
         .iter()
-        .zip(&crops)
+        .zip(crops)
         .map(|(instance, crop)| match crop {
             Some(_) => {
                 let perception = perceptions
@@ -435,5 +478,8 @@ pub fn evaluate_frame(
             None => missed_instance(instance),
         })
         .collect::<Result<_, _>>()?;
-    Ok(FrameEvaluation { evals, detections })
+    Ok(FrameEvaluation {
+        evals,
+        detections: found.detections,
+    })
 }

@@ -3,10 +3,12 @@
 
 use std::path::Path;
 
+use boxpose_data::Frame;
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::pipeline::Method;
 use burn::prelude::*;
 use nalgebra::Vector3;
+use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 
@@ -96,11 +98,21 @@ impl ExampleSource for KeypointTask {
     ) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
         let pick = self.set.train[item];
         let frame = self.set.frame(pick.0)?;
+        let augment = &self.config.augment;
+        // drawn only when asked for, so that other configs' random streams stay as they were
+        let sensed = (augment.sensor_depth > 0.0
+            && frame.sensor_depth.is_some()
+            && rng.random_bool(augment.sensor_depth))
+        .then(|| {
+            let mut sensed = Frame::clone(&frame);
+            sensed.use_sensor_depth();
+            sensed
+        });
         let sample = data::instance_sample(
             &self.config.network,
-            &frame,
+            sensed.as_ref().unwrap_or(&frame),
             self.set.instance(pick),
-            Some((&self.config.augment, rng)),
+            Some((augment, rng)),
         )?;
         Ok((sample.input, sample.target))
     }

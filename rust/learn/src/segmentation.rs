@@ -123,6 +123,13 @@ impl SegmenterTrainConfig {
                 self.augment.rotation_deg
             )));
         }
+        if self.augment.sensor_depth != 0.0 {
+            return Err(LearnError::Config(format!(
+                "[augment] sensor_depth = {}: only the keypoint network's crops read the sensor \
+                 depth in training; remove it or set 0",
+                self.augment.sensor_depth
+            )));
+        }
         self.optimizer.validate()?;
         self.data.validate()
     }

@@ -94,8 +94,9 @@ pub fn pair<K: Eq + std::hash::Hash + Clone>(
 }
 
 /// Pairs the samples of `before` and `after`, two Monte Carlo runs of one search (space, recipe,
-/// seed, crops and predicate equal) that may differ in the networks, the fit and their length
-/// (pairs are the sample ids both drew). Refuses runs that do not draw the same scenes, naming
+/// seed, crops and predicate equal) that may differ in the networks, the fit, the depth the
+/// perception reads (`--refine-depth`, `--sensor-depth`) and their length (pairs are the sample
+/// ids both drew). Refuses runs that do not draw the same scenes, naming
 /// what differs.
 pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
     for run in [before, after] {
@@ -118,13 +119,16 @@ pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
     as_before.settings.model = before.settings().model.clone();
     as_before.settings.segmenter = before.settings().segmenter.clone();
     as_before.settings.fit = before.settings().fit.clone();
+    // the same scenes, perceived otherwise
+    as_before.settings.refine_depth = before.settings().refine_depth;
+    as_before.settings.sensor_depth = before.settings().sensor_depth;
     if as_before != before.record {
         return Err(SearchError::Run {
             path: after.dir.clone(),
             problem: format!(
                 "its samples are not {before}'s, so they cannot be paired (\"there\" is {before}, \
                  \"here\" this run: {}); run it with the same space, seed and settings, changing \
-                 only --model, --segmenter, --fit or --samples",
+                 only --model, --segmenter, --fit, --refine-depth, --sensor-depth or --samples",
                 differences(&before.record, &as_before).join("; "),
                 before = before.dir.display(),
             ),

@@ -527,7 +527,11 @@ fn perceive(
     let known = BoxModel::new(Vector3::from(instance.size))?;
     let (mut run, points) = perceive_crop(model, fit.method, frame, crop, known)?;
     if fit.refine_depth {
-        run.refine_with_depth(&points, &boxpose_learn::data::depth_view(frame));
+        run.refine_with_depth(
+            &points,
+            &boxpose_learn::data::depth_view(frame),
+            found.mask_of(frame, instance, 0),
+        );
     }
     let fit = run;
     seconds.inference = start.elapsed().as_secs_f64() - fit.fit_time_us / 1e6;
