@@ -650,25 +650,16 @@ fn variants_command(args: &Args, round: usize, search: &Path, out: &Path) -> Vec
 }
 
 fn train_command(args: &Args, model: &Path, learnt_from: &[PathBuf], out: &Path) -> Vec<String> {
-    let mut command: Vec<String> = vec![
-        "train".into(),
-        "--config".into(),
-        path_arg(&args.config),
-        "--init".into(),
-        path_arg(model),
-        "--steps".into(),
-        args.steps.to_string(),
-        "--learning-rate".into(),
-        args.learning_rate.to_string(),
-        "--out".into(),
-        path_arg(out),
-        "--backend".into(),
-        args.backend.name().into(),
-    ];
+    let step = FineTuning {
+        command: "train",
+        config: &args.config,
+        init: model,
+        steps: args.steps,
+    };
+    let mut command = step.arguments(args, learnt_from, out);
     if let Some(batch) = args.batch_size_train {
         command.extend(["--batch-size".into(), batch.to_string()]);
     }
-    command.extend(training_data(args, learnt_from));
     command
 }
 
@@ -681,23 +672,44 @@ fn segmenter_train_command(
     learnt_from: &[PathBuf],
     out: &Path,
 ) -> Vec<String> {
-    let mut command: Vec<String> = vec![
-        "train-segmenter".into(),
-        "--config".into(),
-        path_arg(config),
-        "--init".into(),
-        path_arg(segmenter),
-        "--steps".into(),
-        args.segmenter_steps.to_string(),
-        "--learning-rate".into(),
-        args.learning_rate.to_string(),
-        "--out".into(),
-        path_arg(out),
-        "--backend".into(),
-        args.backend.name().into(),
-    ];
-    command.extend(training_data(args, learnt_from));
-    command
+    let step = FineTuning {
+        command: "train-segmenter",
+        config,
+        init: segmenter,
+        steps: args.segmenter_steps,
+    };
+    step.arguments(args, learnt_from, out)
+}
+
+/// One network's fine-tuning step of a round: `boxpose COMMAND --init INIT` with the loop's
+/// learning rate and backend on --dataset and the learnt sets.
+struct FineTuning<'a> {
+    command: &'static str,
+    config: &'a Path,
+    init: &'a Path,
+    steps: usize,
+}
+
+impl FineTuning<'_> {
+    fn arguments(&self, args: &Args, learnt_from: &[PathBuf], out: &Path) -> Vec<String> {
+        let mut command: Vec<String> = vec![
+            self.command.into(),
+            "--config".into(),
+            path_arg(self.config),
+            "--init".into(),
+            path_arg(self.init),
+            "--steps".into(),
+            self.steps.to_string(),
+            "--learning-rate".into(),
+            args.learning_rate.to_string(),
+            "--out".into(),
+            path_arg(out),
+            "--backend".into(),
+            args.backend.name().into(),
+        ];
+        command.extend(training_data(args, learnt_from));
+        command
+    }
 }
 
 /// `--dataset` for --dataset and every learnt set, and the mix (`--repeat`) of a fine-tuning.
