@@ -260,24 +260,6 @@ fn run_external(args: &Args, spec: &str, dataset: &Path) -> anyhow::Result<()> {
     })
 }
 
-/// With `sensor`, puts `frame`'s simulated sensor depth in place of its exact depth
-/// ([`boxpose_data::Frame::use_sensor_depth`]), or says that `dataset` has none.
-pub fn perceived_depth(
-    frame: &mut boxpose_data::Frame,
-    sensor: bool,
-    dataset: &Path,
-) -> anyhow::Result<()> {
-    anyhow::ensure!(
-        !sensor || frame.use_sensor_depth(),
-        "{}: scene {} frame {} has no sensor depth (`sensor_depth_m_f32le`); --sensor-depth needs \
-         a dataset rendered with `[render] sensor_depth = true` in its recipe",
-        dataset.display(),
-        frame.scene_id,
-        frame.frame_id
-    );
-    Ok(())
-}
-
 /// What evaluating a dataset's boxes gives: a row per box and fit, each box's evaluation, and the
 /// segmenter's detections scored (empty with ground-truth crops).
 struct Evaluated {
@@ -314,7 +296,7 @@ fn evaluate(
         if !evaluated_scene(frame.scene_id) {
             continue;
         }
-        perceived_depth(&mut frame, args.sensor_depth, dataset.root())?;
+        data::perceived_depth(&mut frame, args.sensor_depth, dataset.root())?;
         let frame = &frame;
         let chosen: Vec<_> = frame
             .instances

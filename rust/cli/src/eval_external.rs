@@ -55,7 +55,7 @@ pub fn run(settings: &Settings) -> anyhow::Result<()> {
         if !evaluated(frame.scene_id) {
             continue;
         }
-        crate::eval::perceived_depth(&mut frame, settings.sensor_depth, settings.dataset)?;
+        boxpose_learn::data::perceived_depth(&mut frame, settings.sensor_depth, settings.dataset)?;
         let frame = &frame;
         for instance in frame
             .instances

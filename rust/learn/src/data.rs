@@ -4,6 +4,7 @@
 //! (z-bin, v, u) volume. No burn here: examples are flat arrays ([`crate::loader`] batches them).
 
 use std::collections::HashMap;
+use std::path::Path;
 use std::sync::{Arc, Mutex};
 
 use boxpose_data::{Dataset, Frame, FrameEntry, Instance, Intrinsics};
@@ -232,6 +233,21 @@ pub(crate) fn nearest_source(
         .round()
         .max(0.0) as usize)
         .min(len - 1)
+}
+
+/// With `sensor`, puts `frame`'s simulated sensor depth in place of its exact depth
+/// ([`Frame::use_sensor_depth`], as `--sensor-depth` perceives it), or says that `dataset` has none.
+pub fn perceived_depth(frame: &mut Frame, sensor: bool, dataset: &Path) -> Result<(), LearnError> {
+    if sensor && !frame.use_sensor_depth() {
+        return Err(LearnError::Data(format!(
+            "{}: scene {} frame {} has no sensor depth (`sensor_depth_m_f32le`); --sensor-depth \
+             needs a dataset rendered with `[render] sensor_depth = true` in its recipe",
+            dataset.display(),
+            frame.scene_id,
+            frame.frame_id
+        )));
+    }
+    Ok(())
 }
 
 /// The frame's depth image, as the fits read it to settle mirror ties.
