@@ -212,7 +212,7 @@ bench-render-quality: setup ## PSNR/SSIM against a 1024-sample reference and CPU
 bench-render-accuracy: setup ## The shipped networks' accuracy on the same fresh scenes rendered at 1–64 samples, paired box by box against the 64-sample renders
 	$(PY) scripts/bench_render_accuracy.py
 
-bench-search: setup ## Search: CPU-seconds per sample by stage (ground-truth and segmenter crops); samples for 20% relative error on a real event by every sampler (MC, CE, CE --ce-tilt auto, splitting) as ratios to MC; the analytic failure sets' ratios
+bench-search: setup ## Search: CPU-seconds per sample by stage (ground-truth and segmenter crops; clutter at two resolutions against whole frames, paired); samples for 20% relative error on a real event by every sampler (MC, CE, CE --ce-tilt auto, splitting) as ratios to MC; the analytic failure sets' ratios
 	$(PY) scripts/bench_search.py
 
 bench-scale-out: setup ## python -m boxpose_ray on a loopback Ray head with 1 and 2 CPUs against one process (search and scenes)

@@ -111,6 +111,12 @@ def test_intrinsics_from_hfov():
     assert (cam.cx, cam.cy) == (31.5, 23.5)
     crop = cam.crop(10, 5, 42, 37)
     assert (crop.width, crop.height, crop.cx, crop.cy) == (32, 32, 21.5, 18.5)
+    # half the width: the same view, pixel centres k ↦ (k − 0.5) / 2
+    half = cam.scaled(32)
+    assert (half.width, half.height, half.cx, half.cy) == (32, 24, 15.5, 11.5)
+    assert half.fx == half.fy == pytest.approx(cam.fx / 2)
+    point = np.array([[0.03, -0.02, 0.5]])
+    assert np.allclose(half.project(point), (cam.project(point) - 0.5) / 2)
 
 
 def test_quaternion_round_trip():
@@ -623,6 +629,26 @@ def test_crop_render_matches_the_full_render(session, clutter):
             np.array(b["corners_px"]).reshape(8, 2) - [x0, y0],
         )
         assert a["corners_camera_m"] == b["corners_camera_m"]
+
+
+def test_a_scaled_render_is_the_same_view_smaller(session, clutter):
+    scene, objects, renders = clutter
+    session.load(scene, objects)
+    full, full_instances = renders[0]
+    frame, instances = session.render(0, width=full["width"] // 2)
+    assert (frame["width"], frame["height"]) == (full["width"] // 2, full["height"] // 2)
+    assert frame["fx"] == pytest.approx(full["fx"] / 2)
+    assert json.loads(frame["render_settings"])["scaled_from"] == [full["width"], full["height"]]
+    for a, b in zip(instances, full_instances, strict=True):
+        px, full_px = (np.array(i["corners_px"]).reshape(8, 2) for i in (a, b))
+        assert np.allclose(px, (full_px - 0.5) / 2, atol=1e-6)
+        assert a["corners_camera_m"] == b["corners_camera_m"]
+    # at or above the recipe's width: the recipe's frame
+    same, _ = session.render(0, width=full["width"])
+    assert json.loads(same["render_settings"])["scaled_from"] is None
+    assert (same["width"], same["fx"]) == (full["width"], full["fx"])
+    with pytest.raises(Exception, match="width, or crop"):
+        session.render(0, width=10, crop=(0, 0, 4, 4))
 
 
 def test_a_crop_whose_edges_float32_cannot_hold_renders_its_exact_size(session):

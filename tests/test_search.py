@@ -917,6 +917,50 @@ def test_ground_truth_crops_render_a_region_unless_whole_frames_are_asked_for(
     assert widths["whole"] == {96} and max(widths["region"]) < 96, widths
 
 
+def test_segmenter_crops_render_the_frame_at_the_segmenters_width_and_the_target_at_full_size(
+    spaces, boxpose_bin, tmp_path
+):
+    """A frame wider than the segmenter's input (384×288 against the shipped segmenter's 320):
+    the segmenter reads a whole frame rendered 320 wide; a box it finds is then rendered as its
+    region at full resolution for the keypoint network, a box it misses ends the sample on the
+    small frame. --whole-frames renders the whole frame at full size once, and the two runs
+    pair sample by sample."""
+    text = recipe("single_box").replace("width = 96", "width = 384")
+    text = text.replace("height = 96", "height = 288")
+    (tmp_path / "wide.toml").write_text(text)
+    space = tmp_path / "space.toml"
+    space.write_text(SPACE.format(recipe=tmp_path / "wide.toml"))
+    runs = {}
+    for name, extra in (("two", []), ("whole", ["--whole-frames"])):
+        runs[name] = tmp_path / name
+        # a threshold nothing meets: every scored sample fails and keeps its frame
+        search(
+            boxpose_bin, space, "--out", runs[name], "--crops", "predicted", "--samples", 4,
+            "--batch-size", 4, "--fail-when", "mssd:0.000001", "--threads", 1, *extra,
+        )  # fmt: skip
+    samples = pd.read_parquet(runs["two"] / "samples.parquet").set_index("sample_id")
+    frames = pd.read_parquet(runs["two"] / "counterexamples" / "frames")
+    assert len(frames) == samples.valid.sum() > 0
+    whole = pd.read_parquet(runs["whole"] / "counterexamples" / "frames")
+    assert ((whole.width == 384) & (whole.height == 288)).all()
+    # each scene's frame against the same camera rendered whole at full size
+    both = frames.merge(whole, on="scene_id", suffixes=("", "_whole"))
+    both["detected"] = samples.loc[both.scene_id, "detected"].to_numpy()
+    assert len(both) > 0
+    missed, found = both[both.detected == False], both[both.detected == True]  # noqa: E712
+    # a missed box: the small frame, focal length × 320/384
+    assert ((missed.width == 320) & (missed.height == 240)).all(), missed
+    assert np.allclose(missed.fx, missed.fx_whole * 320 / 384)
+    # a found box: full resolution, its region (or the whole frame where the region fell short)
+    assert len(found) > 0, "the shipped segmenter found no box in 4 samples"
+    assert np.allclose(found.fx, found.fx_whole) and (found.width < 384).any(), found
+    record = json.loads((runs["two"] / "run.json").read_text())["settings"]
+    assert record["two_resolutions"] and not record["whole_frames"]
+    assert "at its input width" in (runs["two"] / "report" / "index.html").read_text()
+    search(boxpose_bin, "compare", runs["whole"], runs["two"], "--json", tmp_path / "c")
+    assert json.loads((tmp_path / "c").read_text())["pairs"] == len(both)
+
+
 def test_fine_tuning_on_variants_of_the_counterexamples(failing_run, spaces, boxpose_bin, tmp_path):
     """The learning loop at tiny settings: scenes around each counterexample, the run's network
     fine-tuned on them mixed with the counterexamples themselves, and a fresh-seed search with

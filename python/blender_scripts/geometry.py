@@ -86,6 +86,22 @@ class Camera:
             x1 - x0, y1 - y0, self.fx, self.fy, self.cx - x0, self.cy - y0, self.world_camera
         )
 
+    def scaled(self, width: int) -> Camera:
+        """The same view at `width` pixels across: height and focal lengths scaled by
+        width / self.width (the height rounded), principal point at the new image's centre (a
+        frame rendered smaller, as a network that reads a smaller image sees it)."""
+        k = width / self.width
+        height = max(1, round(self.height * k))
+        return Camera(
+            width,
+            height,
+            self.fx * k,
+            self.fy * k,
+            0.5 * (width - 1),
+            0.5 * (height - 1),
+            self.world_camera,
+        )
+
     @property
     def camera_world(self) -> np.ndarray:
         return invert(self.world_camera)

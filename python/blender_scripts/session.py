@@ -190,6 +190,7 @@ class Session:
         poses: dict | None = None,
         sensor_depth: bool | None = None,
         crop_object: tuple[int, float] | None = None,
+        width: int | None = None,
     ) -> tuple[dict, list[dict]]:
         """Renders one frame of the loaded scene: its `frames` row and its `instances` rows.
 
@@ -202,7 +203,11 @@ class Session:
         on that box, plus 2 pixels (the search's ground-truth crops; the frame's
         `render_settings` record the region, so `crop` re-renders it exactly). Without either, a
         recipe with `camera.region = "box"` renders frame f as the region around the scene's
-        (f mod box count)-th box in object_id order, with its `camera.region_margin`."""
+        (f mod box count)-th box in object_id order, with its `camera.region_margin`. `width`
+        renders the whole frame smaller: `width` pixels across, the height and focal lengths
+        scaled alike (`Camera.scaled`; the search's frame for a segmenter that reads a smaller
+        image); at or above the recipe's width it changes nothing. It excludes `crop` and
+        `crop_object`; the frame's `render_settings` record the recipe's size as `scaled_from`."""
         if self.scene_row is None:
             raise RenderInputError("no scene loaded")
         spec = self.recipe.render
@@ -216,7 +221,12 @@ class Session:
 
         seed, full_camera, camera_draw, lighting = self.frame_draw(frame_id)
         world_boxes = {oid: poses.get(oid, m) for oid, m in self.world_boxes.items()}
-        if crop is None and crop_object is None and self.recipe.camera.region == "box":
+        if width is not None:
+            if crop is not None or crop_object is not None:
+                raise RenderInputError("give width, or crop / crop_object, not both")
+            if isinstance(width, bool) or int(width) != width or width < 1:
+                raise RenderInputError(f"width {width!r} must be a positive integer")
+        elif crop is None and crop_object is None and self.recipe.camera.region == "box":
             object_ids = sorted(self.world_boxes)
             target = object_ids[int(frame_id) % len(object_ids)]
             crop_object = (target, self.recipe.camera.region_margin)
@@ -232,6 +242,10 @@ class Session:
                 raise RenderInputError(
                     f"crop {tuple(crop)} is not a non-empty region of the {w}×{h} image"
                 )
+        recipe_size = [full_camera.width, full_camera.height]
+        scaled = width is not None and int(width) < full_camera.width
+        if scaled:
+            full_camera = full_camera.scaled(int(width))
         camera = full_camera if crop is None else full_camera.crop(*crop)
         b = self.blender
         for oid, m in world_boxes.items():
@@ -284,6 +298,7 @@ class Session:
             "exposure": spec.exposure,
             "image_size": [full_camera.width, full_camera.height],
             "crop": list(crop) if crop is not None else None,
+            "scaled_from": recipe_size if scaled else None,
             "camera": camera_draw,
             "lighting": lighting,
             "support": {"kind": self.recipe.support.kind, **self.support_look},
@@ -357,10 +372,11 @@ class Session:
         poses=None,
         sensor_depth=None,
         crop_object=None,
+        width=None,
     ) -> tuple[pa.RecordBatch, pa.RecordBatch]:
         """`render` as Arrow record batches with the contract schemas (for the Rust side)."""
         frame, instances = self.render(
-            frame_id, samples, denoise, crop, poses, sensor_depth, crop_object
+            frame_id, samples, denoise, crop, poses, sensor_depth, crop_object, width
         )
         return _batch("frames", [frame]), _batch("instances", instances)
 

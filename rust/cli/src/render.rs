@@ -39,6 +39,11 @@ pub struct Args {
     /// output frame is that region, its principal point shifted.
     #[arg(long, value_parser = parse_crop, value_name = "x0,y0,x1,y1")]
     crop: Option<[u32; 4]>,
+    /// Render the whole frame smaller, this many pixels across (height and focal length scaled
+    /// alike), as a search with segmenter crops renders the segmenter's frame (its
+    /// `render_settings` record `scaled_from`). Not with --crop.
+    #[arg(long, conflicts_with = "crop", value_parser = clap::value_parser!(u32).range(1..))]
+    width: Option<u32>,
     /// Cycles samples per pixel, at least 1 (default: the recipe's).
     #[arg(long, value_parser = clap::value_parser!(i32).range(1..))]
     samples: Option<i32>,
@@ -152,6 +157,7 @@ fn render_frame(renderer: &mut Renderer, args: &Args, frame_id: i32) -> anyhow::
         sensor_depth: args.sensor_depth,
         poses: args.poses.clone(),
         crop_object: None,
+        width: args.width,
     };
     let t = Instant::now();
     let out = renderer.render(&request)?;

@@ -209,8 +209,10 @@ struct RunArgs {
     /// Where the keypoint network's crop comes from: the target's ground-truth box, or the segmenter.
     #[arg(long, value_enum, default_value = "gt")]
     crops: Crops,
-    /// Render whole frames even with ground-truth crops (by default only the region the
-    /// network's window reaches is rendered): the reference for `make bench-search`.
+    /// Render whole frames at the recipe's resolution, the reference for `make bench-search`. By
+    /// default a sample renders only what its perception reads: with ground-truth crops the
+    /// region the network's window reaches; with segmenter crops the whole frame at the
+    /// segmenter's input width, then the target's region at full resolution.
     #[arg(long)]
     whole_frames: bool,
     /// Lay the fitted pose on the depth image: Gauss–Newton on the points of the box's visible
@@ -575,6 +577,7 @@ fn run_settings(args: &RunArgs) -> RunSettings {
         seed: args.seed,
         crops,
         whole_frames: args.whole_frames || args.sut.is_some(),
+        two_resolutions: crops == Crops::Predicted && !args.whole_frames && args.sut.is_none(),
         refine_depth: args.refine_depth,
         sensor_depth: args.sensor_depth,
         fit: match args.sut {

@@ -395,6 +395,11 @@ fn page(
             ", perceiving the simulated sensor's depth (<code>--sensor-depth</code>)"
         } else {
             ""
+        } + if s.two_resolutions {
+            ", the segmenter's frame rendered at its input width and the target's region at full \
+             resolution"
+        } else {
+            ""
         },
         escape(&s.predicate.to_string())
     )?;

@@ -320,6 +320,20 @@ pub struct FrameCrops {
 }
 
 impl FrameCrops {
+    /// One box's crop on `frame` from the segmenter's detection matched to it (carried to
+    /// `frame` when it was found in another view: [`Detection::carried_to`]); no crop when the
+    /// segmenter did not find the box.
+    pub fn of_detection(config: &NetworkConfig, frame: &Frame, found: Option<Detection>) -> Self {
+        let crop = found
+            .as_ref()
+            .and_then(|d| CropRequest::around(frame, config, d.bbox, |i| d.mask[i]));
+        Self {
+            crops: vec![crop],
+            matched: vec![found.is_some().then_some(0)],
+            detections: Some(found.into_iter().collect()),
+        }
+    }
+
     /// Whether a pixel (row-major index) of `frame` is the box `instance`, the `k`th asked for,
     /// as its crop saw it: the ground-truth visible mask, or the mask of the segmenter's
     /// detection matched to it (nothing, for a box it did not find).
@@ -339,6 +353,44 @@ impl FrameCrops {
             None => label.is_some() && frame.instance_mask.get(pixel).copied() == label,
         }
     }
+}
+
+/// The segmenter's detections in `frame`, and per instance of `instances` the index of the one
+/// matched to it (COCO's matching at mask IoU 0.5).
+fn segment_and_match(
+    segmenter: &SegmenterModel,
+    frame: &Frame,
+    instances: &[&Instance],
+) -> Result<(Vec<Detection>, Vec<Option<usize>>), LearnError> {
+    let detections = segmenter.segment(&[frame])?.remove(0);
+    let found = segmentation::match_detections(frame, &detections, 0.5);
+    let matched = instances
+        .iter()
+        .map(|instance| {
+            frame
+                .instances
+                .iter()
+                .position(|i| i.object_id == instance.object_id)
+                .map(|index| found[index])
+                .ok_or_else(|| {
+                    LearnError::Data(format!(
+                        "object {} is not in this frame",
+                        instance.object_id
+                    ))
+                })
+        })
+        .collect::<Result<Vec<_>, LearnError>>()?;
+    Ok((detections, matched))
+}
+
+/// The segmenter's detection matched to `instance` in `frame`, if it found the box.
+pub fn detection_of(
+    segmenter: &SegmenterModel,
+    frame: &Frame,
+    instance: &Instance,
+) -> Result<Option<Detection>, LearnError> {
+    let (mut detections, matched) = segment_and_match(segmenter, frame, &[instance])?;
+    Ok(matched[0].map(|d| detections.swap_remove(d)))
 }
 
 /// The crops of `instances` (of `frame`) for the keypoint network, from `source`.
@@ -368,24 +420,7 @@ pub fn instance_crops(
             detections: None,
         });
     };
-    let detections = segmenter.segment(&[frame])?.remove(0);
-    let found = segmentation::match_detections(frame, &detections, 0.5);
-    let matched = instances
-        .iter()
-        .map(|instance| {
-            frame
-                .instances
-                .iter()
-                .position(|i| i.object_id == instance.object_id)
-                .map(|index| found[index])
-                .ok_or_else(|| {
-                    LearnError::Data(format!(
-                        "object {} is not in this frame",
-                        instance.object_id
-                    ))
-                })
-        })
-        .collect::<Result<Vec<_>, LearnError>>()?;
+    let (detections, matched) = segment_and_match(segmenter, frame, instances)?;
     let crops = matched
         .iter()
         .map(|found| {

@@ -7,7 +7,7 @@
 
 use std::path::Path;
 
-use boxpose_data::Frame;
+use boxpose_data::{Frame, Intrinsics};
 use boxpose_geometry::detection::{
     ImageDetections, average_precision, bbox_iou, coco_average_precision, greedy_match, mask_iou,
 };
@@ -142,6 +142,58 @@ pub struct Detection {
     /// (x_min, y_min, x_max, y_max), max exclusive, full-frame pixels.
     pub bbox: [i32; 4],
     pub score: f32,
+}
+
+impl Detection {
+    /// This detection, found in `found_in`, as it lies in `to`: a frame from the same camera pose
+    /// with other intrinsics (the same view rendered at another resolution, or a region of it).
+    /// A pixel of `to` is in the mask when the `found_in` pixel its centre falls in is; the box
+    /// is `found_in`'s box carried through the intrinsics and rounded outwards, so it may reach
+    /// past the edges of a region (where the mask, which `to` cannot hold, ends).
+    pub fn carried_to(&self, found_in: &Frame, to: &Frame) -> Detection {
+        let (a, b) = (&found_in.intrinsics, &to.intrinsics);
+        let bbox = carried_bbox(self.bbox, a, b);
+        let source = |p: usize, (c_b, f_b): (f64, f64), (c_a, f_a): (f64, f64), n: usize| {
+            let q = ((p as f64 - c_b) / f_b * f_a + c_a).round();
+            (q >= 0.0 && q < n as f64).then_some(q as usize)
+        };
+        let mut mask = vec![false; to.width * to.height];
+        for y in 0..to.height {
+            let Some(v) = source(y, (b.cy, b.fy), (a.cy, a.fy), found_in.height) else {
+                continue;
+            };
+            for x in 0..to.width {
+                if let Some(u) = source(x, (b.cx, b.fx), (a.cx, a.fx), found_in.width) {
+                    mask[y * to.width + x] = self.mask[v * found_in.width + u];
+                }
+            }
+        }
+        Detection {
+            mask,
+            bbox,
+            score: self.score,
+        }
+    }
+}
+
+/// A pixel box (x_min, y_min, x_max, y_max; max exclusive) of one view, carried to another view
+/// from the same camera pose with intrinsics `to` (another resolution, or a region of it) and
+/// rounded outwards.
+pub fn carried_bbox(bbox: [i32; 4], from: &Intrinsics, to: &Intrinsics) -> [i32; 4] {
+    // pixel-edge coordinates (pixel i spans [i, i + 1]); the intrinsics count from centres
+    let edge = |e: i32, (c_a, f_a): (f64, f64), (c_b, f_b): (f64, f64)| {
+        (f64::from(e) - 0.5 - c_a) / f_a * f_b + c_b + 0.5
+    };
+    let (x, y) = (
+        ((from.cx, from.fx), (to.cx, to.fx)),
+        ((from.cy, from.fy), (to.cy, to.fy)),
+    );
+    [
+        edge(bbox[0], x.0, x.1).floor() as i32,
+        edge(bbox[1], y.0, y.1).floor() as i32,
+        edge(bbox[2], x.0, x.1).ceil() as i32,
+        edge(bbox[3], y.0, y.1).ceil() as i32,
+    ]
 }
 
 /// Image pixels per input pixel, for a frame resized to the segmenter's input.

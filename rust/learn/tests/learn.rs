@@ -448,6 +448,53 @@ fn the_segmenter_targets_decode_back_into_the_true_instances() {
 }
 
 #[test]
+fn a_detection_carried_to_the_same_view_at_twice_the_resolution_or_a_region_of_it_covers_the_same_pixels()
+ {
+    use boxpose_learn::segmentation::Detection;
+    let small = two_box_frame();
+    let label = 4u16; // object 3
+    let detection = Detection {
+        mask: small.instance_mask.iter().map(|&m| m == label).collect(),
+        bbox: [34, 10, 58, 40],
+        score: 0.9,
+    };
+    // the same view twice as large: pixel centres k ↦ 2k + 0.5, so edges e ↦ 2e
+    let i = small.intrinsics;
+    let mut large = two_box_frame();
+    (large.width, large.height) = (128, 96);
+    large.intrinsics = Intrinsics {
+        fx: 2.0 * i.fx,
+        fy: 2.0 * i.fy,
+        cx: 2.0 * i.cx + 0.5,
+        cy: 2.0 * i.cy + 0.5,
+    };
+    let carried = detection.carried_to(&small, &large);
+    assert_eq!(carried.bbox, [68, 20, 116, 80]);
+    assert_eq!(carried.score, 0.9);
+    let count = |mask: &[bool]| mask.iter().filter(|&&m| m).count();
+    assert_eq!(count(&carried.mask), 4 * count(&detection.mask));
+    assert!(carried.mask[25 * 128 + 70] && !carried.mask[25 * 128 + 67]);
+
+    // a region of it, [100, 30) × … : the box reaches past the region's right edge
+    let mut region = large.clone();
+    (region.width, region.height) = (40, 40);
+    region.intrinsics.cx -= 80.0;
+    region.intrinsics.cy -= 30.0;
+    let in_region = detection.carried_to(&small, &region);
+    assert_eq!(in_region.bbox, [-12, -10, 36, 50]);
+    assert_eq!(in_region.mask.len(), 40 * 40);
+    assert_eq!(
+        count(&in_region.mask),
+        36 * 40,
+        "columns 80..116, rows 30..70"
+    );
+
+    // to its own frame: unchanged
+    let same = detection.carried_to(&small, &small);
+    assert_eq!((same.bbox, &same.mask), (detection.bbox, &detection.mask));
+}
+
+#[test]
 fn a_segmenter_may_be_fine_tuned_with_other_loss_settings_and_thresholds_but_not_another_input() {
     use boxpose_learn::segmentation::SegmenterConfig;
     let trained = SegmenterConfig {

@@ -68,6 +68,11 @@ pub struct RenderRequest {
     /// max(margin, 1) × the longer side of its projected corners' bounding box, centred on it,
     /// plus 2 pixels (the whole frame when the box is partly behind the camera). Excludes `crop`.
     pub crop_object: Option<(i32, f64)>,
+    /// Render the whole frame smaller, this many pixels across: the height and focal lengths
+    /// scaled alike, the principal point at the centre (what a network that reads a smaller image
+    /// sees); at or above the recipe's width the recipe's size. Excludes `crop` and
+    /// `crop_object`; `render_settings` then records the recipe's size as `scaled_from`.
+    pub width: Option<u32>,
 }
 
 /// The rows of one render: one `frames` row and the frame's `instances` rows, with the
@@ -197,56 +202,26 @@ impl Renderer {
     fn render_now(&self, request: &RenderRequest) -> Result<Rendered> {
         Python::attach(|py| {
             let kwargs = PyDict::new(py);
-            let set =
-                |k: &str, v: Bound<'_, PyAny>| kwargs.set_item(k, v).map_err(|e| py_err(py, e));
-            set(
-                "frame_id",
-                request
-                    .frame_id
-                    .into_pyobject(py)
-                    .map_err(|e| py_err(py, e.into()))?
-                    .into_any(),
-            )?;
-            if let Some(s) = request.samples {
-                set(
-                    "samples",
-                    s.into_pyobject(py)
-                        .map_err(|e| py_err(py, e.into()))?
-                        .into_any(),
-                )?;
-            }
-            if let Some(d) = request.denoise {
-                set(
-                    "denoise",
-                    pyo3::types::PyBool::new(py, d).to_owned().into_any(),
-                )?;
-            }
-            if let Some(d) = request.sensor_depth {
-                set(
-                    "sensor_depth",
-                    pyo3::types::PyBool::new(py, d).to_owned().into_any(),
-                )?;
-            }
-            if let Some(c) = request.crop {
-                set(
-                    "crop",
-                    PyTuple::new(py, c).map_err(|e| py_err(py, e))?.into_any(),
-                )?;
-            }
-            if let Some(c) = request.crop_object {
-                set(
-                    "crop_object",
-                    c.into_pyobject(py).map_err(|e| py_err(py, e))?.into_any(),
-                )?;
-            }
-            if !request.poses.is_empty() {
-                let poses = PyDict::new(py);
-                for (oid, pose) in &request.poses {
-                    let value = (pose.quat_wxyz.to_vec(), pose.translation.to_vec());
-                    poses.set_item(*oid, value).map_err(|e| py_err(py, e))?;
+            let options = || -> PyResult<()> {
+                kwargs.set_item("frame_id", request.frame_id)?;
+                set_given(&kwargs, "samples", request.samples)?;
+                set_given(&kwargs, "denoise", request.denoise)?;
+                set_given(&kwargs, "sensor_depth", request.sensor_depth)?;
+                let crop = request.crop.map(|c| PyTuple::new(py, c)).transpose()?;
+                set_given(&kwargs, "crop", crop)?;
+                set_given(&kwargs, "crop_object", request.crop_object)?;
+                set_given(&kwargs, "width", request.width)?;
+                if !request.poses.is_empty() {
+                    let poses = PyDict::new(py);
+                    for (oid, pose) in &request.poses {
+                        let value = (pose.quat_wxyz.to_vec(), pose.translation.to_vec());
+                        poses.set_item(*oid, value)?;
+                    }
+                    kwargs.set_item("poses", poses)?;
                 }
-                set("poses", poses.into_any())?;
-            }
+                Ok(())
+            };
+            options().map_err(|e| py_err(py, e))?;
             let out = self
                 .session
                 .bind(py)
@@ -269,6 +244,15 @@ impl Drop for Renderer {
     fn drop(&mut self) {
         LIVE.store(false, Ordering::SeqCst);
     }
+}
+
+/// Sets `key` to the request's value when it gives one, so the session's default holds otherwise.
+fn set_given<'py, V: IntoPyObject<'py>>(
+    kwargs: &Bound<'py, PyDict>,
+    key: &str,
+    value: Option<V>,
+) -> PyResult<()> {
+    value.map_or(Ok(()), |v| kwargs.set_item(key, v))
 }
 
 fn check_schema(batch: &RecordBatch, table: &Table) -> Result<()> {

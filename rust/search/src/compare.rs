@@ -95,9 +95,9 @@ pub fn pair<K: Eq + std::hash::Hash + Clone>(
 
 /// Pairs the samples of `before` and `after`, two Monte Carlo runs of one search (space, recipe,
 /// seed, crops and predicate equal) that may differ in the networks, the fit, the depth the
-/// perception reads (`--refine-depth`, `--sensor-depth`) and their length (pairs are the sample
-/// ids both drew). Refuses runs that do not draw the same scenes, naming
-/// what differs.
+/// perception reads (`--refine-depth`, `--sensor-depth`), how the frames are rendered
+/// (`--whole-frames`) and their length (pairs are the sample ids both drew). Refuses runs that do
+/// not draw the same scenes, naming what differs.
 pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
     for run in [before, after] {
         if run.settings().sampler != Sampler::Mc {
@@ -119,7 +119,9 @@ pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
     as_before.settings.model = before.settings().model.clone();
     as_before.settings.segmenter = before.settings().segmenter.clone();
     as_before.settings.fit = before.settings().fit.clone();
-    // the same scenes, perceived otherwise
+    // the same scenes, rendered or perceived otherwise
+    as_before.settings.whole_frames = before.settings().whole_frames;
+    as_before.settings.two_resolutions = before.settings().two_resolutions;
     as_before.settings.refine_depth = before.settings().refine_depth;
     as_before.settings.sensor_depth = before.settings().sensor_depth;
     if as_before != before.record {
@@ -128,7 +130,8 @@ pub fn compare(before: &Run, after: &Run) -> Result<PairedComparison> {
             problem: format!(
                 "its samples are not {before}'s, so they cannot be paired (\"there\" is {before}, \
                  \"here\" this run: {}); run it with the same space, seed and settings, changing \
-                 only --model, --segmenter, --fit, --refine-depth, --sensor-depth or --samples",
+                 only --model, --segmenter, --fit, --refine-depth, --sensor-depth, --whole-frames or \
+                 --samples",
                 differences(&before.record, &as_before).join("; "),
                 before = before.dir.display(),
             ),
@@ -270,6 +273,7 @@ pub fn agreement(runs: &[Run]) -> Result<Agreement> {
             run.record.recipe_toml.clone(),
             s.crops,
             s.whole_frames,
+            s.two_resolutions,
             s.refine_depth,
             s.sensor_depth,
             s.fit.clone(),

@@ -6,14 +6,14 @@
 use std::time::Instant;
 
 use boxpose_data::arrow::record_batch::RecordBatch;
-use boxpose_data::{Frame, Instance, Object, Scene};
+use boxpose_data::{Frame, Instance, Intrinsics, Object, Scene};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::{FitOutcome, FitRun, Fitted, Method, Scores};
 use boxpose_learn::data;
-use boxpose_learn::evaluation::{self, CropSource};
+use boxpose_learn::evaluation::{self, CropSource, FrameCrops};
 use boxpose_learn::inference::{self, BoxQuery, CropRequest, KeypointModel};
-use boxpose_learn::segmentation::SegmenterModel;
+use boxpose_learn::segmentation::{SegmenterModel, carried_bbox};
 use boxpose_physics::RecipePhysics;
 use boxpose_render::{RenderRequest, Renderer};
 use nalgebra::{Point3, Vector3};
@@ -299,6 +299,10 @@ pub struct SystemUnderTest {
     /// Perceive the simulated sensor's depth instead of the exact render depth
     /// ([`boxpose_data::Frame::use_sensor_depth`]).
     pub sensor_depth: bool,
+    /// With segmenter crops, render what the perception reads: the whole frame at the
+    /// segmenter's input width, then the target's region at full resolution for the keypoint
+    /// network (instead of the whole frame at full resolution; `whole_frames` overrides it).
+    pub two_resolutions: bool,
 }
 
 impl SystemUnderTest {
@@ -328,6 +332,7 @@ impl SystemUnderTest {
             whole_frames: false,
             refine_depth: false,
             sensor_depth: false,
+            two_resolutions: false,
         })
     }
 
@@ -348,6 +353,7 @@ impl SystemUnderTest {
             whole_frames: true,
             refine_depth: false,
             sensor_depth: false,
+            two_resolutions: false,
         })
     }
 }
@@ -388,24 +394,24 @@ impl Evaluate for SystemUnderTest {
             return Ok(outcome);
         }
 
-        let start = Instant::now();
         let scenes = Scene::to_batch(std::slice::from_ref(&sampled.scene));
         let objects = Object::to_batch(&sampled.objects);
+        let start = Instant::now();
         self.renderer.load_scene(&scenes, &objects, scene_id)?;
-        let (frame, rendered) = self.render_frame(scene_id)?;
         outcome.seconds.render = start.elapsed().as_secs_f64();
+        let (frame, rendered, found) = match self.segmenter_width() {
+            Some(width) => self.render_two_resolutions(scene_id, width, &mut outcome.seconds)?,
+            None => {
+                let start = Instant::now();
+                let (frame, rendered) = self.render_frame(scene_id)?;
+                outcome.seconds.render += start.elapsed().as_secs_f64();
+                (frame, rendered, None)
+            }
+        };
         outcome.rendered = Some((rendered.frames, rendered.instances));
-        let instance = frame
-            .instances
-            .iter()
-            .find(|i| i.object_id == TARGET_OBJECT_ID)
-            .ok_or_else(|| {
-                SearchError::Sample(format!(
-                    "scene {scene_id}: the render has no instance row of the target"
-                ))
-            })?;
-        if instance.visible_fraction < self.min_visible_fraction || instance.visible_bbox.is_none()
-        {
+        let instance = target_instance(&frame)?;
+        // two resolutions: the whole frame decided whether the target is visible enough
+        if found.is_none() && !visible_enough(instance, self.min_visible_fraction) {
             outcome.result = Err(Invalid::NotVisible {
                 visible_fraction: instance.visible_fraction,
             });
@@ -417,18 +423,28 @@ impl Evaluate for SystemUnderTest {
                 segmenter,
                 method,
             } => {
-                let crops = match segmenter {
-                    Some(segmenter) if self.crops == Crops::Predicted => {
-                        CropSource::Segmenter(segmenter)
+                let found = match found {
+                    Some(found) => found,
+                    None => {
+                        let crops = match segmenter {
+                            Some(segmenter) if self.crops == Crops::Predicted => {
+                                CropSource::Segmenter(segmenter)
+                            }
+                            _ => CropSource::GroundTruth,
+                        };
+                        let start = Instant::now();
+                        let found =
+                            evaluation::instance_crops(&model.config, &frame, &[instance], crops)?;
+                        outcome.seconds.inference += start.elapsed().as_secs_f64();
+                        found
                     }
-                    _ => CropSource::GroundTruth,
                 };
                 let fit = FitChoice {
                     method: *method,
                     refine_depth: self.refine_depth,
                 };
                 let (perceived, peaks) =
-                    perceive(model, fit, crops, &frame, instance, &mut outcome.seconds)?;
+                    perceive(model, fit, &found, &frame, instance, &mut outcome.seconds)?;
                 (Ok(perceived), peaks)
             }
             Perceiver::External(system) => {
@@ -451,7 +467,115 @@ impl Evaluate for SystemUnderTest {
     }
 }
 
+/// The target's instance row in a render of a sample's scene.
+fn target_instance(frame: &Frame) -> Result<&Instance> {
+    frame
+        .instances
+        .iter()
+        .find(|i| i.object_id == TARGET_OBJECT_ID)
+        .ok_or_else(|| {
+            SearchError::Sample(format!(
+                "scene {}: the render has no instance row of the target",
+                frame.scene_id
+            ))
+        })
+}
+
+/// Whether a target is scored: visible in at least `min_visible_fraction` of its projection.
+fn visible_enough(instance: &Instance, min_visible_fraction: f32) -> bool {
+    instance.visible_fraction >= min_visible_fraction && instance.visible_bbox.is_some()
+}
+
 impl SystemUnderTest {
+    /// The width the segmenter reads frames at, when samples render at two resolutions.
+    fn segmenter_width(&self) -> Option<u32> {
+        match &self.perceiver {
+            Perceiver::Own {
+                segmenter: Some(segmenter),
+                ..
+            } if self.two_resolutions && self.crops == Crops::Predicted && !self.whole_frames => {
+                u32::try_from(segmenter.config.input_width).ok()
+            }
+            _ => None,
+        }
+    }
+
+    /// Segmenter crops from two renders of the loaded scene: the whole frame at the segmenter's
+    /// input `width` (where a target too hidden to score, or one the segmenter misses, ends the
+    /// sample), then — for a target it found — only the region the keypoint network reads at full
+    /// resolution: the crop window around the detection, carried to the recipe's resolution
+    /// ([`window_region`]), with the detection carried to it
+    /// ([`boxpose_learn::segmentation::Detection::carried_to`]). The frame returned is the one
+    /// the keypoint network reads, with its crop; the segmenter's time is inference.
+    fn render_two_resolutions(
+        &mut self,
+        scene_id: i64,
+        width: u32,
+        seconds: &mut StageSeconds,
+    ) -> Result<(Frame, boxpose_render::Rendered, Option<FrameCrops>)> {
+        let sensor_depth = self.sensor_depth;
+        let start = Instant::now();
+        let whole = RenderRequest {
+            width: Some(width),
+            ..RenderRequest::default()
+        };
+        let (small, small_rendered) =
+            render_once(&mut self.renderer, &whole, scene_id, sensor_depth)?;
+        seconds.render += start.elapsed().as_secs_f64();
+        let Perceiver::Own {
+            model,
+            segmenter: Some(segmenter),
+            ..
+        } = &self.perceiver
+        else {
+            unreachable!("segmenter_width is set only for the own pipeline with a segmenter");
+        };
+        let target = target_instance(&small)?;
+        if !visible_enough(target, self.min_visible_fraction) {
+            return Ok((small, small_rendered, None));
+        }
+        let start = Instant::now();
+        let detection = evaluation::detection_of(segmenter, &small, target)?;
+        seconds.inference += start.elapsed().as_secs_f64();
+        let config = &model.config;
+        let margin = config.crop_margin;
+        let recipe_size = render_settings(&small_rendered.frames)?
+            .get("scaled_from")
+            .and_then(|v| serde_json::from_value::<[u32; 2]>(v.clone()).ok());
+        let (detection, recipe_size) = match (detection, recipe_size) {
+            (Some(detection), Some(size)) => (detection, size),
+            // not found, or the recipe's frame is no wider than the segmenter's: no second render
+            (other, _) => {
+                let found = FrameCrops::of_detection(config, &small, other);
+                return Ok((small, small_rendered, Some(found)));
+            }
+        };
+        let start = Instant::now();
+        let region = RenderRequest {
+            crop: Some(window_region(
+                &small.intrinsics,
+                small.width,
+                recipe_size,
+                detection.bbox,
+                margin,
+            )),
+            ..RenderRequest::default()
+        };
+        let (mut frame, mut rendered) =
+            render_once(&mut self.renderer, &region, scene_id, sensor_depth)?;
+        let mut carried = detection.carried_to(&small, &frame);
+        // the region is the window's, so this holds unless rounding betrays it: then read the
+        // whole frame rather than a window padded past the render
+        if !window_inside_render(&rendered.frames, &frame, carried.bbox, margin)? {
+            let whole = RenderRequest::default();
+            (frame, rendered) = render_once(&mut self.renderer, &whole, scene_id, sensor_depth)?;
+            carried = detection.carried_to(&small, &frame);
+        }
+        seconds.render += start.elapsed().as_secs_f64();
+        let found = FrameCrops::of_detection(config, &frame, Some(carried));
+        Ok((frame, rendered, Some(found)))
+    }
+
     /// Renders the loaded scene: the whole frame for the segmenter; for ground-truth crops only
     /// the region the network's window reaches. That region is first the window of an unoccluded
     /// target (its projected box × the crop margin); when occlusion moves the visible box so that
@@ -469,24 +593,10 @@ impl SystemUnderTest {
         loop {
             let request = RenderRequest {
                 crop_object: margins.first().map(|&m| (TARGET_OBJECT_ID, m)),
-                sensor_depth: self.sensor_depth.then_some(true),
                 ..RenderRequest::default()
             };
-            let rendered = self.renderer.render(&request)?;
-            let source = std::path::PathBuf::from(format!("<render of sample scene {scene_id}>"));
-            let mut frame =
-                boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
-                    .pop()
-                    .ok_or_else(|| {
-                        SearchError::Sample(format!(
-                            "scene {scene_id}: the renderer returned no frame"
-                        ))
-                    })?;
-            if self.sensor_depth && !frame.use_sensor_depth() {
-                return Err(SearchError::Sample(format!(
-                    "scene {scene_id}: the renderer returned no sensor depth"
-                )));
-            }
+            let (frame, rendered) =
+                render_once(&mut self.renderer, &request, scene_id, self.sensor_depth)?;
             let covered = match (
                 request.crop_object,
                 frame
@@ -508,20 +618,76 @@ impl SystemUnderTest {
     }
 }
 
+/// The pixel region [x0, y0, x1, y1) of the recipe's `[width, height]` frame that the keypoint
+/// network reads around `bbox`, a detection in a smaller render of the same view (`small`, its
+/// intrinsics, `small_width` pixels across, the principal point at the centre as in the recipe's
+/// frame): the crop window (`margin` × the detection's box carried to full resolution) plus
+/// 2 pixels for the crop's resampling, clipped to the frame.
+fn window_region(
+    small: &Intrinsics,
+    small_width: usize,
+    [width, height]: [u32; 2],
+    bbox: [i32; 4],
+    margin: f64,
+) -> [u32; 4] {
+    let k = f64::from(width) / small_width as f64;
+    let full = Intrinsics {
+        fx: small.fx * k,
+        fy: small.fy * k,
+        cx: 0.5 * (f64::from(width) - 1.0),
+        cy: 0.5 * (f64::from(height) - 1.0),
+    };
+    let window = data::CropWindow::around(carried_bbox(bbox, small, &full), margin);
+    let clip = |v: f64, n: u32| v.clamp(0.0, f64::from(n)) as u32;
+    let near = |v: f64| (v - 2.0).floor();
+    let far = |v: f64| (v + window.side + 2.0).ceil();
+    // a detection's window overlaps the frame, so each side keeps at least one pixel
+    let (x0, y0) = (
+        clip(near(window.x0), width - 1),
+        clip(near(window.y0), height - 1),
+    );
+    let (x1, y1) = (clip(far(window.x0), width), clip(far(window.y0), height));
+    [x0, y0, x1.max(x0 + 1), y1.max(y0 + 1)]
+}
+
+/// One render of the loaded scene as a frame, reading the sensor's depth when `sensor_depth`.
+fn render_once(
+    renderer: &mut Renderer,
+    request: &RenderRequest,
+    scene_id: i64,
+    sensor_depth: bool,
+) -> Result<(Frame, boxpose_render::Rendered)> {
+    let request = RenderRequest {
+        sensor_depth: sensor_depth.then_some(true),
+        ..request.clone()
+    };
+    let rendered = renderer.render(&request)?;
+    let source = std::path::PathBuf::from(format!("<render of sample scene {scene_id}>"));
+    let mut frame = boxpose_data::decode_frames(&source, &rendered.frames, &rendered.instances)?
+        .pop()
+        .ok_or_else(|| {
+            SearchError::Sample(format!("scene {scene_id}: the renderer returned no frame"))
+        })?;
+    if sensor_depth && !frame.use_sensor_depth() {
+        return Err(SearchError::Sample(format!(
+            "scene {scene_id}: the renderer returned no sensor depth"
+        )));
+    }
+    Ok((frame, rendered))
+}
+
 /// The target through [`inference::perceive`], as `boxpose eval` and `boxpose predict` see it,
-/// with the fit under test scored against its truth.
+/// on its crop in `found`, with the fit under test scored against its truth.
 fn perceive(
     model: &KeypointModel,
     fit: FitChoice,
-    crops: CropSource,
+    found: &FrameCrops,
     frame: &Frame,
     instance: &Instance,
     seconds: &mut StageSeconds,
 ) -> Result<(Perceived, Vec<[f64; 3]>)> {
     let start = Instant::now();
-    let found = evaluation::instance_crops(&model.config, frame, &[instance], crops)?;
     let Some(crop) = found.crops[0] else {
-        seconds.inference = start.elapsed().as_secs_f64();
         return Ok((Perceived::NotDetected, Vec::new()));
     };
     let known = BoxModel::new(Vector3::from(instance.size))?;
@@ -534,7 +700,7 @@ fn perceive(
         );
     }
     let fit = run;
-    seconds.inference = start.elapsed().as_secs_f64() - fit.fit_time_us / 1e6;
+    seconds.inference += start.elapsed().as_secs_f64() - fit.fit_time_us / 1e6;
 
     let start = Instant::now();
     let outcome = fit.score(&known, &evaluation::true_pose(instance), &points);
@@ -687,13 +853,7 @@ fn window_inside_render(
     bbox: [i32; 4],
     margin: f64,
 ) -> Result<bool> {
-    use boxpose_data::arrow::array::AsArray;
-    let settings = frames
-        .column_by_name("render_settings")
-        .map(|c| c.as_string::<i32>().value(0).to_string())
-        .unwrap_or_default();
-    let settings: serde_json::Value = serde_json::from_str(&settings)
-        .map_err(|e| SearchError::Sample(format!("render_settings: {e}")))?;
+    let settings = render_settings(frames)?;
     let numbers = |key: &str| -> Option<Vec<f64>> {
         settings
             .get(key)?
@@ -712,4 +872,49 @@ fn window_inside_render(
     let right = window.x0 + window.side + 1.0 <= w || region[2] >= image[0];
     let bottom = window.y0 + window.side + 1.0 <= h || region[3] >= image[1];
     Ok(left && top && right && bottom)
+}
+
+/// The `render_settings` of a render's one frame row.
+fn render_settings(frames: &RecordBatch) -> Result<serde_json::Value> {
+    use boxpose_data::arrow::array::AsArray;
+    let settings = frames
+        .column_by_name("render_settings")
+        .map(|c| c.as_string::<i32>().value(0).to_string())
+        .unwrap_or_default();
+    serde_json::from_str(&settings)
+        .map_err(|e| SearchError::Sample(format!("render_settings: {e}")))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 640×480 frame rendered 320 wide: focal length 500 → 250, principal points at centres.
+    const SMALL: Intrinsics = Intrinsics {
+        fx: 250.0,
+        fy: 250.0,
+        cx: 159.5,
+        cy: 119.5,
+    };
+
+    #[test]
+    fn the_region_is_the_window_around_the_detection_at_full_resolution() {
+        // [100, 140) × [80, 110) at 320 wide is [200, 280) × [160, 220) at 640: the window is
+        // 1.25 × 80 = 100 pixels square around (240, 190), plus 2 pixels each side
+        let region = window_region(&SMALL, 320, [640, 480], [100, 80, 140, 110], 1.25);
+        assert_eq!(region, [188, 138, 292, 242]);
+    }
+
+    #[test]
+    fn a_region_at_the_frames_edge_is_clipped_to_it() {
+        // [0, 40)² at full resolution: the window [-5, 45)² loses what lies outside the frame
+        assert_eq!(
+            window_region(&SMALL, 320, [640, 480], [0, 0, 20, 20], 1.25),
+            [0, 0, 47, 47]
+        );
+        assert_eq!(
+            window_region(&SMALL, 320, [640, 480], [310, 230, 320, 240], 1.25),
+            [615, 455, 640, 480]
+        );
+    }
 }

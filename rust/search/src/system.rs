@@ -68,5 +68,6 @@ pub fn load(
     sut.whole_frames = settings.whole_frames;
     sut.refine_depth = settings.refine_depth;
     sut.sensor_depth = settings.sensor_depth;
+    sut.two_resolutions = settings.two_resolutions;
     Ok(sut)
 }

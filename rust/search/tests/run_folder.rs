@@ -123,6 +123,7 @@ fn settings(sampler: Sampler, samples: usize, batch_size: usize) -> RunSettings 
         whole_frames: false,
         refine_depth: false,
         sensor_depth: false,
+        two_resolutions: false,
         fit: "paper".into(),
         predicate: Predicate::default(),
         ce: CeConfig {
@@ -407,4 +408,46 @@ fn two_shards_of_a_subset_simulation_meet_at_its_barriers_and_merge_to_the_singl
             "{name}"
         );
     }
+}
+
+#[test]
+fn a_segmenter_run_recorded_before_two_resolution_renders_resumes_as_it_began() {
+    let space = space();
+    let dir = tempfile::tempdir().unwrap();
+    let mut before = settings(Sampler::Mc, 10, 5);
+    before.crops = Crops::Predicted;
+    let recorded =
+        Run::create(dir.path(), RunRecord::new(&space, before.clone()).unwrap()).unwrap();
+    // what run.json held before the setting existed: no two_resolutions key at all
+    let path = dir.path().join("run.json");
+    let mut json: serde_json::Value = serde_json::from_slice(&read(&path)).unwrap();
+    json["settings"]
+        .as_object_mut()
+        .unwrap()
+        .remove("two_resolutions")
+        .expect("run.json records two_resolutions");
+    std::fs::write(&path, serde_json::to_vec_pretty(&json).unwrap()).unwrap();
+    // today's command for the same search asks for two resolutions; the run goes on with whole frames
+    let today = RunSettings {
+        two_resolutions: true,
+        ..before.clone()
+    };
+    let resumed = Run::create(dir.path(), RunRecord::new(&space, today.clone()).unwrap()).unwrap();
+    assert!(!resumed.record.settings.two_resolutions);
+    assert!(resumed.record == recorded.record);
+    // a run recorded with two resolutions is another search for a command with --whole-frames,
+    // named by that flag
+    let other = tempfile::tempdir().unwrap();
+    Run::create(other.path(), RunRecord::new(&space, today).unwrap()).unwrap();
+    let whole_frames = RunSettings {
+        whole_frames: true,
+        ..before
+    };
+    let refused = Run::create(other.path(), RunRecord::new(&space, whole_frames).unwrap());
+    let message = refused.err().expect("refused").to_string();
+    assert!(
+        message.contains("--whole-frames is false there, true here")
+            && !message.contains("two-resolutions"),
+        "{message}"
+    );
 }

@@ -84,12 +84,18 @@ impl Run {
         let path = dir.join("run.json");
         if path.exists() {
             let run = Self::open(dir)?;
-            if run.record != record {
+            let mut asked = record;
+            // a run recorded before two-resolution renders existed goes on as it began: whole
+            // frames at full resolution (nothing recorded since stores false where this asks true)
+            if !run.record.settings.two_resolutions {
+                asked.settings.two_resolutions = false;
+            }
+            if run.record != asked {
                 return Err(SearchError::Run {
                     path: dir.to_path_buf(),
                     problem: format!(
                         "it holds another search ({}); resume it with its own settings or choose a new --out",
-                        differences(&run.record, &record).join("; ")
+                        differences(&run.record, &asked).join("; ")
                     ),
                 });
             }

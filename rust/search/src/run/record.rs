@@ -58,6 +58,11 @@ pub struct RunSettings {
     /// [`boxpose_data::Frame::use_sensor_depth`]), not the exact render depth.
     #[serde(default)]
     pub sensor_depth: bool,
+    /// Segmenter crops from two renders: the whole frame at the segmenter's input width, the
+    /// target's region at full resolution (`SystemUnderTest::two_resolutions`). False in runs
+    /// recorded before it existed, which rendered the whole frame at full resolution.
+    #[serde(default)]
+    pub two_resolutions: bool,
     /// The pose fit: paper, fast, robust or size.
     pub fit: String,
     pub predicate: Predicate,
@@ -267,6 +272,8 @@ pub(crate) fn differences(run: &RunRecord, this: &RunRecord) -> Vec<String> {
                     }
                 }
             }
+            // follows from --crops and --whole-frames (no flag of its own), named above
+            ("two_resolutions", ..) => {}
             (_, value, ours) => differ(key, Some(value), ours),
         }
     }
@@ -303,6 +310,7 @@ mod tests {
                 whole_frames: false,
                 refine_depth: false,
                 sensor_depth: false,
+                two_resolutions: false,
                 fit: "paper".into(),
                 predicate: Predicate::default(),
                 ce: CeConfig::default(),
