@@ -116,3 +116,39 @@ def test_the_design_docs_crate_graph_is_the_manifests():
         f"docs/design.md draws {sorted(drawn - manifests)} that no Cargo.toml declares "
         f"and lacks {sorted(manifests - drawn)}"
     )
+
+
+def long_functions(text: str, limit: int) -> list[tuple[str, int]]:
+    """The functions of a rustfmt-formatted source longer than `limit` lines, signature to
+    closing brace (a function ends at the first `}` line at its own indentation)."""
+    lines = text.splitlines()
+    found = []
+    i = 0
+    while i < len(lines):
+        start = re.match(r"^(\s*)(?:pub(?:\([a-z]+\))? )?(?:const )?fn (\w+)", lines[i])
+        if start is None:
+            i += 1
+            continue
+        end = i
+        while end < len(lines) and lines[end] != start.group(1) + "}":
+            end += 1
+        if end - i + 1 > limit:
+            found.append((start.group(2), end - i + 1))
+        i = end + 1
+    return found
+
+
+def test_the_binary_has_no_function_over_80_lines():
+    # the binary parses, prints and plots; work long enough to need more belongs to a library
+    long = {
+        f"{src.relative_to(ROOT)}: {name}": n
+        for src in sorted((ROOT / "rust" / "cli" / "src").rglob("*.rs"))
+        for name, n in long_functions(src.read_text(), 80)
+    }
+    assert not long, long
+
+
+def test_the_length_check_finds_a_long_function():
+    body = "\n".join(["    let x = 1;"] * 80)
+    text = f"fn short() {{\n}}\n\npub fn long() {{\n{body}\n}}\n"
+    assert long_functions(text, 80) == [("long", 82)]

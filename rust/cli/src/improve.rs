@@ -145,6 +145,44 @@ pub struct Args {
 }
 
 impl Args {
+    /// Refuses settings the loop cannot run with, before anything is written.
+    fn check(&self) -> anyhow::Result<()> {
+        anyhow::ensure!(self.rounds >= 1, "--rounds must be at least 1");
+        anyhow::ensure!(
+            self.learnt_repeat >= 1,
+            "--learnt-repeat must be at least 1 (one copy of each learnt set per epoch)"
+        );
+        anyhow::ensure!(
+            self.model.join("network.toml").is_file(),
+            "--model {}: not a keypoint network folder (no network.toml)",
+            self.model.display()
+        );
+        if self.segmenter_config.is_some() {
+            anyhow::ensure!(
+                self.crops == "predicted",
+                "--segmenter-config fine-tunes the segmenter that crops for the keypoint network: \
+                 it needs --crops predicted"
+            );
+        }
+        if let Some(segmenter) = &self.segmenter {
+            anyhow::ensure!(
+                segmenter.join("segmenter.toml").is_file(),
+                "--segmenter {}: not a segmenter folder (no segmenter.toml)",
+                segmenter.display()
+            );
+        }
+        let names: std::collections::BTreeSet<String> = self
+            .held_out_datasets
+            .iter()
+            .map(|d| held_out_name(d))
+            .collect();
+        anyhow::ensure!(
+            names.len() == self.held_out_datasets.len(),
+            "--held-out-dataset: two datasets with one folder name; their evaluations would share a folder"
+        );
+        Ok(())
+    }
+
     /// Everything that shapes the loop's results, as recorded in `improve.json`.
     fn settings(&self) -> serde_json::Value {
         let mut settings = serde_json::json!({
@@ -184,39 +222,7 @@ impl Args {
 }
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
-    anyhow::ensure!(args.rounds >= 1, "--rounds must be at least 1");
-    anyhow::ensure!(
-        args.learnt_repeat >= 1,
-        "--learnt-repeat must be at least 1 (one copy of each learnt set per epoch)"
-    );
-    anyhow::ensure!(
-        args.model.join("network.toml").is_file(),
-        "--model {}: not a keypoint network folder (no network.toml)",
-        args.model.display()
-    );
-    if args.segmenter_config.is_some() {
-        anyhow::ensure!(
-            args.crops == "predicted",
-            "--segmenter-config fine-tunes the segmenter that crops for the keypoint network: \
-             it needs --crops predicted"
-        );
-    }
-    if let Some(segmenter) = &args.segmenter {
-        anyhow::ensure!(
-            segmenter.join("segmenter.toml").is_file(),
-            "--segmenter {}: not a segmenter folder (no segmenter.toml)",
-            segmenter.display()
-        );
-    }
-    let names: std::collections::BTreeSet<String> = args
-        .held_out_datasets
-        .iter()
-        .map(|d| held_out_name(d))
-        .collect();
-    anyhow::ensure!(
-        names.len() == args.held_out_datasets.len(),
-        "--held-out-dataset: two datasets with one folder name; their evaluations would share a folder"
-    );
+    args.check()?;
     let method = boxpose_search::sut::method_named(&args.fit).map_err(anyhow::Error::msg)?;
     refuse_foreign(&args.out, "--out", "improve", &[SETTINGS_FILE])?;
     std::fs::create_dir_all(&args.out)

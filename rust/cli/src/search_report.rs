@@ -352,6 +352,26 @@ fn escape(text: &str) -> String {
         .replace('>', "&gt;")
 }
 
+/// What perceives the target in a run, for the page's opening sentence.
+fn perception(s: &RunSettings) -> String {
+    let mut text = match &s.sut {
+        Some(spec) => format!("system under test <code>{}</code>", escape(spec)),
+        None if s.refine_depth => format!(
+            "fit <b>{}</b> laid on the depth image (<code>--refine-depth</code>)",
+            escape(&s.fit)
+        ),
+        None => format!("fit <b>{}</b>", escape(&s.fit)),
+    };
+    if s.sensor_depth {
+        text += ", perceiving the simulated sensor's depth (<code>--sensor-depth</code>)";
+    }
+    if s.two_resolutions {
+        text += ", the segmenter's frame rendered at its input width and the keypoint network's \
+                 window at full resolution";
+    }
+    text
+}
+
 fn page(
     run: &Run,
     rows: &[SampleRow],
@@ -384,23 +404,7 @@ fn page(
         } else {
             "segmenter"
         },
-        match &s.sut {
-            Some(spec) => format!("system under test <code>{}</code>", escape(spec)),
-            None if s.refine_depth => format!(
-                "fit <b>{}</b> laid on the depth image (<code>--refine-depth</code>)",
-                escape(&s.fit)
-            ),
-            None => format!("fit <b>{}</b>", escape(&s.fit)),
-        } + if s.sensor_depth {
-            ", perceiving the simulated sensor's depth (<code>--sensor-depth</code>)"
-        } else {
-            ""
-        } + if s.two_resolutions {
-            ", the segmenter's frame rendered at its input width and the target's region at full \
-             resolution"
-        } else {
-            ""
-        },
+        perception(s),
         escape(&s.predicate.to_string())
     )?;
     estimate_section(&mut h, s, summary.as_ref(), rows)?;
