@@ -921,10 +921,10 @@ def test_segmenter_crops_render_the_frame_at_the_segmenters_width_and_the_target
     spaces, boxpose_bin, tmp_path
 ):
     """A frame wider than the segmenter's input (384×288 against the shipped segmenter's 320):
-    the segmenter reads a whole frame rendered 320 wide; a box it finds is then rendered as its
-    region at full resolution for the keypoint network, a box it misses ends the sample on the
-    small frame. --whole-frames renders the whole frame at full size once, and the two runs
-    pair sample by sample."""
+    the segmenter reads a whole frame rendered 320 wide; for a box it finds, the keypoint
+    network's window around the detection is then rendered at full resolution, a box it misses
+    ends the sample on the small frame. --whole-frames renders the whole frame at full size once,
+    and the two runs pair sample by sample."""
     text = recipe("single_box").replace("width = 96", "width = 384")
     text = text.replace("height = 96", "height = 288")
     (tmp_path / "wide.toml").write_text(text)
@@ -951,7 +951,7 @@ def test_segmenter_crops_render_the_frame_at_the_segmenters_width_and_the_target
     # a missed box: the small frame, focal length × 320/384
     assert ((missed.width == 320) & (missed.height == 240)).all(), missed
     assert np.allclose(missed.fx, missed.fx_whole * 320 / 384)
-    # a found box: full resolution, its region (or the whole frame where the region fell short)
+    # a found box: full resolution, the window's region (the whole frame were it to fall short)
     assert len(found) > 0, "the shipped segmenter found no box in 4 samples"
     assert np.allclose(found.fx, found.fx_whole) and (found.width < 384).any(), found
     record = json.loads((runs["two"] / "run.json").read_text())["settings"]

@@ -212,7 +212,8 @@ struct RunArgs {
     /// Render whole frames at the recipe's resolution, the reference for `make bench-search`. By
     /// default a sample renders only what its perception reads: with ground-truth crops the
     /// region the network's window reaches; with segmenter crops the whole frame at the
-    /// segmenter's input width, then the target's region at full resolution.
+    /// segmenter's input width, then the network's window around the detection at full
+    /// resolution.
     #[arg(long)]
     whole_frames: bool,
     /// Lay the fitted pose on the depth image: Gauss–Newton on the points of the box's visible

@@ -300,8 +300,8 @@ pub struct SystemUnderTest {
     /// ([`boxpose_data::Frame::use_sensor_depth`]).
     pub sensor_depth: bool,
     /// With segmenter crops, render what the perception reads: the whole frame at the
-    /// segmenter's input width, then the target's region at full resolution for the keypoint
-    /// network (instead of the whole frame at full resolution; `whole_frames` overrides it).
+    /// segmenter's input width, then the keypoint network's window around the detection at full
+    /// resolution (instead of the whole frame at full resolution; `whole_frames` overrides it).
     pub two_resolutions: bool,
 }
 

@@ -59,8 +59,8 @@ pub struct RunSettings {
     #[serde(default)]
     pub sensor_depth: bool,
     /// Segmenter crops from two renders: the whole frame at the segmenter's input width, the
-    /// target's region at full resolution (`SystemUnderTest::two_resolutions`). False in runs
-    /// recorded before it existed, which rendered the whole frame at full resolution.
+    /// keypoint network's window at full resolution (`SystemUnderTest::two_resolutions`). False
+    /// in runs recorded before it existed, which rendered the whole frame at full resolution.
     #[serde(default)]
     pub two_resolutions: bool,
     /// The pose fit: paper, fast, robust or size.
