@@ -208,7 +208,8 @@ def main() -> None:
     auto = samplers["cross-entropy, --ce-tilt auto"].get("summary", {})
     if "ce_tilt" in auto:
         tilt = auto["ce_tilt"]
-        chosen = [t["parameter"] for t in tilt["tests"] if t["tilted"]] or ["every parameter"]
+        nothing = "nothing" if tilt.get("held_at_nominal") else "every parameter"
+        chosen = [t["parameter"] for t in tilt["tests"] if t["tilted"]] or [nothing]
         print(f"\n--ce-tilt auto chose: {', '.join(chosen)}")
     if not args.no_analytic:
         analytic()

@@ -275,9 +275,10 @@ struct RunArgs {
     ce_components: usize,
     /// Cross-entropy: tilt only these parameters (comma-separated names or prefixes, e.g.
     /// `target.size_m,target.orientation`); the others keep their nominal and add no weight
-    /// variance. `auto`: tilt those the first tuning iteration's scores depend on (a rank test
-    /// per parameter at family-wise level 1 %; summary.json's `ce_tilt` lists every test).
-    /// Default: all.
+    /// variance. `auto`: tilt those the nominal tuning iterations' scores depend on (a rank test
+    /// per parameter at family-wise level 1 %, repeated on every nominal sample so far until one
+    /// shows; if none ever does, the estimate is plain Monte Carlo's; summary.json's `ce_tilt`
+    /// lists every test). Default: all.
     #[arg(long, value_delimiter = ',')]
     ce_tilt: Vec<String>,
     /// Splitting: the share p₀ of each stage's particles above the next level (Au & Beck: 0.1).
@@ -553,9 +554,13 @@ fn print_summary(out: &Path, summary: &Summary) {
         print_levels(splitting);
     }
     if let Some(tilt) = &summary.ce_tilt {
+        let tilted = tilt.tilted();
         println!(
-            "cross-entropy tilted {} (chosen from the first iteration's {} valid samples)",
-            tilt.tilted().join(", "),
+            "cross-entropy tilted {} (chosen from {} valid nominal samples)",
+            match tilted.is_empty() {
+                true => "nothing".to_string(),
+                false => tilted.join(", "),
+            },
             tilt.samples
         );
     }

@@ -267,10 +267,12 @@ pub fn run_in_memory_from(
 }
 
 /// [`run_in_memory`] with the tilted dimensions chosen from data, as `boxpose search --ce-tilt
-/// auto` does: iteration 0 draws from the nominal, [`choose_tilt`] tests its scores' dependence
-/// on each dimension at family-wise level `tilt_alpha` (`rotation_blocks`: the orientation blocks' starts), and from
-/// then on every proposal holds the untilted dimensions at their nominal
-/// ([`hold_at_nominal`]); the chosen orientation blocks get angular central Gaussians.
+/// auto` does: the tuning iterations draw from the nominal until [`choose_tilt`], repeated on
+/// every nominal sample so far at level `tilt_alpha / config.max_iterations` per look
+/// (`rotation_blocks`: the orientation blocks' starts), finds a dimension the scores depend on;
+/// from then on every proposal holds the untilted dimensions at their nominal
+/// ([`hold_at_nominal`]) and the chosen orientation blocks get angular central Gaussians. When
+/// no look finds one, the final batch is drawn from the nominal: plain Monte Carlo.
 pub fn run_in_memory_auto_tilt(
     config: &CeConfig,
     dim: usize,
@@ -281,12 +283,24 @@ pub fn run_in_memory_auto_tilt(
     score: impl Fn(&[f64]) -> f64,
 ) -> Result<(CeRun, TiltChoice), CeError> {
     config.validate()?;
-    let start = Proposal::tuning_start(dim, config.components);
-    let zs = draw(&start, seed, 0, config.samples_per_iteration);
-    let scores: Vec<f64> = zs.iter().map(|z| score(z)).collect();
-    let choice = choose_tilt(&zs, &scores, dim, rotation_blocks, tilt_alpha)?;
+    let nominal = Proposal::tuning_start(dim, config.components);
+    let look_alpha = tilt_alpha / config.max_iterations as f64;
+    let (mut zs, mut scores) = (Vec::new(), Vec::new());
+    let mut iteration = 0;
+    let choice = loop {
+        let batch = draw(&nominal, seed, iteration, config.samples_per_iteration);
+        scores.extend(batch.iter().map(|z| score(z)));
+        zs.extend(batch);
+        let choice = choose_tilt(&zs, &scores, dim, rotation_blocks, look_alpha)?;
+        let last = iteration + 1 == config.max_iterations
+            || ce_step(&nominal, &zs, &scores, failure_level, config)?.reached;
+        if !choice.undecided() || last {
+            break choice;
+        }
+        iteration += 1;
+    };
     let mask = choice.mask(dim);
-    let start = start.with_rotation_blocks(&choice.tilted_blocks())?;
+    let start = nominal.with_rotation_blocks(&choice.tilted_blocks())?;
     let run = tune_then_estimate(
         config,
         start,
@@ -294,7 +308,7 @@ pub fn run_in_memory_auto_tilt(
         failure_level,
         &score,
         Some(&mask),
-        Some((zs, scores)),
+        Some((iteration, zs, scores)),
     )?;
     Ok((run, choice))
 }
@@ -305,9 +319,10 @@ fn draw(proposal: &Proposal, seed: u64, iteration: u32, n: usize) -> Vec<Vec<f64
         .collect()
 }
 
-/// The tuning iterations from `proposal` (iteration 0's samples and scores given in `first`
-/// when they were already drawn), each fitted proposal held at the nominal outside `mask`, then
-/// the final batch and its estimate.
+/// The tuning iterations from `proposal`, each fitted proposal held at the nominal outside
+/// `mask`, then the final batch and its estimate. `first` = (iteration, samples, scores): the
+/// samples already drawn from `proposal`'s density that the step of that iteration fits on
+/// (tuning then goes on from there); without it tuning starts at iteration 0.
 fn tune_then_estimate(
     config: &CeConfig,
     mut proposal: Proposal,
@@ -315,12 +330,16 @@ fn tune_then_estimate(
     failure_level: f64,
     score: &dyn Fn(&[f64]) -> f64,
     mask: Option<&[bool]>,
-    mut first: Option<(Vec<Vec<f64>>, Vec<f64>)>,
+    first: Option<(u32, Vec<Vec<f64>>, Vec<f64>)>,
 ) -> Result<CeRun, CeError> {
     let mut levels = Vec::new();
     let mut reached = false;
     let mut tuning_evaluations = 0u64;
-    for it in 0..config.max_iterations {
+    let (start, mut first) = match first {
+        Some((iteration, zs, scores)) => (iteration, Some((zs, scores))),
+        None => (0, None),
+    };
+    for it in start..config.max_iterations {
         let (zs, scores) = first.take().unwrap_or_else(|| {
             let zs = draw(&proposal, seed, it, config.samples_per_iteration);
             let scores = zs.iter().map(|z| score(z)).collect();

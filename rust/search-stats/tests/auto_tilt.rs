@@ -171,3 +171,81 @@ fn auto_tilt_at_1e4() {
     compare(Failure::Linear, 1e-4, 100);
     compare(Failure::RotationAndParameter, 1e-4, 100);
 }
+
+/// A first iteration too small for the tests (40 samples, where the linear failure's two
+/// parameters show at about one look's threshold): when nothing passed, the choice waits for the
+/// next nominal iterations instead of tilting every dimension. Cross-entropy with 40 samples per
+/// iteration covers below 95 % either way (4 elites per step), so the check is against tilting
+/// everything on the same runs: more intervals cover, with fewer evaluations.
+#[test]
+fn auto_tilt_waits_for_a_dependence_to_show() {
+    let failure = Failure::Linear;
+    let config = CeConfig {
+        samples_per_iteration: 40,
+        max_iterations: 10,
+        ..config(failure)
+    };
+    let p = 1e-3;
+    let score = failure.score(p);
+    let reps = 100;
+    let (mut exact, mut waited) = (0, 0);
+    let auto = measure(p, reps, |seed| {
+        let (run, choice) =
+            run_in_memory_auto_tilt(&config, DIM, &BLOCKS, 300 + seed, 0.0, ALPHA, &score)
+                .expect("auto-tilt run");
+        exact += (tilted_starts(&choice) == failure.relevant()) as u64;
+        waited += (choice.samples > config.samples_per_iteration) as u64;
+        run
+    });
+    let start = Proposal::tuning_start(DIM, 1)
+        .with_rotation_blocks(&BLOCKS)
+        .unwrap();
+    let all = measure(p, reps, |seed| {
+        run_in_memory_from(&config, &start, 300 + seed, 0.0, &score).expect("ce run")
+    });
+    let (auto_10, all_10) = (
+        auto.for_10pct(config.final_samples),
+        all.for_10pct(config.final_samples),
+    );
+    println!(
+        "40 per iteration: waited past the first iteration in {waited}/{reps}, chose exactly \
+         the failure's dimensions in {exact}/{reps}; covered {}/{reps} against {}/{reps} \
+         tilting all; evaluations for 10 % RE {auto_10:.0} against {all_10:.0}",
+        auto.covered, all.covered
+    );
+    assert!(
+        waited >= 10,
+        "only {waited}/{reps} runs waited for a second look"
+    );
+    assert!(
+        auto.covered >= all.covered + 10,
+        "covered {} against {} tilting all",
+        auto.covered,
+        all.covered
+    );
+    assert!(
+        auto_10 < all_10,
+        "{auto_10:.0} evaluations against {all_10:.0}"
+    );
+}
+
+/// A failure no look can see (one sample in 10⁴ fails and none is drawn while tuning) leaves
+/// the proposal at the nominal: the final batch is plain Monte Carlo, every weight 1.
+#[test]
+fn a_failure_nothing_shows_gives_monte_carlo() {
+    let config = CeConfig {
+        samples_per_iteration: 100,
+        max_iterations: 3,
+        ..config(Failure::Linear)
+    };
+    let level = normal_quantile(1.0 - 1e-4);
+    let score = move |z: &[f64]| if z[5] >= level { 0.0 } else { -1.0 };
+    let (run, choice) =
+        run_in_memory_auto_tilt(&config, DIM, &BLOCKS, 7, 0.0, ALPHA, score).expect("run");
+    assert!(choice.undecided(), "{:?}", choice.tests);
+    assert_eq!(choice.samples, 300, "every tuning iteration was tested");
+    assert_eq!(run.tuning_evaluations, 300);
+    let z: Vec<f64> = (0..DIM).map(|d| 0.3 * d as f64 - 2.0).collect();
+    assert!(run.final_proposal.log_weight(&z).abs() < 1e-12);
+    assert_eq!(run.estimate.samples, config.final_samples as u64);
+}

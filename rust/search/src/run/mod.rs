@@ -458,27 +458,37 @@ impl Run {
         if let Some(state) = &plan.splitting {
             return self.advance_splitting(iteration, plan, state.clone());
         }
-        let rows = self.iteration_rows(iteration, self.batches(plan.samples))?;
-        let zs: Vec<Vec<f64>> = rows.iter().map(|r| r.z.clone()).collect();
-        let scores: Vec<f64> = rows.iter().map(SampleRow::level_score).collect();
         let ce = &self.settings().ce;
         let step_error = |e: CeError| SearchError::Run {
             path: self.dir.clone(),
             problem: format!("cross-entropy step after iteration {iteration}: {e}"),
         };
-        let (current, tilt) = if self.auto_tilt() && iteration == 0 {
-            // Iteration 0 drew from the nominal: its scores show what the failures depend on.
+        let choosing = self.auto_tilt()
+            && (iteration == 0 || plan.tilt.as_ref().is_some_and(TiltChoice::undecided));
+        // While the tilt is undecided every iteration drew from the nominal: the tests and the
+        // step see all of their samples.
+        let first = if choosing { 0 } else { iteration };
+        let mut rows = Vec::new();
+        for i in first..=iteration {
+            let samples = match i == iteration {
+                true => plan.samples,
+                false => self.plan(i)?.map_or(0, |p| p.samples),
+            };
+            rows.extend(self.iteration_rows(i, self.batches(samples))?);
+        }
+        let zs: Vec<Vec<f64>> = rows.iter().map(|r| r.z.clone()).collect();
+        let scores: Vec<f64> = rows.iter().map(SampleRow::level_score).collect();
+        let (current, tilt) = if choosing {
             let dim = self.record.dimensions.len();
             let choice = choose_tilt(
                 &zs,
                 &scores,
                 dim,
                 &self.orientation_blocks(),
-                AUTO_TILT_ALPHA,
+                AUTO_TILT_ALPHA / f64::from(ce.max_iterations),
             )
             .map_err(step_error)?;
-            // The same density as iteration 0's (the nominal), with only the chosen blocks
-            // shaped as rotations.
+            // The same density as the nominal, with only the chosen blocks shaped as rotations.
             let start = Proposal::tuning_start(dim, ce.components)
                 .with_rotation_blocks(&choice.tilted_blocks())
                 .map_err(|e| step_error(e.into()))?;

@@ -70,7 +70,7 @@ pub struct RunSettings {
     pub ce: CeConfig,
     /// Cross-entropy: the parameters the proposal may tilt (names or prefixes of z's dimensions,
     /// e.g. `target.size_m`); the others stay at their nominal, so they add no weight variance.
-    /// Empty: all of them. [`AUTO_TILT`] alone: chosen from the first tuning iteration's scores
+    /// Empty: all of them. [`AUTO_TILT`] alone: chosen from the nominal tuning iterations' scores
     /// ([`boxpose_search_stats::choose_tilt`]).
     #[serde(default)]
     pub ce_tilt: Vec<String>,

@@ -92,6 +92,7 @@ impl Run {
         let s = self.settings();
         let ce_tilt = plans
             .iter()
+            .rev()
             .find_map(|p| p.tilt.as_ref())
             .map(|choice| TiltSummary::new(choice, &self.record.dimensions));
         Ok(Summary {
@@ -140,13 +141,21 @@ impl Run {
             }
             .into_iter()
             .chain(system_errors_warning(samples))
-            .chain(ce_tilt.as_ref().filter(|t| t.nothing_stood_out).map(|t| {
-                format!(
-                    "--ce-tilt auto: no parameter's effect on the score showed in the first \
-                     iteration's {} valid samples, so every parameter was tilted",
-                    t.samples
-                )
-            }))
+            .chain(ce_tilt.as_ref().filter(|t| t.nothing_stood_out).map(
+                |t| match t.held_at_nominal {
+                    true => format!(
+                        "--ce-tilt auto: no parameter's effect on the score showed in the {} \
+                         valid nominal samples of the tuning iterations, so nothing was tilted \
+                         and the estimate is plain Monte Carlo's",
+                        t.samples
+                    ),
+                    false => format!(
+                        "--ce-tilt auto: no parameter's effect on the score showed in the first \
+                         iteration's {} valid samples, so every parameter was tilted",
+                        t.samples
+                    ),
+                },
+            ))
             .collect(),
             strata: match &splitting {
                 Some(_) => vec![StratumSummary::whole(&headline)],
@@ -417,15 +426,19 @@ pub struct StageMeans {
     pub fit: f64,
 }
 
-/// `--ce-tilt auto`: what the first tuning iteration's scores chose.
+/// `--ce-tilt auto`: what the nominal tuning iterations' scores chose (the last look).
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct TiltSummary {
-    /// Valid samples of iteration 0 the tests were made on.
+    /// Valid nominal samples the tests were made on.
     pub samples: usize,
-    /// The family-wise level α; each test is held to α / the number of tests.
+    /// The level of the look; each test is held to it / the number of tests.
     pub alpha: f64,
-    /// No parameter passed its test, so every one was tilted.
+    /// No parameter passed its test.
     pub nothing_stood_out: bool,
+    /// When nothing stood out: `true`, nothing was tilted (the final batch is Monte Carlo);
+    /// `false` (runs begun before 2026-12-06), every parameter was.
+    #[serde(default)]
+    pub held_at_nominal: bool,
     /// Every parameter in z's order (an orientation block once, by its name without `.q0`).
     pub tests: Vec<TiltTest>,
 }
@@ -444,6 +457,7 @@ impl TiltSummary {
             samples: choice.samples,
             alpha: choice.alpha,
             nothing_stood_out: choice.is_empty(),
+            held_at_nominal: choice.undecided(),
             tests: choice
                 .tests
                 .iter()
@@ -463,7 +477,7 @@ impl TiltSummary {
     pub fn tilted(&self) -> Vec<&str> {
         self.tests
             .iter()
-            .filter(|t| t.tilted || self.nothing_stood_out)
+            .filter(|t| t.tilted || (self.nothing_stood_out && !self.held_at_nominal))
             .map(|t| t.parameter.as_str())
             .collect()
     }
