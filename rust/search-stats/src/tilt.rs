@@ -253,6 +253,11 @@ fn rank_dependence_p_value(ranks: &[f64], features: &[Vec<f64>]) -> f64 {
     }
     let y = DVector::from_column_slice(ranks);
     let total = y.norm_squared();
+    if total == 0.0 {
+        // every score tied: the ranks hold no evidence (and 0/0 would be a NaN p-value, which
+        // JSON stores as null and a resumed run could not read back)
+        return 1.0;
+    }
     let Some(chol) = (x.transpose() * &x).cholesky() else {
         return 1.0; // a constant feature: nothing to test
     };
@@ -301,6 +306,11 @@ mod tests {
         let zs = nominal(300, 18, 0);
         let none = choose_tilt(&zs, &vec![1.0; 300], 18, &[10], 0.05).unwrap();
         assert!(none.is_empty(), "constant scores: nothing to tilt");
+        assert!(
+            none.tests.iter().all(|t| t.p_value == 1.0),
+            "{:?}",
+            none.tests
+        );
         assert!(none.undecided());
         assert_eq!(
             none.mask(18),

@@ -25,6 +25,8 @@ struct ClosedForm {
     p: f64,
     calls: usize,
     interrupt_after: Option<usize>,
+    /// The score never below this (a flat error far from failing), if set.
+    plateau: Option<f64>,
 }
 
 impl ClosedForm {
@@ -33,18 +35,21 @@ impl ClosedForm {
             p,
             calls: 0,
             interrupt_after: None,
+            plateau: None,
         }
     }
 
-    fn interrupted_after(p: f64, calls: usize) -> Self {
+    /// The score flat below quantile 1 − `off`: only samples above it show the dependence.
+    fn with_plateau(p: f64, off: f64) -> Self {
         Self {
-            interrupt_after: Some(calls),
+            plateau: Some(10.0 * (p - off)),
             ..Self::new(p)
         }
     }
 
     fn score_of_quantile(&self, u: f64) -> f64 {
-        10.0 * (u - (1.0 - self.p))
+        let score = 10.0 * (u - (1.0 - self.p));
+        self.plateau.map_or(score, |floor| score.max(floor))
     }
 }
 
@@ -168,20 +173,27 @@ fn check_resume(sampler: Sampler, samples: usize, batch_size: usize, p: f64, at:
 }
 
 fn check_resume_of(s: &RunSettings, p: f64, at: usize) {
+    check_resume_of_with(s, || ClosedForm::new(p), at);
+}
+
+fn check_resume_of_with(s: &RunSettings, evaluator: impl Fn() -> ClosedForm, at: usize) {
     let root = tempfile::tempdir().unwrap();
     let (sampler, batch_size) = (s.sampler, s.batch_size);
     let whole = root.path().join("whole");
-    let mut uninterrupted = ClosedForm::new(p);
+    let mut uninterrupted = evaluator();
     run(&whole, s, &mut uninterrupted).unwrap();
     assert!(
         at < uninterrupted.calls,
         "the interruption falls inside the run"
     );
     let resumed = root.path().join("resumed");
-    let mut interrupted = ClosedForm::interrupted_after(p, at);
+    let mut interrupted = ClosedForm {
+        interrupt_after: Some(at),
+        ..evaluator()
+    };
     assert!(run(&resumed, s, &mut interrupted).is_err(), "interrupted");
     assert!(!resumed.join("samples.parquet").exists());
-    let mut fresh = ClosedForm::new(p);
+    let mut fresh = evaluator();
     run(&resumed, s, &mut fresh).unwrap();
     // the committed batches were kept: only the batch in flight is evaluated twice
     assert!(
@@ -302,6 +314,54 @@ fn cross_entropy_chooses_the_deciding_parameter_itself_and_resumes() {
     s.samples = 200;
     s.ce.final_samples = 200;
     check_resume_of(&s, p, 250);
+}
+
+#[test]
+fn cross_entropy_auto_tilt_waits_at_the_nominal_until_a_parameter_shows() {
+    // one sample in 200 leaves the plateau: the first iteration's 200 show nothing, so the
+    // next iterations draw from the nominal again and the tests pool them
+    let (p, off) = (1e-3, 5e-3);
+    let mut s = settings(Sampler::Ce, 200, 100);
+    s.ce_tilt = vec!["auto".into()];
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("auto");
+    run(&dir, &s, &mut ClosedForm::with_plateau(p, off)).unwrap();
+    let plan = |i: u32| -> serde_json::Value {
+        serde_json::from_slice(&read(&dir.join(format!("proposals/iter-{i:04}.json")))).unwrap()
+    };
+    let first = plan(1);
+    assert_eq!(first["tilt"]["samples"], 200);
+    assert!(
+        first["tilt"]["tests"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .all(|t| t["tilted"] == false),
+        "{first}"
+    );
+    let component = &first["proposal"]["components"][0];
+    for d in 0..component["mean"].as_array().unwrap().len() {
+        assert_eq!(
+            (component["mean"][d].as_f64(), component["std"][d].as_f64()),
+            (Some(0.0), Some(1.0)),
+            "nothing chosen: the second iteration draws from the nominal"
+        );
+    }
+    let summary = summary(&dir);
+    let tilt = &summary["ce_tilt"];
+    let chosen: Vec<&str> = tilt["tests"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|t| t["tilted"] == true)
+        .map(|t| t["parameter"].as_str().unwrap())
+        .collect();
+    assert!(
+        tilt["samples"].as_u64().unwrap() > 200 && chosen == [DECIDING],
+        "the pooled looks found the deciding parameter: {tilt}"
+    );
+    // resumed across the barriers of the waiting iterations, the same tables
+    check_resume_of_with(&s, || ClosedForm::with_plateau(p, off), 250);
 }
 
 #[test]

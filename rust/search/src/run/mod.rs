@@ -232,7 +232,7 @@ impl Run {
 
     /// Per dimension of z: whether the cross-entropy proposal may move it — the names and
     /// prefixes of `--ce-tilt`, or with `--ce-tilt auto` the `chosen` tilt (every dimension
-    /// before it is made).
+    /// before the first look).
     fn tilt_mask(&self, chosen: Option<&TiltChoice>) -> Vec<bool> {
         let dim = self.record.dimensions.len();
         if self.auto_tilt() {

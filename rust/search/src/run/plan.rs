@@ -5,7 +5,7 @@ use serde::{Deserialize, Serialize};
 
 use super::SampleRow;
 
-/// `--ce-tilt auto`: the tilted parameters are chosen from the first tuning iteration.
+/// `--ce-tilt auto`: the tilted parameters are chosen from the nominal tuning iterations.
 pub const AUTO_TILT: &str = "auto";
 
 /// `--ce-tilt auto`'s family-wise level: with probability ≥ 99 % a parameter the failures do not
@@ -26,8 +26,8 @@ pub struct IterationPlan {
     /// Subset simulation: the state whose candidates this iteration scores.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub splitting: Option<SplittingState>,
-    /// Cross-entropy with `--ce-tilt auto`: the tilt chosen after iteration 0, carried by every
-    /// later plan.
+    /// Cross-entropy with `--ce-tilt auto`: the last look's choice (made after iteration 0, and
+    /// again after each later iteration while nothing is chosen), carried by every later plan.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub tilt: Option<TiltChoice>,
 }
