@@ -7,7 +7,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 BOXPOSE := target/release/boxpose
 RECIPE ?= clutter
-DATASET ?= datasets/generated/$(RECIPE)
+DATASET ?= datasets/generated/$(basename $(notdir $(RECIPE)))
 SHARDS ?= 1
 JOBS ?= 2
 # MuJoCo: mujoco-rs links against the libmujoco inside the pinned `mujoco` wheel

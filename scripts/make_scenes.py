@@ -695,7 +695,17 @@ def settings_differ(args, manifest: dict) -> bool:
     only --regenerate may replace: without it, refused."""
     path = args.dataset / MANIFEST
     if not path.is_file():
-        return False
+        # rendered tables without a manifest were written by another command (`boxpose render`,
+        # an export, an older boxpose): adopting them would mix two datasets. A folder holding
+        # only a scene stage's tables (scenes/, objects/) is one this driver renders.
+        foreign = [name for name in ("frames", "instances") if any((args.dataset / name).glob("*"))]
+        if foreign and not args.regenerate:
+            raise DriverError(
+                f"{args.dataset} holds rendered tables ({', '.join(foreign)}/) without the "
+                f"{MANIFEST} that make scenes writes: it is another command's dataset. Use "
+                "another --dataset folder, or --regenerate to delete its tables and start again"
+            )
+        return bool(foreign)
     try:
         found = json.loads(path.read_text())
     except (OSError, ValueError) as e:
@@ -715,9 +725,7 @@ def settings_differ(args, manifest: dict) -> bool:
 
 def _claim_under_lock(args, manifest: dict) -> None:
     path = args.dataset / MANIFEST
-    if path.is_file():
-        if not settings_differ(args, manifest):
-            return
+    if settings_differ(args, manifest):
         for name in GENERATED:
             target = args.dataset / name
             if target.is_dir():
@@ -725,6 +733,8 @@ def _claim_under_lock(args, manifest: dict) -> None:
             elif target.exists():
                 target.unlink()
         print(f"--regenerate: deleted the outputs of the previous settings in {args.dataset}")
+    elif path.is_file():
+        return
     args.dataset.mkdir(parents=True, exist_ok=True)
     boxpose_io.publish_atomically(path, lambda tmp: tmp.write_text(json.dumps(manifest, indent=2)))
 

@@ -555,8 +555,9 @@ def test_predict_reads_the_bop_depth_with_its_depth_scale(
     bop, dataset, rows, boxpose_bin, tmp_path
 ):
     """`predict` on the BOP export's own files (uint16 depth × depth_scale = mm, 0.1 here) finds
-    the pose it finds on the dataset row; read as millimetres (the default) the box lands 10×
-    too far, and predict warns."""
+    the pose it finds on the dataset row, with the depth_scale given or, by default, read from
+    the scene's scene_camera.json; read as millimetres the box lands 10× too far, and predict
+    warns."""
     frames, instances = rows
     f = frames.iloc[0]
     target = instances[
@@ -592,7 +593,13 @@ def test_predict_reads_the_bop_depth_with_its_depth_scale(
         np.radians(5) / 2
     )
 
-    r = boxpose(boxpose_bin, *files, "--out", tmp_path / "millimetres")
+    # without --depth-scale, the PNG in SCENE/depth/ takes its image's scale from the scene
+    r = boxpose(boxpose_bin, *files, "--out", tmp_path / "bop-default")
+    assert r.returncode == 0 and "warning" not in r.stderr, r.stderr
+    (by_default,) = load(tmp_path / "bop-default" / "predictions.json")["boxes"]
+    assert by_default["fit"] == from_files["fit"]
+
+    r = boxpose(boxpose_bin, *files, "--depth-scale", 1, "--out", tmp_path / "millimetres")
     assert r.returncode == 0, r.stderr
     assert "warning:" in r.stderr and "--depth-scale" in r.stderr, r.stderr
     (misread,) = load(tmp_path / "millimetres" / "predictions.json")["boxes"]

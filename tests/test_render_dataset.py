@@ -314,6 +314,24 @@ def test_a_resume_with_other_settings_is_refused_or_regenerated(tmp_path):
     assert json.loads((dataset / "manifest.json").read_text())["num_scenes"] == 1
 
 
+def test_rendered_tables_without_a_manifest_are_another_commands_dataset(tmp_path):
+    """A folder with frames but no manifest.json (`boxpose render`, an older boxpose) is not
+    adopted: its tables would be mixed with this recipe's. --regenerate deletes them."""
+    dataset = tmp_path / "tiny"
+    write_inputs(dataset, tiny_scenes(2))
+    assert run_driver(dataset).returncode == 0
+    (dataset / "manifest.json").unlink()
+    before = {p: p.read_bytes() for p in dataset.rglob("*.parquet")}
+    r = run_driver(dataset)
+    assert r.returncode == 1
+    assert "without the manifest.json" in r.stderr and "--regenerate" in r.stderr, r.stderr
+    assert {p: p.read_bytes() for p in dataset.rglob("*.parquet")} == before
+    assert not (dataset / "manifest.json").exists()
+    r = run_driver(dataset, "--regenerate")
+    assert r.returncode == 0, r.stderr
+    assert "--regenerate: deleted" in r.stdout and (dataset / "manifest.json").is_file()
+
+
 def test_a_second_driver_on_one_dataset_is_refused(tmp_path):
     dataset = tmp_path / "tiny"
     first, worker = start_driver(dataset)

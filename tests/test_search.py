@@ -625,8 +625,37 @@ def test_a_bad_cross_entropy_setting_names_its_flag(flag, value, spaces, boxpose
         f"{flag}={value}",
         check=False,
     )
-    assert r.returncode != 0 and f"{flag}:" in r.stderr, r.stderr
-    assert "ce config" not in r.stderr and not out.exists()
+    assert r.returncode != 0 and f"error: {flag}:" in r.stderr, r.stderr
+    assert "ce config" not in r.stderr and "sample:" not in r.stderr and not out.exists()
+
+
+@pytest.mark.parametrize(
+    "edit, says",
+    [
+        # a negative count is refused in words, not as serde's "expected u32"
+        (lambda t: t.replace("count = [1, 2]", "count = [-2, 3]"), "whole numbers"),
+        # an unknown key of the base recipe points to `boxpose schema`, not to a source file
+        (lambda t: t, "boxpose schema"),
+    ],
+)
+def test_a_bad_clutter_space_or_recipe_says_what_to_write(
+    edit, says, spaces, boxpose_bin, tmp_path
+):
+    text = edit(spaces["clutter"].read_text())
+    if says == "boxpose schema":
+        recipe = tmp_path / "bin.toml"
+        recipe.write_text(
+            (spaces["clutter"].parent / "bin.toml")
+            .read_text()
+            .replace("[boxes]", "[boxes]\nshine = 1.0")
+        )
+        text = text.replace(str(spaces["clutter"].parent / "bin.toml"), str(recipe))
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text)
+    out = tmp_path / "run"
+    r = search(boxpose_bin, bad, "--out", out, check=False)
+    assert r.returncode != 0 and says in r.stderr, r.stderr
+    assert "expected u32" not in r.stderr and "rust/" not in r.stderr and not out.exists()
 
 
 SPLITTING = [
@@ -805,7 +834,7 @@ def test_an_unknown_tilt_is_refused_before_any_work(spaces, boxpose_bin, tmp_pat
 
 def test_cross_entropy_on_clutter_pools_its_strata(spaces, boxpose_bin, tmp_path):
     out = tmp_path / "clutter-ce"
-    search(
+    r = search(
         boxpose_bin,
         spaces["clutter"],
         "--out",
@@ -848,6 +877,11 @@ def test_cross_entropy_on_clutter_pools_its_strata(spaces, boxpose_bin, tmp_path
     for stratum, neighbours in zip(summary["strata"], [1, 2], strict=True):
         assert stratum["neighbours"] == neighbours and stratum["samples"] == 2
         assert stratum["nominal_probability"] == 0.5
+    # each stratum's own estimate is printed and in the report
+    for neighbours in (1, 2):
+        assert f"  {neighbours} neighbours: " in r.stdout, r.stdout
+    report = (out / "report" / "index.html").read_text()
+    assert "<h2>Strata</h2>" in report and report.count("<tr><td>") >= 3
 
 
 def test_merge_redraws_the_report_and_lists_only_what_the_run_holds(mc_run, boxpose_bin, tmp_path):
@@ -861,6 +895,8 @@ def test_merge_redraws_the_report_and_lists_only_what_the_run_holds(mc_run, boxp
     assert str(copy) in (copy / "report" / "index.html").read_text()
     (line,) = [line for line in r.stdout.splitlines() if line.startswith("run: ")]
     assert "counterexamples/" not in line and "report/index.html" in line, line
+    # Monte Carlo's samples carry no weights: no weight diagnostics are printed
+    assert "P(fail | valid)" in r.stdout and "ESS" not in r.stdout, r.stdout
 
 
 def test_a_sample_replays_to_its_recorded_outcome(mc_run, boxpose_bin, tmp_path):

@@ -30,7 +30,7 @@ pub struct Args {
     #[arg(required = true)]
     dataset: Option<PathBuf>,
     /// Trained model folder (network.toml + model.bpk), e.g. a run's model/ or models/<name>.
-    #[arg(long, default_value = "models/keypoint-slim")]
+    #[arg(long, default_value = "models/keypoint-slim", value_parser = crate::shipped_path)]
     model: PathBuf,
     /// Output folder: eval.parquet, summary.json, paper_error_hist.png.
     #[arg(long, default_value = "results/eval")]
@@ -43,7 +43,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = Crops::Gt)]
     crops: Crops,
     /// Trained segmenter folder, for --crops predicted.
-    #[arg(long, default_value = "models/segmenter-slim")]
+    #[arg(long, default_value = "models/segmenter-slim", value_parser = crate::shipped_path)]
     segmenter: PathBuf,
     /// Only the scenes a training run held out: scene_id % N == 0 (its config's val_modulus).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(2..))]

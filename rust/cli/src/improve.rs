@@ -59,7 +59,7 @@ pub struct Args {
     #[arg(long)]
     out: PathBuf,
     /// The keypoint network the loop starts from.
-    #[arg(long, default_value = "models/keypoint-slim")]
+    #[arg(long, default_value = "models/keypoint-slim", value_parser = crate::shipped_path)]
     model: PathBuf,
     /// Segmenter folder (with --crops predicted); fine-tuned too with --segmenter-config.
     #[arg(long)]
@@ -103,7 +103,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0.3)]
     sigma: f64,
     /// Training config of the fine-tuning (its [network] must be --model's).
-    #[arg(long, default_value = "configs/keypoint-slim.toml")]
+    #[arg(long, default_value = "configs/keypoint-slim.toml", value_parser = crate::shipped_path)]
     config: PathBuf,
     /// Original training data, mixed into every fine-tuning (repeatable).
     #[arg(long = "dataset")]

@@ -113,33 +113,16 @@ fn main() -> std::process::ExitCode {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(error) => {
             eprintln!("error: {}", one_line(&error));
-            if let Some(hint) = outside_the_repository_hint(&error) {
-                eprintln!("{hint}");
-            }
             std::process::ExitCode::FAILURE
         }
     }
 }
 
-/// The shipped defaults (`--model models/keypoint-slim`, `--segmenter`, `--recipes
-/// datasets/recipes`, search space names in `configs/search/`) are paths relative to the
-/// repository root: a missing file, met from another working directory, gets a hint that says so.
-fn outside_the_repository_hint(error: &anyhow::Error) -> Option<&'static str> {
-    const SHIPPED: [&str; 3] = ["models/", "configs/search/", "datasets/recipes/"];
-    let message = one_line(error);
-    let missing_shipped_file = message.contains("No such file or directory")
-        && SHIPPED.iter().any(|prefix| {
-            message.starts_with(prefix)
-                || message.contains(&format!(" {prefix}"))
-                || message.contains(&format!(": {prefix}"))
-        });
-    let at_the_root =
-        std::path::Path::new("configs/search").is_dir() && std::path::Path::new("models").is_dir();
-    (missing_shipped_file && !at_the_root).then_some(
-        "hint: the default models, recipes and search spaces are paths relative to the boxpose \
-         repository root; run from there, or pass --model, --segmenter, --recipes and a search \
-         space's path",
-    )
+/// clap's parser of the arguments whose defaults are shipped files (`--model`, `--segmenter`,
+/// `--recipes`, `--config`): a relative path missing from the working folder is looked up under
+/// the repository root (`boxpose_data::shipped::resolve`).
+pub(crate) fn shipped_path(arg: &str) -> Result<std::path::PathBuf, std::convert::Infallible> {
+    Ok(boxpose_data::shipped::resolve(std::path::Path::new(arg)))
 }
 
 /// The error and its causes joined by ": ", each cause once: many errors already print their

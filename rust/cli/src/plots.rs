@@ -263,7 +263,7 @@ pub fn weighted_histogram(
             .configure_mesh()
             .x_desc(x_desc)
             .y_desc("samples (weighted)")
-            .y_label_formatter(&|y| format!("{y:.2}"))
+            .y_label_formatter(&|y| tick_label(*y))
             .draw()?;
         let color = SERIES_COLORS[1];
         chart.draw_series(
@@ -289,6 +289,20 @@ pub fn weighted_histogram(
     save_png(path, &buffer, width, height)
 }
 
+/// A tick label with the digits its value needs, for linear and log axes alike: 20 → "20",
+/// 2.5 → "2.5", 3 → "3", 0.05 → "0.05", 0.0043 → "0.0043".
+fn tick_label(y: f64) -> String {
+    if !(y.is_finite() && y > 0.0) || y >= 10.0 {
+        return format!("{y:.0}");
+    }
+    let decimals = (1 - y.log10().floor() as i32).max(0) as usize;
+    let text = format!("{y:.decimals$}");
+    match text.contains('.') {
+        true => text.trim_end_matches('0').trim_end_matches('.').to_string(),
+        false => text,
+    }
+}
+
 /// The estimate against samples spent: `(spent, p̂, low, high)` points, the interval shaded.
 pub fn estimate_curve(
     path: &Path,
@@ -296,7 +310,8 @@ pub fn estimate_curve(
     points: &[(f64, f64, f64, f64)],
 ) -> anyhow::Result<()> {
     register_font();
-    let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max);
+    // a little room to the right, so that the last tick's label is not cut at the edge
+    let x_max = points.iter().map(|p| p.0).fold(1.0, f64::max) * 1.04;
     let y_max = points.iter().map(|p| p.3).fold(0.0, f64::max).max(1e-6) * 1.1;
     let (width, height) = (900u32, 480u32);
     let mut buffer = vec![0u8; (width * height * 3) as usize];
@@ -312,6 +327,7 @@ pub fn estimate_curve(
         chart
             .configure_mesh()
             .x_desc("samples spent")
+            .x_label_formatter(&|x| tick_label(*x))
             .y_desc("P(fail | valid)")
             .y_label_formatter(&|y| format!("{y:.1e}"))
             .draw()?;
@@ -357,10 +373,17 @@ pub fn parameter_map(
             let mut chart = ChartBuilder::on(area)
                 .caption(*name, ("sans-serif", 15))
                 .margin(6)
-                .x_label_area_size(22)
-                .y_label_area_size(32)
+                .x_label_area_size(34)
+                .y_label_area_size(44)
                 .build_cartesian_2d(0.0..1.0, -3.0..3.2)?;
-            chart.configure_mesh().x_labels(3).y_labels(4).draw()?;
+            chart
+                .configure_mesh()
+                .x_labels(3)
+                .y_labels(4)
+                .x_desc("nominal quantile")
+                .y_desc("failure score")
+                .axis_desc_style(("sans-serif", 12))
+                .draw()?;
             chart.draw_series(DashedLineSeries::new(
                 vec![(0.0, 0.0), (1.0, 0.0)],
                 4,
@@ -670,4 +693,26 @@ fn hsl_to_rgb(h: f64, s: f64, l: f64) -> (u8, u8, u8) {
     let m = l - c / 2.0;
     let byte = |v: f64| ((v + m) * 255.0).round().clamp(0.0, 255.0) as u8;
     (byte(r), byte(g), byte(b))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::tick_label;
+
+    #[test]
+    fn tick_labels_carry_the_digits_their_value_needs() {
+        let cases = [
+            (2000.0, "2000"),
+            (20.0, "20"),
+            (3.0, "3"),
+            (2.5, "2.5"),
+            (0.5, "0.5"),
+            (0.05, "0.05"),
+            (0.0043, "0.0043"),
+            (0.0, "0"),
+        ];
+        for (value, label) in cases {
+            assert_eq!(tick_label(value), label, "{value}");
+        }
+    }
 }

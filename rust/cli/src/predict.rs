@@ -70,7 +70,7 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = Crops::Gt)]
     crops: Crops,
     /// Trained segmenter folder, for --crops predicted.
-    #[arg(long, default_value = "models/segmenter-slim")]
+    #[arg(long, default_value = "models/segmenter-slim", value_parser = crate::shipped_path)]
     segmenter: PathBuf,
     /// An 8-bit RGB PNG to predict on instead of a dataset frame.
     #[arg(long, requires_all = ["depth", "intrinsics"], conflicts_with = "dataset")]
@@ -79,10 +79,11 @@ pub struct Args {
     /// millimetres.
     #[arg(long)]
     depth: Option<PathBuf>,
-    /// Millimetres per unit of the --depth PNG, as BOP's depth_scale: 1 for a PNG in
-    /// millimetres; `boxpose export bop` writes 0.1 (see its scene_camera.json).
-    #[arg(long, default_value_t = 1.0)]
-    depth_scale: f64,
+    /// Millimetres per unit of the --depth PNG, as BOP's depth_scale. Default: a PNG in a BOP
+    /// scene folder (`SCENE/depth/NNNNNN.png`, as `boxpose export bop` writes) takes its image's
+    /// depth_scale from `SCENE/scene_camera.json`; any other PNG is read as millimetres (1).
+    #[arg(long)]
+    depth_scale: Option<f64>,
     /// Its intrinsics: fx,fy,cx,cy in pixels.
     #[arg(long, value_delimiter = ',')]
     intrinsics: Option<Vec<f64>>,
@@ -90,7 +91,7 @@ pub struct Args {
     #[arg(long, value_delimiter = ',', action = clap::ArgAction::Append)]
     bbox: Vec<i32>,
     /// Trained model folder (network.toml + model.bpk).
-    #[arg(long, default_value = "models/keypoint-slim")]
+    #[arg(long, default_value = "models/keypoint-slim", value_parser = crate::shipped_path)]
     model: PathBuf,
     /// Output folder: predictions.parquet, predictions.json, overlay.png.
     #[arg(long, default_value = "results/predict")]
@@ -125,11 +126,18 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             (frame, targets)
         }
         (None, Some(rgb)) => {
+            let depth = args
+                .depth
+                .as_deref()
+                .context("--depth is required with --rgb")?;
+            let depth_scale = match args.depth_scale {
+                Some(scale) => scale,
+                None => boxpose_formats::bop_depth_scale(depth)?.unwrap_or(1.0),
+            };
             anyhow::ensure!(
-                args.depth_scale.is_finite() && args.depth_scale > 0.0,
-                "--depth-scale {} must be a positive number of millimetres per PNG unit \
-                 (1 for millimetres; BOP's depth_scale, 0.1 for `boxpose export bop`)",
-                args.depth_scale
+                depth_scale.is_finite() && depth_scale > 0.0,
+                "--depth-scale {depth_scale} must be a positive number of millimetres per PNG unit \
+                 (1 for millimetres; BOP's depth_scale, 0.1 for `boxpose export bop`)"
             );
             anyhow::ensure!(
                 args.intrinsics.as_ref().is_none_or(|k| k.len() == 4),
@@ -149,15 +157,11 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 cx: k[2],
                 cy: k[3],
             };
-            let depth = args
-                .depth
-                .as_deref()
-                .context("--depth is required with --rgb")?;
-            let frame = boxpose_formats::read_rgbd(rgb, depth, intrinsics, args.depth_scale)?;
+            let frame = boxpose_formats::read_rgbd(rgb, depth, intrinsics, depth_scale)?;
             if args.bbox.is_empty() {
                 let segmenter = load_segmenter(&args.segmenter, args.backend)?;
                 let targets = prediction::predicted_targets(&frame, &model.config, &segmenter)?;
-                warn_implausible_depths(&frame, &targets, &model, args.depth_scale);
+                warn_implausible_depths(&frame, &targets, &model, depth_scale);
                 return finish(args, &model, frame, targets);
             }
             let targets = args
@@ -169,7 +173,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                         .with_context(|| format!("--bbox {bbox:?} has no depth measurement inside"))
                 })
                 .collect::<anyhow::Result<Vec<_>>>()?;
-            warn_implausible_depths(&frame, &targets, &model, args.depth_scale);
+            warn_implausible_depths(&frame, &targets, &model, depth_scale);
             (frame, targets)
         }
         _ => bail!(

@@ -14,7 +14,7 @@ use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_search::external::{self, ExternalSut};
 use boxpose_search::run::{
     IterationPlan, Observer, Run, RunRecord, RunSettings, SampleRow, Sampler, SplittingSummary,
-    Summary,
+    StratumSummary, Summary,
 };
 use boxpose_search::space::SearchSpace;
 use boxpose_search::sut::{self, Crops, Predicate};
@@ -175,7 +175,7 @@ enum Command {
           boxpose search single_box --samples 50 --sut 'exec:boxpose search serve --fit robust' --out results/via-protocol")]
     Serve {
         /// Keypoint network folder.
-        #[arg(long, default_value = "models/keypoint-slim")]
+        #[arg(long, default_value = "models/keypoint-slim", value_parser = crate::shipped_path)]
         model: PathBuf,
         /// The pose fit: paper, fast, robust or size.
         #[arg(long, default_value = "paper", value_parser = clap::builder::PossibleValuesParser::new(sut::FIT_NAMES))]
@@ -239,7 +239,7 @@ struct RunArgs {
     #[arg(long, default_value = "paper", value_parser = Predicate::parse)]
     fail_when: Predicate,
     /// Keypoint network folder.
-    #[arg(long, default_value = "models/keypoint-slim")]
+    #[arg(long, default_value = "models/keypoint-slim", value_parser = crate::shipped_path)]
     model: PathBuf,
     /// Test another perception system instead of this project's networks and fit:
     /// `exec:COMMAND` (a long-lived process speaking boxpose-sut/1 on stdin and stdout) or
@@ -253,7 +253,7 @@ struct RunArgs {
     #[arg(long, default_value_t = 60.0, value_name = "SECONDS", requires = "sut")]
     sut_timeout: f64,
     /// Segmenter folder (with --crops predicted).
-    #[arg(long, default_value = "models/segmenter-slim")]
+    #[arg(long, default_value = "models/segmenter-slim", value_parser = crate::shipped_path)]
     segmenter: PathBuf,
     /// Cross-entropy: samples per tuning iteration.
     #[arg(long, default_value_t = 100)]
@@ -314,7 +314,7 @@ struct RunArgs {
     #[arg(long, default_value_t = 0)]
     threads: usize,
     /// Folder of the base recipes the spaces name.
-    #[arg(long, default_value = "datasets/recipes")]
+    #[arg(long, default_value = "datasets/recipes", value_parser = crate::shipped_path)]
     recipes: PathBuf,
     #[arg(long, value_enum, default_value_t = BackendKind::Flex)]
     backend: BackendKind,
@@ -353,8 +353,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
         Some(Command::Merge { run }) => {
             let run = Run::open(run)?;
             let summary = run.merge()?;
-            print_estimate(&run.dir, &summary.estimate, summary.samples_spent);
-            print_warnings(&summary.warnings);
+            print_summary(&run.dir, &summary);
             // the report draws the merged tables, and names the folder it is in now
             search_report::write(&run.dir, 6)
         }
@@ -565,7 +564,26 @@ fn print_summary(out: &Path, summary: &Summary) {
         );
     }
     print_estimate(out, &summary.estimate, summary.samples_spent);
+    print_strata(&summary.strata);
     print_warnings(&summary.warnings);
+}
+
+/// Each stratum's own estimate, when there are several (clutter's numbers of neighbours).
+fn print_strata(strata: &[StratumSummary]) {
+    if strata.len() < 2 {
+        return;
+    }
+    for s in strata {
+        let estimate = match (s.p_hat, s.ci95) {
+            (Some(p), Some((lo, hi))) => format!("{p:.3e}  95% CI [{lo:.3e}, {hi:.3e}]"),
+            (Some(p), None) => format!("{p:.3e}"),
+            _ => "no valid sample".to_string(),
+        };
+        println!(
+            "  {} neighbours: {estimate}  ({} failing of {} valid)",
+            s.neighbours, s.failures, s.valid
+        );
+    }
 }
 
 /// The run's settings from the command line: with another system under test, the networks and

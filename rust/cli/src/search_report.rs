@@ -408,6 +408,7 @@ fn page(
         escape(&s.predicate.to_string())
     )?;
     estimate_section(&mut h, s, summary.as_ref(), rows)?;
+    strata_section(&mut h, summary.as_ref())?;
     splitting_section(&mut h, summary.as_ref())?;
     for warning in summary
         .as_ref()
@@ -493,6 +494,45 @@ fn estimate_section(
             rows.len()
         )?,
     }
+    Ok(())
+}
+
+/// Each stratum's own estimate (clutter: one per number of neighbours), when there are several.
+fn strata_section(h: &mut String, summary: Option<&serde_json::Value>) -> anyhow::Result<()> {
+    let Some(strata) = summary
+        .and_then(|v| v.get("strata"))
+        .and_then(|v| v.as_array())
+        .filter(|s| s.len() > 1)
+    else {
+        return Ok(());
+    };
+    writeln!(
+        h,
+        "<h2>Strata</h2><p>P(fail | valid) within each number of neighbours (each of equal nominal probability; the estimate above pools them).</p><table><tr><th>neighbours</th><th>samples</th><th>valid</th><th>failing</th><th>P(fail | valid)</th><th>95% CI</th></tr>"
+    )?;
+    for stratum in strata {
+        let f = |k: &str| stratum.get(k).and_then(|v| v.as_f64());
+        let ci = stratum
+            .get("ci95")
+            .and_then(|v| v.as_array())
+            .map_or("—".to_string(), |a| {
+                format!(
+                    "[{:.3e}, {:.3e}]",
+                    a[0].as_f64().unwrap_or(f64::NAN),
+                    a[1].as_f64().unwrap_or(f64::NAN)
+                )
+            });
+        writeln!(
+            h,
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{ci}</td></tr>",
+            f("neighbours").unwrap_or(f64::NAN),
+            f("samples").unwrap_or(f64::NAN),
+            f("valid").unwrap_or(f64::NAN),
+            f("failures").unwrap_or(f64::NAN),
+            f("p_hat").map_or("—".to_string(), |p| format!("{p:.3e}")),
+        )?;
+    }
+    writeln!(h, "</table>")?;
     Ok(())
 }
 

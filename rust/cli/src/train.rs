@@ -189,7 +189,7 @@ fn validation_line(v: &Validation) -> String {
 #[derive(clap::Args)]
 pub struct Args {
     /// Training config (TOML: [network], [augment], [optimizer], [data]); see configs/.
-    #[arg(long, default_value = "configs/keypoint-slim.toml")]
+    #[arg(long, default_value = "configs/keypoint-slim.toml", value_parser = crate::shipped_path)]
     config: PathBuf,
     #[command(flatten)]
     run: RunArgs,
@@ -287,7 +287,7 @@ fn print_splits(
 #[derive(clap::Args)]
 pub struct SegmenterArgs {
     /// Segmenter training config (TOML: [segmenter], [augment], [optimizer], [data]); see configs/.
-    #[arg(long, default_value = "configs/segmenter-slim.toml")]
+    #[arg(long, default_value = "configs/segmenter-slim.toml", value_parser = crate::shipped_path)]
     config: PathBuf,
     #[command(flatten)]
     run: RunArgs,

@@ -3,7 +3,8 @@
 //! [`support`] the geometry each `support` value means, [`recipe`] what a scene recipe may hold;
 //! [`write_shard`] writes a shard atomically; [`Dataset`] opens a folder, validates every shard
 //! against the schema and yields decoded frames joined with their instances; [`output_folder`]
-//! is the check and lock every writing command takes of its output folder.
+//! is the check and lock every writing command takes of its output folder; [`shipped`] finds the
+//! repository's shipped models, configs and recipes from any working folder.
 
 pub mod arrow;
 mod error;
@@ -12,6 +13,7 @@ mod reader;
 pub mod recipe;
 mod rows;
 pub mod schema;
+pub mod shipped;
 pub mod support;
 mod writer;
 

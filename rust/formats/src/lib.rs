@@ -22,4 +22,4 @@ pub use bop::{BopOptions, BopSummary, write_bop};
 pub use bop_results::{ResultsScore, score_bop_results};
 pub use coco::{CocoOptions, CocoSummary, write_coco};
 pub use error::{FormatError, Result};
-pub use rgbd::read_rgbd;
+pub use rgbd::{bop_depth_scale, read_rgbd};

@@ -27,6 +27,45 @@ fn read_png(path: &Path) -> Result<(png::OutputInfo, Vec<u8>)> {
     Ok((info, buffer))
 }
 
+/// BOP's `depth_scale` (millimetres per unit) of a depth PNG that sits in a BOP scene folder,
+/// `SCENE/depth/NNNNNN.png`: the entry of image NNNNNN in `SCENE/scene_camera.json` (the
+/// scale varies per image). `None` when the file is not in such a folder; an error when the
+/// folder's `scene_camera.json` has no usable entry for it.
+pub fn bop_depth_scale(depth_png: &Path) -> Result<Option<f64>> {
+    let image_id = depth_png
+        .file_stem()
+        .and_then(|s| s.to_str())
+        .and_then(|s| s.parse::<u64>().ok());
+    let folder = depth_png.parent();
+    let (Some(image_id), Some(folder)) = (image_id, folder) else {
+        return Ok(None);
+    };
+    if folder.file_name().and_then(|n| n.to_str()) != Some("depth") {
+        return Ok(None);
+    }
+    let Some(cameras) = folder.parent().map(|scene| scene.join("scene_camera.json")) else {
+        return Ok(None);
+    };
+    if !cameras.is_file() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(&cameras).map_err(io(&cameras))?;
+    let json: serde_json::Value = serde_json::from_str(&text)
+        .map_err(|e| FormatError::Invalid(format!("{}: not JSON ({e})", cameras.display())))?;
+    json.get(image_id.to_string())
+        .and_then(|entry| entry.get("depth_scale"))
+        .and_then(|v| v.as_f64())
+        .filter(|s| s.is_finite() && *s > 0.0)
+        .map(Some)
+        .ok_or_else(|| {
+            FormatError::Invalid(format!(
+                "{}: no positive depth_scale for image {image_id} (the depth PNG {})",
+                cameras.display(),
+                depth_png.display()
+            ))
+        })
+}
+
 /// The frame (scene_id −1, no ground truth) of `rgb` and `depth` taken with `intrinsics`; depth
 /// 0 is no measurement. An error names the file that is not what it must be.
 pub fn read_rgbd(
@@ -71,4 +110,42 @@ pub fn read_rgbd(
     Ok(Frame::from_images(
         -1, size, intrinsics, rgb_bytes, depth_m, None,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_depth_png_in_a_bop_scene_takes_its_image_s_depth_scale() {
+        let root = std::env::temp_dir().join(format!("boxpose-depth-scale-{}", std::process::id()));
+        let depth = root.join("000003").join("depth");
+        std::fs::create_dir_all(&depth).unwrap();
+        let cameras = root.join("000003").join("scene_camera.json");
+        std::fs::write(
+            &cameras,
+            r#"{"7": {"depth_scale": 0.1}, "8": {"depth_scale": 1.0}, "9": {}}"#,
+        )
+        .unwrap();
+        assert_eq!(
+            bop_depth_scale(&depth.join("000007.png")).unwrap(),
+            Some(0.1)
+        );
+        assert_eq!(
+            bop_depth_scale(&depth.join("000008.png")).unwrap(),
+            Some(1.0)
+        );
+        // an image the scene does not describe is an error naming the file, not a guess
+        let missing = bop_depth_scale(&depth.join("000009.png"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            missing.contains("scene_camera.json") && missing.contains("image 9"),
+            "{missing}"
+        );
+        // outside a BOP scene's depth/ folder: no scale from the folder
+        assert_eq!(bop_depth_scale(&root.join("000007.png")).unwrap(), None);
+        assert_eq!(bop_depth_scale(&depth.join("frame.png")).unwrap(), None);
+        std::fs::remove_dir_all(&root).unwrap();
+    }
 }

@@ -258,7 +258,9 @@ pub struct Agreement {
 /// diagnostics can show.
 pub fn agreement(runs: &[Run]) -> Result<Agreement> {
     let Some(first) = runs.first() else {
-        return Err(SearchError::Sample("give at least two run folders".into()));
+        return Err(SearchError::Settings(
+            "give at least two run folders".into(),
+        ));
     };
     if runs.len() < 2 {
         return Err(SearchError::Run {

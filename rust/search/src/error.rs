@@ -11,6 +11,9 @@ pub enum SearchError {
     /// A run folder that belongs to another search, or is damaged.
     #[error("run folder {path}: {problem}")]
     Run { path: PathBuf, problem: String },
+    /// A command-line setting that cannot be used; the message starts with its flag.
+    #[error("{0}")]
+    Settings(String),
     #[error("sample: {0}")]
     Sample(String),
     #[error(transparent)]

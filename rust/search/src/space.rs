@@ -151,11 +151,26 @@ pub struct TargetSpec {
 pub struct NeighbourSpec {
     /// Inclusive range of the number of neighbours: each count is a stratum of equal nominal
     /// probability.
+    #[serde(deserialize_with = "neighbour_counts")]
     pub count: [u32; 2],
     pub size_m: SizeSpec,
     pub yaw_deg: Distribution,
     pub x_m: Distribution,
     pub y_m: Distribution,
+}
+
+/// `[min, max]` whole numbers of neighbours, said so when a count is negative or fractional
+/// (serde would say "expected u32").
+fn neighbour_counts<'de, D: serde::Deserializer<'de>>(d: D) -> Result<[u32; 2], D::Error> {
+    let [lo, hi] = <[f64; 2]>::deserialize(d)?;
+    let whole =
+        |c: f64| (c >= 0.0 && c.fract() == 0.0 && c <= f64::from(u32::MAX)).then_some(c as u32);
+    match (whole(lo), whole(hi)) {
+        (Some(lo), Some(hi)) => Ok([lo, hi]),
+        _ => Err(serde::de::Error::custom(format!(
+            "neighbours.count = [{lo}, {hi}]: counts are whole numbers from 0, [min, max]"
+        ))),
+    }
 }
 
 /// `[pile]`: the target is dropped onto a settled pile stored in a dataset (one scene's boxes at
@@ -532,13 +547,18 @@ impl SearchSpace {
         let path = if path.is_file() {
             path.to_path_buf()
         } else {
-            Path::new("configs/search").join(format!("{name_or_path}.toml"))
+            boxpose_data::shipped::resolve(
+                &Path::new("configs/search").join(format!("{name_or_path}.toml")),
+            )
         };
         let text = std::fs::read_to_string(&path).map_err(|e| SearchError::Io {
             path: path.clone(),
             message: format!(
                 "{e}{}",
-                known_names(Path::new("configs/search"), "search spaces")
+                known_names(
+                    &boxpose_data::shipped::resolve(Path::new("configs/search")),
+                    "search spaces"
+                )
             ),
         })?;
         Self::parse(&text, &path.display().to_string(), recipes_dir)

@@ -105,7 +105,7 @@ pub struct RunRecord {
 impl RunRecord {
     pub fn new(space: &SearchSpace, settings: RunSettings) -> Result<Self> {
         if settings.samples == 0 || settings.batch_size == 0 {
-            return Err(SearchError::Sample(
+            return Err(SearchError::Settings(
                 "--samples and --batch-size must be at least 1".into(),
             ));
         }
@@ -114,21 +114,21 @@ impl RunRecord {
             ce.final_samples = settings.samples;
             ce.validate().map_err(|e| match e {
                 CeError::Config { key, message } => {
-                    SearchError::Sample(format!("{}: {message}", ce_flag(key)))
+                    SearchError::Settings(format!("{}: {message}", ce_flag(key)))
                 }
-                other => SearchError::Sample(other.to_string()),
+                other => SearchError::Settings(other.to_string()),
             })?;
         }
         match (settings.sampler, &settings.splitting) {
             (Sampler::Splitting, Some(config)) => {
                 if config.particles != settings.samples {
-                    return Err(SearchError::Sample(format!(
+                    return Err(SearchError::Settings(format!(
                         "splitting particles {} differ from --samples {}",
                         config.particles, settings.samples
                     )));
                 }
                 config.validate().map_err(|e| match e {
-                    SplittingError::Config { key, message } => SearchError::Sample(format!(
+                    SplittingError::Config { key, message } => SearchError::Settings(format!(
                         "{}: {message}",
                         if key == "particles" {
                             "--samples".to_string()
@@ -136,10 +136,10 @@ impl RunRecord {
                             setting_flag(&format!("splitting.{key}"))
                         }
                     )),
-                    other => SearchError::Sample(other.to_string()),
+                    other => SearchError::Settings(other.to_string()),
                 })?;
                 if space.strata().len() > 1 {
-                    return Err(SearchError::Sample(format!(
+                    return Err(SearchError::Settings(format!(
                         "--sampler splitting draws from one stratum, and this space has {} \
                          (its neighbour counts): use --sampler mc or ce",
                         space.strata().len()
@@ -147,12 +147,12 @@ impl RunRecord {
                 }
             }
             (Sampler::Splitting, None) => {
-                return Err(SearchError::Sample(
+                return Err(SearchError::Settings(
                     "--sampler splitting needs its settings".into(),
                 ));
             }
             (_, Some(_)) => {
-                return Err(SearchError::Sample(
+                return Err(SearchError::Settings(
                     "splitting settings are for --sampler splitting only".into(),
                 ));
             }
@@ -161,12 +161,12 @@ impl RunRecord {
         let names: Vec<&str> = space.dimensions.iter().map(|d| d.name.as_str()).collect();
         if settings.ce_tilt.iter().any(|t| t == AUTO_TILT) {
             if settings.ce_tilt.len() > 1 {
-                return Err(SearchError::Sample(format!(
+                return Err(SearchError::Settings(format!(
                     "--ce-tilt {AUTO_TILT} chooses the parameters itself: give it alone, or name them"
                 )));
             }
             if settings.ce.samples_per_iteration < boxpose_search_stats::tilt::MIN_SAMPLES {
-                return Err(SearchError::Sample(format!(
+                return Err(SearchError::Settings(format!(
                     "--ce-tilt {AUTO_TILT} tests the first iteration's samples: give \
                      --ce-samples-per-iteration at least {} (a few hundred to find weak effects)",
                     boxpose_search_stats::tilt::MIN_SAMPLES
@@ -175,7 +175,7 @@ impl RunRecord {
         }
         for prefix in settings.ce_tilt.iter().filter(|t| *t != AUTO_TILT) {
             if !names.iter().any(|n| n.starts_with(prefix.as_str())) {
-                return Err(SearchError::Sample(format!(
+                return Err(SearchError::Settings(format!(
                     "--ce-tilt {prefix}: no parameter of the space starts with it (they are: {})",
                     names.join(", ")
                 )));
@@ -205,7 +205,7 @@ fn ce_flag(key: &str) -> String {
 /// Refuses a shard that is not one of `num_shards` (checked before a run folder is touched).
 pub fn check_shard(shard: usize, num_shards: usize) -> Result<()> {
     if num_shards == 0 || shard >= num_shards {
-        return Err(SearchError::Sample(format!(
+        return Err(SearchError::Settings(format!(
             "--shard {shard} is not below --num-shards {num_shards} (shards are numbered 0 to N − 1, N ≥ 1)"
         )));
     }
