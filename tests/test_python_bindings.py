@@ -4,6 +4,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -394,6 +395,38 @@ def test_ctrl_c_interrupts_a_loop_of_fits_at_their_caps():
     )
     returncode, _, stderr, _ = interrupted(script, timeout=15)
     assert returncode != 0 and "KeyboardInterrupt" in stderr, stderr
+
+
+def test_a_fit_at_its_cap_lets_other_python_threads_run():
+    """The fits release the GIL: while one runs in a thread (a fraction of a second at its cap),
+    the main thread keeps running Python. Held, the main thread would stall for the whole call."""
+    rng = np.random.default_rng(0)
+    corners = boxpose.box_corners((0.2, 0.15, 0.1)) + [0, 0, 1]
+    points = corners[np.arange(60) % 8] + rng.normal(scale=0.003, size=(60, 3))
+    calls = []
+
+    def fits():
+        for fit in (
+            lambda: boxpose.robust_fit((0.2, 0.15, 0.1), points),
+            lambda: boxpose.fit_pose_and_size(points[:40]),
+        ):
+            start = time.monotonic()
+            fit()
+            calls.append((start, time.monotonic()))
+
+    worker = threading.Thread(target=fits)
+    ticks = []
+    worker.start()
+    while worker.is_alive():
+        ticks.append(time.monotonic())
+    worker.join()
+    assert len(calls) == 2
+    for start, end in calls:
+        inside = [start] + [t for t in ticks if start < t < end] + [end]
+        longest_stall = max(b - a for a, b in zip(inside, inside[1:], strict=False))
+        assert longest_stall < 0.5 * (end - start), (
+            f"the main thread stalled {longest_stall:.3f} s of a {end - start:.3f} s call"
+        )
 
 
 def interrupted(script: str, timeout: float) -> tuple[int, str, str, float]:
