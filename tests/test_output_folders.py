@@ -34,6 +34,18 @@ def foreign(dataset, tmp_path) -> Path:
     return folder
 
 
+@pytest.fixture(scope="module")
+def search_run(boxpose_bin, tmp_path_factory) -> Path:
+    """A finished search run folder (two samples, seed 99: another search than the table's)."""
+    out = tmp_path_factory.mktemp("outputs-run") / "run"
+    subprocess.run(
+        [boxpose_bin, "search", "configs/search/single_box.toml", "--samples", "2",
+         "--batch-size", "2", "--seed", "99", "--threads", "1", "--out", out],
+        capture_output=True, text=True, cwd=REPO, timeout=300, check=True,
+    )  # fmt: skip
+    return out
+
+
 def snapshot(folder: Path) -> dict[str, bytes | None]:
     """Every path under `folder` with its bytes (None for a folder)."""
     return {
@@ -125,6 +137,24 @@ def test_a_writing_command_refuses_a_folder_holding_another_dataset(
     assert sorted(after) == sorted(before), f"{name} added or removed files"
     changed = [path for path in before if after[path] != before[path]]
     assert not changed, f"{name} changed {changed}"
+
+
+@pytest.mark.parametrize("name", [*BOXPOSE_COMMANDS, "make scenes"])
+def test_a_writing_command_refuses_a_folder_holding_a_search_run(
+    name, boxpose_bin, dataset, search_run, tmp_path
+):
+    run = tmp_path / "other-run"
+    shutil.copytree(search_run, run)
+    before = snapshot(run)
+    # eval-geometry writes one file: aimed at the run's own run.json
+    args = [
+        a.replace("manifest.json", "run.json")
+        for a in command_line(name, boxpose_bin, dataset, run, tmp_path)
+    ]
+    result = subprocess.run(args, capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert result.returncode != 0, f"{name} wrote into a search run:\n{result.stdout}"
+    assert str(run) in result.stderr, result.stderr
+    assert snapshot(run) == before, f"{name} changed the run's files"
 
 
 # The commands that write into a folder of their own: while one runs, the folder is locked.
