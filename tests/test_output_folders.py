@@ -63,6 +63,22 @@ BOXPOSE_COMMANDS = {
     "export bop": ["export", "bop", "DATASET", "OUT"],
     "export coco": ["export", "coco", "DATASET", "OUT"],
     "eval": ["eval", "DATASET", "--model", str(KEYPOINT_MODEL), "--out", "OUT"],
+    "eval --sut": [
+        "eval",
+        "DATASET",
+        "--sut",
+        "python:examples.sut.pca_baseline:perceive",
+        "--out",
+        "OUT",
+    ],
+    "improve": [
+        "improve",
+        "configs/search/single_box.toml",
+        "--dataset",
+        "DATASET",
+        "--out",
+        "OUT",
+    ],
     # a file path: aimed at another dataset's manifest
     "eval-geometry": ["eval-geometry", "DATASET", "--out", "OUT/manifest.json"],
     "eval-results bop": ["eval-results", "bop", "RESULTS", "DATASET", "--out", "OUT"],
