@@ -100,6 +100,22 @@ fn measure(p: f64, reps: u64, mut run: impl FnMut(u64) -> CeRun) -> Measured {
     }
 }
 
+/// The same cross-entropy tilting every dimension, on seeds `first_seed..first_seed + reps`.
+fn tilting_all(
+    config: &CeConfig,
+    p: f64,
+    reps: u64,
+    first_seed: u64,
+    score: &impl Fn(&[f64]) -> f64,
+) -> Measured {
+    let start = Proposal::tuning_start(DIM, 1)
+        .with_rotation_blocks(&BLOCKS)
+        .unwrap();
+    measure(p, reps, |seed| {
+        run_in_memory_from(config, &start, first_seed + seed, 0.0, score).expect("ce run")
+    })
+}
+
 fn tilted_starts(choice: &TiltChoice) -> Vec<usize> {
     choice
         .tests
@@ -120,12 +136,7 @@ fn compare(failure: Failure, p: f64, reps: u64) {
         exact += (tilted_starts(&choice) == failure.relevant()) as u64;
         run
     });
-    let start = Proposal::tuning_start(DIM, 1)
-        .with_rotation_blocks(&BLOCKS)
-        .unwrap();
-    let all = measure(p, reps, |seed| {
-        run_in_memory_from(&config, &start, 100 + seed, 0.0, &score).expect("ce run")
-    });
+    let all = tilting_all(&config, p, reps, 100, &score);
     let mc = monte_carlo_evaluations(p);
     let (auto_10, all_10) = (
         auto.for_10pct(config.final_samples),
@@ -197,12 +208,7 @@ fn auto_tilt_waits_for_a_dependence_to_show() {
         waited += (choice.samples > config.samples_per_iteration) as u64;
         run
     });
-    let start = Proposal::tuning_start(DIM, 1)
-        .with_rotation_blocks(&BLOCKS)
-        .unwrap();
-    let all = measure(p, reps, |seed| {
-        run_in_memory_from(&config, &start, 300 + seed, 0.0, &score).expect("ce run")
-    });
+    let all = tilting_all(&config, p, reps, 300, &score);
     let (auto_10, all_10) = (
         auto.for_10pct(config.final_samples),
         all.for_10pct(config.final_samples),
