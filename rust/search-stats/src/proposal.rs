@@ -314,10 +314,18 @@ impl Proposal {
             .unwrap_or_default()
     }
 
-    /// The same components with defensive weight λ (clamped to [0, 1]).
+    /// The same components with defensive weight λ (clamped to [0, 1]). When every component is
+    /// N(0, I) (nothing tilted) the mixture is the nominal itself, written as [`Proposal::nominal`]'s
+    /// λ = 1: every log weight is then exactly 0 and the estimate is plain Monte Carlo's, with its
+    /// exact interval.
     pub fn with_defensive(&self, lambda: f64) -> Self {
+        let nominal = self.components.iter().all(|c| {
+            c.mean.iter().all(|&m| m == 0.0)
+                && c.std.iter().all(|&s| s == 1.0)
+                && c.rotations.iter().all(|r| r.shape == acg::IDENTITY)
+        });
         Self {
-            defensive: lambda.clamp(0.0, 1.0),
+            defensive: if nominal { 1.0 } else { lambda.clamp(0.0, 1.0) },
             ..self.clone()
         }
     }

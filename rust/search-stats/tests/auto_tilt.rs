@@ -6,7 +6,7 @@
 mod common;
 
 use boxpose_search_stats::{
-    CeConfig, CeRun, Proposal, TiltChoice, normal_quantile, run_in_memory_auto_tilt,
+    CeConfig, CeRun, CiMethod, Proposal, TiltChoice, normal_quantile, run_in_memory_auto_tilt,
     run_in_memory_from,
 };
 use common::analytic::{binomial_acceptance, monte_carlo_evaluations, rotation_angle_for};
@@ -252,6 +252,9 @@ fn a_failure_nothing_shows_gives_monte_carlo() {
     assert_eq!(choice.samples, 300, "every tuning iteration was tested");
     assert_eq!(run.tuning_evaluations, 300);
     let z: Vec<f64> = (0..DIM).map(|d| 0.3 * d as f64 - 2.0).collect();
-    assert!(run.final_proposal.log_weight(&z).abs() < 1e-12);
+    assert_eq!(run.final_proposal.log_weight(&z), 0.0);
     assert_eq!(run.estimate.samples, config.final_samples as u64);
+    // every weight exactly 1: Monte Carlo's exact interval, even without a failure
+    assert_eq!(run.estimate.ci_method, CiMethod::ClopperPearson);
+    assert!(run.estimate.ci95.is_some());
 }

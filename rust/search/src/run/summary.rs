@@ -239,6 +239,12 @@ pub fn warnings(e: &ImportanceEstimate) -> Vec<String> {
     if e.ci_method == boxpose_search_stats::CiMethod::ClopperPearson {
         return out;
     }
+    if e.failures == 0 {
+        out.push(format!(
+            "no failure among the {} weighted samples of the estimate: importance sampling gives no interval, and p̂ = 0 does not show that failures are rare (the proposal may never have reached them); run Monte Carlo or subset simulation for a bound",
+            e.samples
+        ));
+    }
     if e.failures > 0 && e.failure_ess < MIN_FAILURE_ESS {
         out.push(format!(
             "only {:.1} effective failures (of {}): the weights are too uneven for the interval to be trusted; tilt fewer parameters (--ce-tilt), add components, or draw more samples",
@@ -545,6 +551,12 @@ mod tests {
             .map(|i| sample(-1.0 + 0.01 * (i % 7) as f64, i % 20 == 0))
             .collect();
         assert!(warnings(&ImportanceEstimate::compute_ratio(&even, &[1.0]).unwrap()).is_empty());
+        // weighted samples without a failure: no interval, which is said
+        let none: Vec<WeightedSample> = (0..100)
+            .map(|i| sample(-0.5 + 0.01 * i as f64, false))
+            .collect();
+        let w = warnings(&ImportanceEstimate::compute_ratio(&none, &[1.0]).unwrap());
+        assert!(w.iter().any(|m| m.contains("no failure")), "{w:?}");
         // Monte Carlo's exact interval needs no warning, however few the failures
         let mc: Vec<WeightedSample> = (0..100).map(|i| sample(0.0, i == 0)).collect();
         assert!(warnings(&ImportanceEstimate::compute_ratio(&mc, &[1.0]).unwrap()).is_empty());
