@@ -4,23 +4,27 @@
 
 use std::path::{Path, PathBuf};
 
-/// The boxpose repository this binary belongs to: the nearest folder above the executable (a
-/// build under `target/`) or above this crate's sources that holds `configs/search` and
-/// `datasets/recipes`.
-pub fn repository_root() -> Option<PathBuf> {
-    let is_root = |dir: &Path| {
-        dir.join("configs").join("search").is_dir() && dir.join("datasets").join("recipes").is_dir()
-    };
+/// The nearest folder for which `wanted` holds, above the running executable (a build under
+/// `target/`) or, failing that, above this crate's sources (the build's repository).
+pub fn nearest_folder_above(wanted: impl Fn(&Path) -> bool) -> Option<PathBuf> {
     let starts = std::env::current_exe()
         .ok()
         .into_iter()
         .chain(std::iter::once(PathBuf::from(env!("CARGO_MANIFEST_DIR"))));
     for start in starts {
-        if let Some(root) = start.ancestors().find(|dir| is_root(dir)) {
-            return Some(root.to_path_buf());
+        if let Some(dir) = start.ancestors().find(|dir| wanted(dir)) {
+            return Some(dir.to_path_buf());
         }
     }
     None
+}
+
+/// The boxpose repository this binary belongs to: the nearest folder above it that holds
+/// `configs/search` and `datasets/recipes`.
+pub fn repository_root() -> Option<PathBuf> {
+    nearest_folder_above(|dir| {
+        dir.join("configs").join("search").is_dir() && dir.join("datasets").join("recipes").is_dir()
+    })
 }
 
 /// `path` as given when it exists or is absolute; otherwise the same relative path under the

@@ -41,20 +41,8 @@ pub fn find_venv() -> Option<PathBuf> {
             return Some(p);
         }
     }
-    let mut starts = Vec::new();
-    if let Ok(exe) = std::env::current_exe() {
-        starts.push(exe);
-    }
-    starts.push(PathBuf::from(env!("CARGO_MANIFEST_DIR")));
-    for start in starts {
-        for dir in start.ancestors() {
-            let venv = dir.join(".venv");
-            if valid(&venv) {
-                return Some(venv);
-            }
-        }
-    }
-    None
+    boxpose_data::shipped::nearest_folder_above(|dir| valid(&dir.join(".venv")))
+        .map(|dir| dir.join(".venv"))
 }
 
 static INIT: Once = Once::new();
