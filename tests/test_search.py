@@ -629,33 +629,29 @@ def test_a_bad_cross_entropy_setting_names_its_flag(flag, value, spaces, boxpose
     assert "ce config" not in r.stderr and "sample:" not in r.stderr and not out.exists()
 
 
-@pytest.mark.parametrize(
-    "edit, says",
-    [
-        # a negative count is refused in words, not as serde's "expected u32"
-        (lambda t: t.replace("count = [1, 2]", "count = [-2, 3]"), "whole numbers"),
-        # an unknown key of the base recipe points to `boxpose schema`, not to a source file
-        (lambda t: t, "boxpose schema"),
-    ],
-)
-def test_a_bad_clutter_space_or_recipe_says_what_to_write(
-    edit, says, spaces, boxpose_bin, tmp_path
-):
-    text = edit(spaces["clutter"].read_text())
-    if says == "boxpose schema":
-        recipe = tmp_path / "bin.toml"
-        recipe.write_text(
-            (spaces["clutter"].parent / "bin.toml")
-            .read_text()
-            .replace("[boxes]", "[boxes]\nshine = 1.0")
-        )
-        text = text.replace(str(spaces["clutter"].parent / "bin.toml"), str(recipe))
+def refused_clutter_space(text, boxpose_bin, tmp_path) -> str:
+    """Runs a search of the clutter space `text`; returns its stderr, having checked that it was
+    refused before any work and without serde's or the source's words."""
     bad = tmp_path / "bad.toml"
     bad.write_text(text)
     out = tmp_path / "run"
     r = search(boxpose_bin, bad, "--out", out, check=False)
-    assert r.returncode != 0 and says in r.stderr, r.stderr
-    assert "expected u32" not in r.stderr and "rust/" not in r.stderr and not out.exists()
+    assert r.returncode != 0 and not out.exists(), r.stderr
+    assert "expected u32" not in r.stderr and "rust/" not in r.stderr, r.stderr
+    return r.stderr
+
+
+def test_a_negative_neighbour_count_is_refused_in_words(spaces, boxpose_bin, tmp_path):
+    text = spaces["clutter"].read_text().replace("count = [1, 2]", "count = [-2, 3]")
+    assert "whole numbers" in refused_clutter_space(text, boxpose_bin, tmp_path)
+
+
+def test_an_unknown_recipe_key_points_to_boxpose_schema(spaces, boxpose_bin, tmp_path):
+    base = spaces["clutter"].parent / "bin.toml"
+    recipe = tmp_path / "bin.toml"
+    recipe.write_text(base.read_text().replace("[boxes]", "[boxes]\nshine = 1.0"))
+    text = spaces["clutter"].read_text().replace(str(base), str(recipe))
+    assert "boxpose schema" in refused_clutter_space(text, boxpose_bin, tmp_path)
 
 
 SPLITTING = [
