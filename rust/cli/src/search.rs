@@ -487,8 +487,6 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     // leaves no run behind to refuse the corrected one) and before the networks and Blender load
     let record = RunRecord::new(&space, run_settings(args))?;
     check_run_args(args)?;
-    boxpose_render::check_recipe(&space.recipe_toml, &space.file.recipe)
-        .context("the search space's base recipe")?;
     // another system under test starts (and introduces itself) before the run folder is made
     let mut external = match (&args.sut, args.pending) {
         (Some(spec), false) => Some(ExternalSut::start(

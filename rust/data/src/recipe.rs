@@ -1,13 +1,21 @@
 //! What a scene recipe (`datasets/recipes/*.toml`) may hold, written once: every key with its
 //! type, accepted values, default, unit and meaning ([`RECIPE_REFERENCE`], printed as
 //! docs/recipes.md by `boxpose schema --recipes-markdown`), the support kinds, and the bound on a
-//! settle's length. Three readers apply it: the Drake stage (`python/drake_scenes/recipe.py`), the
-//! Blender stage (`python/blender_scripts/recipe.py`) and MuJoCo (`boxpose-physics`'s
-//! `RecipePhysics`). The Python readers load it from `python/boxpose_io/schema.json` (its
-//! `"recipe"` object, generated from [`to_json`]); the schema's drift test fails when that file
-//! disagrees with this module, `tests/test_recipe_reference.py` checks that the documented bounds
-//! are the ones the Python readers refuse, and `tests/test_fuzz_inputs.py` checks that the Drake
-//! and Rust readers accept and refuse the same supports and settle parameters.
+//! settle's length. Each language reads a recipe in one place, against this reference: in Rust
+//! the typed [`Recipe`] (the search and `boxpose-physics`'s `RecipePhysics` take their fields
+//! from it), in Python `boxpose_io.recipe`, which loads the reference from
+//! `python/boxpose_io/schema.json` (its `"recipe"` object, generated from [`to_json`]) and from
+//! which the Drake and Blender stages build their dataclasses. The schema's drift test fails when
+//! that file disagrees with this module; `tests/test_recipe_reference.py` checks that the
+//! documented bounds and defaults are the ones the Python stages apply (the same test runs here
+//! on [`Recipe`]), and `tests/test_fuzz_inputs.py` that the Python and Rust readers accept and
+//! refuse the same recipes.
+
+mod model;
+pub use model::{
+    Boxes, Camera, Drop, Lighting, Materials, Recipe, Render, Settle, Support, check,
+    check_sections,
+};
 
 /// The shape of a recipe value, as TOML writes it. Every float must be finite (a reader refuses
 /// `inf` and `nan`), and an integer is accepted where a float is expected.
@@ -586,21 +594,6 @@ pub const TAPE_ALONG: [&str; 2] = ["long", "random"];
 /// on them) that predate the key must render as they did.
 pub const TAPE_ALONG_DEFAULT: &str = "random";
 
-/// A recipe's `materials.tape_along` (one of [`TAPE_ALONG`], [`TAPE_ALONG_DEFAULT`] when absent),
-/// or the message that refuses it; the Python readers apply the same rule
-/// (`drake_scenes.recipe.read_choice`).
-pub fn tape_along(recipe: &toml::Table) -> Result<&'static str, String> {
-    choice(
-        recipe,
-        "materials",
-        "tape_along",
-        &TAPE_ALONG,
-        TAPE_ALONG_DEFAULT,
-        "\"long\" ties the tape and the label to the top face's longer side, for new recipes; \
-         \"random\", the default, draws them as the existing datasets do",
-    )
-}
-
 /// The values of `camera.region`: `"frame"` renders each frame whole (the default, and every
 /// dataset written before the key existed); `"box"` renders only the region around one box per
 /// frame (the Blender stage's `crop_object`), so that keypoint-training data costs the pixels the
@@ -620,48 +613,6 @@ pub const SETTLE_ENGINES: [&str; 2] = ["drake", "mujoco"];
 
 /// `settle.engine` when a recipe does not give it.
 pub const SETTLE_ENGINE_DEFAULT: &str = "drake";
-
-/// A recipe's `settle.engine` (one of [`SETTLE_ENGINES`], [`SETTLE_ENGINE_DEFAULT`] when
-/// absent), or the message that refuses it; the Drake stage's reader applies the same rule.
-pub fn settle_engine(recipe: &toml::Table) -> Result<&'static str, String> {
-    choice(
-        recipe,
-        "settle",
-        "engine",
-        &SETTLE_ENGINES,
-        SETTLE_ENGINE_DEFAULT,
-        "\"drake\", the default, certifies the scenes; \"mujoco\" settles training scenes \
-         ≈ 50× faster under the same rules",
-    )
-}
-
-/// The value of `section.key`, one of `accepted`, `default` when absent; otherwise the message
-/// that names the key, the accepted values, what was written and `hint`.
-fn choice(
-    recipe: &toml::Table,
-    section: &str,
-    key: &str,
-    accepted: &[&'static str],
-    default: &'static str,
-    hint: &str,
-) -> Result<&'static str, String> {
-    let Some(value) = recipe.get(section).and_then(|m| m.get(key)) else {
-        return Ok(default);
-    };
-    value
-        .as_str()
-        .and_then(|v| accepted.iter().find(|&&a| a == v).copied())
-        .ok_or_else(|| {
-            // as JSON: the TOML writer is not compiled in, and a string, number, boolean or
-            // list reads the same either way
-            let written = serde_json::to_string(value).unwrap_or_else(|_| format!("{value:?}"));
-            let names: Vec<String> = accepted.iter().map(|a| format!("\"{a}\"")).collect();
-            format!(
-                "key '{section}.{key}' must be {}, got {written} ({hint})",
-                names.join(" or ")
-            )
-        })
-}
 
 /// Most simulation steps a settle may take (`settle.max_time_s / settle.time_step_s`): a
 /// resource bound, so that a recipe cannot ask for a simulation of years (hours at most).
@@ -754,12 +705,14 @@ impl Accepted {
         }
     }
 
-    fn to_json(self) -> serde_json::Value {
+    /// As schema.json writes it; `text` is how a refusal says it ("must be ≥ 1").
+    fn to_json(self, value_type: ValueType) -> serde_json::Value {
         match self {
             Self::Within { min, max, and } => serde_json::json!({
                 "min": min.to_json(),
                 "max": max.to_json(),
                 "and": and,
+                "text": self.to_markdown(value_type),
             }),
             Self::OneOf(values) => serde_json::json!({ "one_of": values }),
             Self::NotChecked => serde_json::Value::Null,
@@ -784,7 +737,7 @@ pub fn to_markdown() -> String {
          - **default**: what a recipe without the key means; \"required\": a reader refuses a recipe \
          without it (the Drake stage reads the top level, `[boxes]`, `[support]`, `[drop]`, \
          `[settle]` and `[materials]`; the Blender stage `[camera]`, `[lighting]`, `[materials]`, \
-         `[render]` and `[support]`).\n",
+         `[render]`, `[support]`, `name` and `settle.max_penetration_m`).\n",
     );
     let mut section = None;
     for k in RECIPE_REFERENCE {
@@ -825,7 +778,7 @@ pub fn to_json() -> serde_json::Value {
             serde_json::json!({
                 "key": k.key,
                 "type": k.value_type.name(),
-                "accepted": k.accepted.to_json(),
+                "accepted": k.accepted.to_json(k.value_type),
                 "required": k.when_absent == WhenAbsent::Required,
                 "default_toml": match k.when_absent {
                     WhenAbsent::Value(toml) => Some(toml),
@@ -934,39 +887,5 @@ mod tests {
             unknown_keys(&recipe),
             ["colour", "extra", "settle.max_tiem_s"]
         );
-    }
-
-    #[test]
-    fn settle_engine_defaults_to_drake_and_refuses_other_values_naming_the_key() {
-        let read = |text: &str| settle_engine(&toml::from_str(text).unwrap());
-        assert_eq!(read("[settle]\ntime_step_s = 0.001\n"), Ok("drake"));
-        assert_eq!(read("[settle]\nengine = 'mujoco'\n"), Ok("mujoco"));
-        assert_eq!(read("[settle]\nengine = 'drake'\n"), Ok("drake"));
-        for bad in ["\"MuJoCo\"", "\"bullet\"", "2", "[\"drake\"]"] {
-            let problem = read(&format!("[settle]\nengine = {bad}\n")).unwrap_err();
-            assert!(
-                problem.contains("settle.engine")
-                    && problem.contains("\"drake\" or \"mujoco\"")
-                    && problem.contains(&format!("got {bad}")),
-                "{problem}"
-            );
-        }
-    }
-
-    #[test]
-    fn tape_along_defaults_to_random_and_refuses_other_values_naming_the_key() {
-        let read = |text: &str| tape_along(&toml::from_str(text).unwrap());
-        assert_eq!(read("[materials]\nroughness = [0.5, 0.9]\n"), Ok("random"));
-        assert_eq!(read("[materials]\ntape_along = 'long'\n"), Ok("long"));
-        assert_eq!(read("[materials]\ntape_along = 'random'\n"), Ok("random"));
-        for bad in ["\"Long\"", "\"short\"", "1", "true", "[\"long\"]"] {
-            let problem = read(&format!("[materials]\ntape_along = {bad}\n")).unwrap_err();
-            assert!(
-                problem.contains("materials.tape_along")
-                    && problem.contains("\"long\" or \"random\"")
-                    && problem.contains(&format!("got {bad}")),
-                "{problem}"
-            );
-        }
     }
 }

@@ -235,23 +235,19 @@ pub struct RecipePhysics {
 }
 
 impl RecipePhysics {
-    /// Parses a recipe's TOML text (as in `datasets/recipes/*.toml` or a scene's `recipe_toml`).
-    /// Like the Python stages' readers, it refuses keys that are not recipe keys
-    /// ([`boxpose_data::recipe::RECIPE_KEYS`]), though it reads only these two sections.
+    /// Parses a recipe's TOML text (as in `datasets/recipes/*.toml` or a scene's `recipe_toml`),
+    /// checked as every reader checks it ([`boxpose_data::recipe::check_sections`]): it refuses
+    /// keys that are not recipe keys, and checks the two sections it reads.
     pub fn from_toml(text: &str) -> Result<Self> {
         let mut table: toml::Table =
             toml::from_str(text).map_err(|e| PhysicsError::Recipe(e.to_string()))?;
-        let unknown = boxpose_data::recipe::unknown_keys(&table);
-        if !unknown.is_empty() {
-            return Err(PhysicsError::Recipe(format!(
-                "unknown keys {unknown:?} (misspelt? docs/recipes.md lists every recipe key with its \
-                 type, range and default, as does `boxpose schema` under \"recipe\")"
-            )));
-        }
+        boxpose_data::recipe::check_sections(&table, |section| {
+            section == "support" || section == "settle"
+        })
+        .map_err(PhysicsError::Recipe)?;
         // `settle.engine` says which simulator settles the scene stage's drops, not how: this
         // crate is the "mujoco" one, and it settles any recipe's drops (the search's, the
         // benchmark's re-settles of Drake scenes) under the same rules.
-        boxpose_data::recipe::settle_engine(&table).map_err(PhysicsError::Recipe)?;
         if let Some(toml::Value::Table(settle)) = table.get_mut("settle") {
             settle.remove("engine");
         }
@@ -261,6 +257,39 @@ impl RecipePhysics {
         recipe.support.validate()?;
         recipe.settle.validate()?;
         Ok(recipe)
+    }
+
+    /// The two sections of a recipe read and checked in full ([`boxpose_data::recipe::Recipe`]).
+    pub fn from_recipe(recipe: &boxpose_data::recipe::Recipe) -> Result<Self> {
+        let kind = match recipe.support.kind.as_str() {
+            "floor" => SupportKind::Floor,
+            "bin" => SupportKind::Bin,
+            "pallet" => SupportKind::Pallet,
+            other => {
+                return Err(PhysicsError::Recipe(format!(
+                    "unknown support kind {other:?}"
+                )));
+            }
+        };
+        let s = &recipe.settle;
+        let physics = Self {
+            support: Support {
+                kind,
+                half_extent_m: recipe.support.half_extent_m,
+                wall_height_m: recipe.support.wall_height_m,
+            },
+            settle: SettleParams {
+                time_step_s: s.time_step_s,
+                max_time_s: s.max_time_s,
+                window_s: s.window_s,
+                max_linear_speed_mps: s.max_linear_speed_mps,
+                max_angular_speed_radps: s.max_angular_speed_radps,
+                max_penetration_m: s.max_penetration_m,
+            },
+        };
+        physics.support.validate()?;
+        physics.settle.validate()?;
+        Ok(physics)
     }
 
     pub fn from_file(path: &std::path::Path) -> Result<Self> {

@@ -266,21 +266,6 @@ fn check_schema(batch: &RecordBatch, table: &Table) -> Result<()> {
     Ok(())
 }
 
-/// Reads `recipe_toml` with the Blender stage's own recipe reader (`blender_scripts.recipe`), as
-/// every render does, without starting Blender: a recipe a render would refuse (a
-/// `render.samples` or `camera.width` below 1, …) is refused before any work starts. `source`
-/// names the recipe in the message.
-pub fn check_recipe(recipe_toml: &str, source: &str) -> Result<()> {
-    init_python()?;
-    Python::attach(|py| {
-        check_python(py)?;
-        py.import("blender_scripts.recipe")
-            .and_then(|recipe| recipe.call_method1("parse_render_recipe", (recipe_toml, source)))
-            .map_err(|e| py_err(py, e))?;
-        Ok(())
-    })
-}
-
 /// The `scenes` row of `scene_id` and its `objects` rows from a dataset folder, as batches of the
 /// contract's schema ([`boxpose_data::Dataset::scene_batches`]).
 pub fn scene_rows(dataset: &Path, scene_id: i64) -> Result<(RecordBatch, RecordBatch)> {

@@ -1,12 +1,10 @@
 //! The nuisance of a sampled scene: box masses, frictions and appearance, drawn from the base
-//! recipe's ranges and not searched over. Read by the scene builder and checked when a search
-//! space is loaded, so a bad recipe is refused before any work starts.
+//! recipe's ranges (checked when the search space is loaded) and not searched over.
 
+use boxpose_data::recipe::Recipe;
 use boxpose_data::{Object, Pose};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha12Rng;
-
-use crate::error::{Result, SearchError};
 
 /// Linear RGB of plain cardboard, as python/drake_scenes/sampling.py draws it.
 const CARDBOARD_LINEAR_RGB: [f64; 3] = [0.43, 0.25, 0.11];
@@ -23,52 +21,15 @@ pub(crate) struct Nuisance {
 }
 
 impl Nuisance {
-    pub(crate) fn new(recipe: &toml::Table, seed: i64) -> Result<Self> {
-        let pair = |section: &str, key: &str| -> Result<[f64; 2]> {
-            let v = recipe
-                .get(section)
-                .and_then(|s| s.get(key))
-                .and_then(|v| v.as_array());
-            let v: Option<Vec<f64>> = v.map(|a| {
-                a.iter()
-                    .filter_map(|x| x.as_float().or(x.as_integer().map(|i| i as f64)))
-                    .collect()
-            });
-            match v.as_deref() {
-                Some(&[lo, hi]) if lo.is_finite() && hi.is_finite() && lo <= hi => Ok([lo, hi]),
-                _ => Err(SearchError::Space {
-                    key: format!("recipe {section}.{key}"),
-                    problem: "must be a range [min, max]".into(),
-                }),
-            }
-        };
-        let probability = |key: &str| -> Result<f64> {
-            match recipe
-                .get("materials")
-                .and_then(|s| s.get(key))
-                .and_then(|v| v.as_float().or(v.as_integer().map(|i| i as f64)))
-            {
-                Some(p) if (0.0..=1.0).contains(&p) => Ok(p),
-                _ => Err(SearchError::Space {
-                    key: format!("recipe materials.{key}"),
-                    problem: "must be a probability in [0, 1]".into(),
-                }),
-            }
-        };
-        // The appearance is drawn by the Blender stage from the scene's recipe, which keeps the
-        // base recipe's [materials]; a value it would refuse is refused here, before any work.
-        boxpose_data::recipe::tape_along(recipe).map_err(|problem| SearchError::Space {
-            key: "recipe".into(),
-            problem,
-        })?;
-        Ok(Self {
+    pub(crate) fn new(recipe: &Recipe, seed: i64) -> Self {
+        Self {
             rng: ChaCha12Rng::seed_from_u64(seed as u64),
-            density: pair("boxes", "density_kg_m3")?,
-            friction: pair("boxes", "friction")?,
-            roughness: pair("materials", "roughness")?,
-            tape_probability: probability("tape_probability")?,
-            label_probability: probability("label_probability")?,
-        })
+            density: recipe.boxes.density_kg_m3,
+            friction: recipe.boxes.friction,
+            roughness: recipe.materials.roughness,
+            tape_probability: recipe.materials.tape_probability,
+            label_probability: recipe.materials.label_probability,
+        }
     }
 
     fn uniform(&mut self, [lo, hi]: [f64; 2]) -> f64 {
@@ -113,14 +74,4 @@ impl Nuisance {
             has_label,
         }
     }
-}
-
-/// Checks the base recipe's sections the scenes draw their nuisance from ([boxes] density and
-/// friction, [materials]), so a bad recipe is refused before any work starts.
-pub(crate) fn check_recipe(recipe_toml: &str) -> Result<()> {
-    let recipe: toml::Table = recipe_toml.parse().map_err(|e| SearchError::Space {
-        key: "recipe".into(),
-        problem: format!("{e}"),
-    })?;
-    Nuisance::new(&recipe, 0).map(|_| ())
 }

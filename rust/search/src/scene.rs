@@ -53,15 +53,10 @@ pub fn build(
     scene_id: i64,
     seed: i64,
 ) -> Result<SampledScene> {
-    let recipe: toml::Table = space.recipe_toml.parse().map_err(|e| SearchError::Space {
-        key: "recipe".into(),
-        problem: format!("{e}"),
-    })?;
-    let physics = RecipePhysics::from_toml(&space.recipe_toml)?;
-    let support = physics.support;
+    let support = space.physics.support;
     let [hx, hy] = support.half_extent_m;
     let top = support.top_z();
-    let mut nuisance = Nuisance::new(&recipe, seed)?;
+    let mut nuisance = Nuisance::new(&space.recipe, seed);
     let target = &parameters.target;
     let size = target.size_m;
     let quat = parameters.target_quat_wxyz;
@@ -113,7 +108,7 @@ pub fn build(
         scene_id,
         seed,
         recipe: space.file.name.clone(),
-        recipe_toml: pinned_recipe(recipe, space, parameters)?,
+        recipe_toml: pinned_recipe(space, parameters)?,
         tool_versions: serde_json::json!({"boxpose-search": env!("CARGO_PKG_VERSION"), "mujoco": boxpose_physics::MUJOCO_VERSION}).to_string(),
         physics_backend: "mujoco".into(),
         support: support.kind.name().into(),
@@ -138,13 +133,15 @@ pub fn build(
     })
 }
 
-/// The base recipe with this sample's camera and lighting as degenerate ranges, one frame, and
-/// the camera aimed at the target box: the Blender stage then draws exactly these values.
-fn pinned_recipe(
-    mut recipe: toml::Table,
-    space: &SearchSpace,
-    parameters: &Parameters,
-) -> Result<String> {
+/// The base recipe's text with this sample's camera and lighting as degenerate ranges, one
+/// frame, and the camera aimed at the target box: the Blender stage then draws exactly these
+/// values. The base recipe's table, not the typed recipe, is edited, so that the scene's recipe
+/// holds the keys the base recipe wrote and no defaults it left out.
+fn pinned_recipe(space: &SearchSpace, parameters: &Parameters) -> Result<String> {
+    let mut recipe: toml::Table = space.recipe_toml.parse().map_err(|e| SearchError::Space {
+        key: "recipe".into(),
+        problem: format!("{e}"),
+    })?;
     let pin = |v: f64| toml::Value::Array(vec![toml::Value::Float(v), toml::Value::Float(v)]);
     let section = |recipe: &mut toml::Table, name: &str| -> Result<toml::Table> {
         match recipe.remove(name) {
@@ -230,8 +227,8 @@ mod tests {
         let space = SearchSpace::from_texts(SINGLE, &with_tape_along("\"long\""), None).unwrap();
         let parameters = space.parameters(&vec![0.3; space.dim()], 0).unwrap();
         let sampled = build(&space, &parameters, 0, 7).unwrap();
-        let recipe: toml::Table = sampled.scene.recipe_toml.parse().unwrap();
-        assert_eq!(boxpose_data::recipe::tape_along(&recipe), Ok("long"));
+        let recipe = boxpose_data::recipe::Recipe::from_toml(&sampled.scene.recipe_toml).unwrap();
+        assert_eq!(recipe.materials.tape_along, "long");
     }
 
     #[test]

@@ -331,6 +331,10 @@ pub struct SearchSpace {
     pub text: String,
     /// The base recipe's TOML text.
     pub recipe_toml: String,
+    /// The base recipe, read and checked once when the space is loaded.
+    pub recipe: boxpose_data::recipe::Recipe,
+    /// Its `[support]` and `[settle]`, as the simulator takes them.
+    pub physics: boxpose_physics::RecipePhysics,
     pub dimensions: Vec<Dimension>,
     /// With `[pile]`: its boxes, read from the dataset when the space was loaded.
     pub pile: Option<Vec<PileBox>>,
@@ -648,13 +652,13 @@ impl SearchSpace {
             }
             _ => {}
         }
-        boxpose_physics::RecipePhysics::from_toml(&recipe_toml).map_err(|e| {
-            SearchError::Space {
-                key: "recipe".into(),
-                problem: format!("{}: {e}", file.recipe),
-            }
-        })?;
-        crate::nuisance::check_recipe(&recipe_toml)?;
+        let refused = |problem: String| SearchError::Space {
+            key: "recipe".into(),
+            problem: format!("{}: {problem}", file.recipe),
+        };
+        let recipe = boxpose_data::recipe::Recipe::from_toml(&recipe_toml).map_err(refused)?;
+        let physics = boxpose_physics::RecipePhysics::from_recipe(&recipe)
+            .map_err(|e| refused(e.to_string()))?;
         let mut dimensions = Vec::new();
         let mut scalar = |name: &str, d: &Distribution| -> Result<()> {
             d.validate(name)?;
@@ -803,6 +807,8 @@ impl SearchSpace {
             file,
             text,
             recipe_toml,
+            recipe,
+            physics,
             dimensions,
             pile,
         };

@@ -320,7 +320,7 @@ impl SystemUnderTest {
             ));
         }
         Ok(Self {
-            physics: RecipePhysics::from_toml(&space.recipe_toml)?,
+            physics: space.physics,
             renderer,
             perceiver: Perceiver::Own {
                 model,
@@ -345,7 +345,7 @@ impl SystemUnderTest {
         crops: Crops,
     ) -> Result<Self> {
         Ok(Self {
-            physics: RecipePhysics::from_toml(&space.recipe_toml)?,
+            physics: space.physics,
             renderer,
             perceiver: Perceiver::External(system),
             crops,
