@@ -258,7 +258,7 @@ def test_the_python_and_rust_readers_agree_on_the_material_probabilities(
     if not valid:
         assert f"materials.{key}" in r.stderr, r.stderr
         for read in (lambda: Recipe.from_toml(text, "fuzz"), lambda: parse_render_recipe(text)):
-            with pytest.raises(RecipeError, match=rf"materials\.{key} must be a probability"):
+            with pytest.raises(RecipeError, match=rf"'materials\.{key}' must be \[0, 1\]"):
                 read()
 
 

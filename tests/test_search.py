@@ -339,7 +339,7 @@ def test_a_refused_search_leaves_no_run_behind(spaces, boxpose_bin, tmp_path):
         ),
         (spaces["single"], ["--num-shards", 0], "--num-shards 0"),
         (bad_recipes["samples"], [], "render.samples"),
-        (bad_recipes["width"], [], "camera.frames_per_scene, width and height"),
+        (bad_recipes["width"], [], "key 'camera.width' must be ≥ 1"),
     ):
         r = search(boxpose_bin, space, "--out", out, "--samples", 4, *args, check=False)
         assert r.returncode != 0 and said in r.stderr, r.stderr

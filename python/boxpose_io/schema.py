@@ -26,6 +26,9 @@ SUPPORT_FRICTION: float = SUPPORT["friction"]
 # support kinds; the values of materials.tape_along, settle.engine and camera.region and the ones
 # a recipe without them means; the most simulation steps one settle may take.
 RECIPE_KEYS: frozenset[str] = frozenset(_CONTRACT["recipe"]["keys"])
+# Each key's type, accepted values, default and meaning, by dotted key (boxpose_io.recipe checks
+# a recipe against it).
+RECIPE_REFERENCE: dict[str, dict] = {k["key"]: k for k in _CONTRACT["recipe"]["reference"]}
 SUPPORT_KINDS: tuple[str, ...] = tuple(_CONTRACT["recipe"]["support_kinds"])
 TAPE_ALONG: tuple[str, ...] = tuple(_CONTRACT["recipe"]["tape_along"])
 TAPE_ALONG_DEFAULT: str = _CONTRACT["recipe"]["tape_along_default"]
