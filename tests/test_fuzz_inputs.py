@@ -166,8 +166,8 @@ def test_the_rust_reader_refuses_a_key_that_is_not_a_recipe_key(
     assert not rust_accepts(boxpose_bin, scenes_dataset, text)
 
 
-# The search's own reader of a base recipe's [materials] (`boxpose_search::scene`) and
-# `boxpose_data::recipe::tape_along` are Rust; the search space lets any base recipe in.
+# The search reads its base recipe with the Rust reader (`boxpose_data::recipe::Recipe`); a
+# search space lets any base recipe in, so each example rewrites the recipe beside it.
 @pytest.fixture(scope="module")
 def search_space(tmp_path_factory) -> Path:
     """A search space whose base recipe is `recipe.toml` beside it (each example rewrites it)."""
