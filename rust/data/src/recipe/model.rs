@@ -166,15 +166,15 @@ impl Recipe {
     /// prefix with where the text came from.
     pub fn from_toml(text: &str) -> Result<Self, String> {
         let table: toml::Table = toml::from_str(text).map_err(|e| format!("invalid TOML ({e})"))?;
+        Self::from_table(table)
+    }
+
+    /// [`Recipe::from_toml`] of a parsed table.
+    pub fn from_table(table: toml::Table) -> Result<Self, String> {
         check(&table)?;
         toml::Value::Table(table)
             .try_into()
             .map_err(|e: toml::de::Error| e.message().to_string())
-    }
-
-    /// The recipe as TOML, every key written (the defaults included).
-    pub fn to_toml(&self) -> String {
-        toml::to_string(self).expect("a recipe's fields are all TOML values")
     }
 }
 
@@ -396,9 +396,8 @@ mod tests {
 
     #[test]
     fn the_fields_are_the_reference_keys_and_the_defaults_its_values() {
-        let text = toml::to_string(&without_defaults()).unwrap();
-        let recipe = Recipe::from_toml(&text).unwrap();
-        let written: toml::Table = recipe.to_toml().parse().unwrap();
+        let recipe = Recipe::from_table(without_defaults()).unwrap();
+        let written = toml::Table::try_from(&recipe).unwrap();
         for key in RECIPE_REFERENCE {
             let value = lookup(&written, key.key);
             match key.when_absent {
