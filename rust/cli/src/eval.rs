@@ -52,8 +52,9 @@ pub struct Args {
     /// position (0: the voxel centre), instead of the model's `peak_refine_radius`.
     #[arg(long, value_name = "VOXELS")]
     peak_refine_radius: Option<usize>,
-    /// Lay each known-size fit on the depth image (the points of the box's visible faces), as
-    /// `boxpose search --refine-depth` does.
+    /// Lay each known-size fit on the depth image (the points of the box's visible faces), the
+    /// robust fit after the depth image chose among the poses its peaks allow, as `boxpose
+    /// search --refine-depth` does.
     #[arg(long)]
     refine_depth: bool,
     /// Perceive the frames' simulated sensor depth (`sensor_depth_m_f32le`, rendered with the

@@ -218,7 +218,8 @@ struct RunArgs {
     whole_frames: bool,
     /// Lay the fitted pose on the depth image: Gauss–Newton on the points of the box's visible
     /// faces inside its projection (a known-size fit only; a refinement that would turn the box
-    /// by more than 10° is discarded). A setting of the run, kept in run.json.
+    /// by more than 10° is discarded). With `--fit robust` the depth image first chooses among
+    /// the poses the fit's peaks allow (docs/geometry.md). A setting of the run, kept in run.json.
     #[arg(long, conflicts_with = "sut")]
     refine_depth: bool,
     /// Perceive the simulated structured-light depth instead of the exact render depth: the

@@ -10,11 +10,14 @@
 //! boxes do not pull it. It refines, it does not
 //! search: a result that moves the box by more than [`MAX_ROTATION_DEG`] or a fraction of its
 //! shortest side is discarded, and too few points leave the pose as it was.
+//!
+//! The search belongs to the fit: when its peaks allow several poses, [`choose_with_depth`] keeps
+//! the one the depth image supports ([`DepthSupport`]).
 
 use nalgebra::{Isometry3, Matrix6, Point3, Vector3, Vector6};
 
 use crate::BoxModel;
-use crate::depth::DepthView;
+use crate::depth::{self, DepthView};
 
 /// Gauss–Newton steps at most.
 const ITERATIONS: usize = 15;
@@ -92,15 +95,13 @@ pub fn refine_with_depth(
         })
 }
 
-/// The camera-frame points of the depth pixels inside the box's projection at `pose` (its
-/// corners' bounding rectangle) that `belongs` marks as the box's, sampled on a grid of at most
-/// [`MAX_SAMPLES`] pixels of that rectangle.
-fn observed_points(
+/// The pixel rectangle (u0, v0, u1, v1, inclusive) of the box's projection at `pose` (its
+/// corners' bounding rectangle, clipped to the image); None when a corner is behind the camera.
+fn projection_rect(
     model: &BoxModel,
     pose: &Isometry3<f64>,
     view: &DepthView,
-    belongs: impl Fn(usize) -> bool,
-) -> Option<Vec<Point3<f64>>> {
+) -> Option<[usize; 4]> {
     let [fx, fy, cx, cy] = view.intrinsics;
     let (mut u0, mut v0, mut u1, mut v1) = (f64::MAX, f64::MAX, f64::MIN, f64::MIN);
     for corner in model.corners() {
@@ -112,8 +113,37 @@ fn observed_points(
         (u0, v0, u1, v1) = (u0.min(u), v0.min(v), u1.max(u), v1.max(v));
     }
     let clip = |x: f64, len: usize| x.clamp(0.0, len as f64 - 1.0).round() as usize;
-    let (u0, u1) = (clip(u0, view.width), clip(u1, view.width));
-    let (v0, v1) = (clip(v0, view.height), clip(v1, view.height));
+    Some([
+        clip(u0, view.width),
+        clip(v0, view.height),
+        clip(u1, view.width),
+        clip(v1, view.height),
+    ])
+}
+
+/// The camera-frame points of the depth pixels inside the box's projection at `pose` that
+/// `belongs` marks as the box's, sampled on a grid of at most [`MAX_SAMPLES`] pixels.
+fn observed_points(
+    model: &BoxModel,
+    pose: &Isometry3<f64>,
+    view: &DepthView,
+    belongs: impl Fn(usize) -> bool,
+) -> Option<Vec<Point3<f64>>> {
+    Some(points_in_rect(
+        projection_rect(model, pose, view)?,
+        view,
+        belongs,
+    ))
+}
+
+/// The camera-frame points of the depth pixels of `rect` that `belongs` marks, on a grid of at
+/// most [`MAX_SAMPLES`] pixels of the rectangle.
+fn points_in_rect(
+    [u0, v0, u1, v1]: [usize; 4],
+    view: &DepthView,
+    belongs: impl Fn(usize) -> bool,
+) -> Vec<Point3<f64>> {
+    let [fx, fy, cx, cy] = view.intrinsics;
     let area = ((u1 - u0 + 1) * (v1 - v0 + 1)) as f64;
     let stride = ((area / MAX_SAMPLES as f64).sqrt().ceil() as usize).max(1);
     let mut points = Vec::new();
@@ -133,7 +163,111 @@ fn observed_points(
             }
         }
     }
-    Some(points)
+    points
+}
+
+/// A mask point within this many metres of a candidate's surface is explained by it.
+const EXPLAINED_WITHIN_M: f64 = 0.01;
+/// A candidate's visible face sample this far in front of the observed surface is impossible.
+const IN_FRONT_TOLERANCE_M: f64 = 0.01;
+/// The lead in [`DepthSupport::score`] a candidate needs over the fit's own pose to replace it.
+const DECISIVE_LEAD: f64 = 0.1;
+
+/// How well a candidate pose accounts for the depth image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DepthSupport {
+    /// Share of the box's mask points within [`EXPLAINED_WITHIN_M`] of the candidate's surface.
+    pub explained: f64,
+    /// Share of the candidate's camera-facing face samples that lie in front of everything the
+    /// camera saw there ([`depth::check_against_depth`]): where the candidate would be, the
+    /// camera saw through.
+    pub impossible: f64,
+}
+
+impl DepthSupport {
+    /// explained − 3 · impossible: a sample the camera saw through cannot be explained away by
+    /// an occluder, while a mask point can be missed by a pose that is nearly right.
+    pub fn score(&self) -> f64 {
+        self.explained - 3.0 * self.impossible
+    }
+}
+
+/// The distance from `q` (box frame) to the surface of the box of half-extents `half`.
+fn surface_distance(half: &Vector3<f64>, q: &Point3<f64>) -> f64 {
+    let beyond = q.coords.abs() - half;
+    if beyond.max() < 0.0 {
+        -beyond.max()
+    } else {
+        beyond.map(|x| x.max(0.0)).norm()
+    }
+}
+
+/// How well each of `candidates` (poses of `model`) accounts for the depth image `view` on the
+/// pixels `belongs` marks as the box's (its mask) — [`DepthSupport`] — or None when the mask
+/// holds fewer than [`MIN_POINTS`] depth points inside the candidates' projections.
+pub fn depth_support(
+    model: &BoxModel,
+    candidates: &[Isometry3<f64>],
+    view: &DepthView,
+    belongs: impl Fn(usize) -> bool,
+) -> Option<Vec<DepthSupport>> {
+    let rect = candidates
+        .iter()
+        .filter_map(|pose| projection_rect(model, pose, view))
+        .reduce(|a, b| {
+            [
+                a[0].min(b[0]),
+                a[1].min(b[1]),
+                a[2].max(b[2]),
+                a[3].max(b[3]),
+            ]
+        })?;
+    let observed = points_in_rect(rect, view, belongs);
+    if observed.len() < MIN_POINTS {
+        return None;
+    }
+    let half = model.size() * 0.5;
+    Some(
+        candidates
+            .iter()
+            .map(|pose| {
+                let inverse = pose.inverse();
+                let explained = observed
+                    .iter()
+                    .filter(|p| surface_distance(&half, &(inverse * *p)) <= EXPLAINED_WITHIN_M)
+                    .count();
+                let check = depth::check_against_depth(model, pose, view, IN_FRONT_TOLERANCE_M);
+                DepthSupport {
+                    explained: explained as f64 / observed.len() as f64,
+                    impossible: check.in_front as f64 / check.samples.max(1) as f64,
+                }
+            })
+            .collect(),
+    )
+}
+
+/// Of `candidates` (the fit's own pose first, then the other poses its peaks allow), the one the
+/// depth image supports ([`depth_support`]): another candidate replaces the fit's pose only when
+/// its score leads by [`DECISIVE_LEAD`]. The index of the chosen candidate; 0 when the mask
+/// holds too few depth points to judge.
+pub fn choose_with_depth(
+    model: &BoxModel,
+    candidates: &[Isometry3<f64>],
+    view: &DepthView,
+    belongs: impl Fn(usize) -> bool,
+) -> usize {
+    let Some(support) = depth_support(model, candidates, view, belongs) else {
+        return 0;
+    };
+    let scores: Vec<f64> = support.iter().map(DepthSupport::score).collect();
+    let best = (0..scores.len())
+        .max_by(|&a, &b| scores[a].total_cmp(&scores[b]).then(b.cmp(&a)))
+        .unwrap_or(0);
+    if best != 0 && scores[best] - scores[0] >= DECISIVE_LEAD {
+        best
+    } else {
+        0
+    }
 }
 
 /// The face of the box of half-extents `half` nearest to `q` (box frame), as the point of that
@@ -435,5 +569,82 @@ mod tests {
                 "every pixel, shifted along {shift:?}: {every}"
             );
         }
+    }
+
+    /// The truth turned a quarter about its shortest axis (the 0.3 × 0.2 face turned in its
+    /// plane): its faces leave part of the mask unexplained and stand where the camera saw past
+    /// the box.
+    fn quarter_turned(pose: &Isometry3<f64>) -> Isometry3<f64> {
+        pose * Isometry3::rotation(Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2))
+    }
+
+    #[test]
+    fn the_pose_the_depth_image_supports_replaces_one_it_does_not() {
+        let model = BoxModel::new(Vector3::from(SIZE)).unwrap();
+        let (depth, labels) = render_boxes(&[(&model, truth())], Background::Wall(2.0));
+        let mask = |pixel: usize| labels[pixel] == 1;
+        let wrong = quarter_turned(&truth());
+        let support = depth_support(&model, &[wrong, truth()], &view(&depth), mask).unwrap();
+        assert!(
+            support[1].explained > 0.95 && support[1].impossible < 0.02,
+            "{support:?}"
+        );
+        assert!(support[1].score() - support[0].score() > 0.3, "{support:?}");
+        assert_eq!(
+            choose_with_depth(&model, &[wrong, truth()], &view(&depth), mask),
+            1
+        );
+        assert_eq!(
+            choose_with_depth(&model, &[truth(), wrong], &view(&depth), mask),
+            0
+        );
+    }
+
+    #[test]
+    fn a_candidate_no_better_supported_keeps_the_fit_s_own_pose() {
+        let model = BoxModel::new(Vector3::from(SIZE)).unwrap();
+        let (depth, labels) = render_boxes(&[(&model, truth())], Background::Wall(2.0));
+        // a millimetre along the optical axis changes nothing the score can see
+        let beside = Isometry3::translation(0.0, 0.0, 0.001) * truth();
+        assert_eq!(
+            choose_with_depth(&model, &[truth(), beside], &view(&depth), |pixel| {
+                labels[pixel] == 1
+            }),
+            0
+        );
+    }
+
+    #[test]
+    fn a_mask_with_too_few_depth_points_keeps_the_fit_s_own_pose() {
+        let model = BoxModel::new(Vector3::from(SIZE)).unwrap();
+        let depth = render(&model, &truth(), Background::Wall(2.0));
+        let wrong = quarter_turned(&truth());
+        let candidates = [wrong, truth()];
+        assert!(depth_support(&model, &candidates, &view(&depth), |_| false).is_none());
+        assert_eq!(
+            choose_with_depth(&model, &candidates, &view(&depth), |_| false),
+            0
+        );
+    }
+
+    #[test]
+    fn a_pose_standing_where_the_camera_saw_through_is_impossible() {
+        let model = BoxModel::new(Vector3::from(SIZE)).unwrap();
+        let depth = render(&model, &truth(), Background::Wall(2.0));
+        // 5 cm nearer the camera: every visible face sample is in front of the observed box
+        let nearer = Isometry3::translation(0.0, 0.0, -0.05) * truth();
+        let support = depth_support(&model, &[nearer], &view(&depth), |_| true).unwrap();
+        assert!(support[0].impossible > 0.9, "{support:?}");
+        assert!(support[0].score() < -2.0, "{support:?}");
+    }
+
+    #[test]
+    fn the_distance_to_the_surface_is_zero_on_it_and_grows_off_it() {
+        let half = Vector3::new(0.15, 0.1, 0.05);
+        assert!((surface_distance(&half, &Point3::origin()) - 0.05).abs() < 1e-12);
+        assert!(surface_distance(&half, &Point3::new(0.0, 0.0, 0.05)).abs() < 1e-12);
+        assert!((surface_distance(&half, &Point3::new(0.0, 0.0, 0.08)) - 0.03).abs() < 1e-12);
+        let corner = surface_distance(&half, &Point3::new(0.18, 0.14, 0.05));
+        assert!((corner - 0.05).abs() < 1e-12, "{corner}");
     }
 }

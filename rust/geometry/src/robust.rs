@@ -359,6 +359,21 @@ pub fn adaptive_fit(
     })
 }
 
+/// The poses [`adaptive_fit`] chose among: its best mutually different hypotheses, each refined,
+/// cheapest first. The first is the fit's pose; the others are what a second witness (the depth
+/// image: [`crate::depth_refine::choose_with_depth`]) may prefer when the peaks do not fix the
+/// pose (an occluded box with four of its corners seen).
+pub fn adaptive_candidates(
+    model: &BoxModel,
+    points: &[Point3<f64>],
+    params: &AdaptiveParams,
+) -> Result<Vec<Isometry3<f64>>> {
+    let search = KnownSizeSearch::new(model, points, params)?;
+    let mut refined = search.refined_candidates();
+    refined.sort_by(|a, b| a.cost.total_cmp(&b.cost));
+    Ok(refined.iter().map(|r| isometry_of(&r.placed)).collect())
+}
+
 /// The confidence of any pose of a box of known size on `points` (from any fit): its cost under
 /// the noise-adaptive model against the best refined hypothesis of [`adaptive_fit`]'s search that
 /// differs from it by more than a tenth of the diameter. Negative margin (confidence 0) when the
