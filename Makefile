@@ -94,7 +94,7 @@ TRAIN_LARGE_SHARDS ?= 0,1,2,3,4,5
 TRAIN_LARGE_STAGE3_SHARDS ?= 6,7,8,9
 # Stages 2 and 3 read both sets (held-out scenes of each are never trained on).
 TRAIN_SETS := --dataset datasets/generated/train --dataset datasets/generated/train_large
-train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (BACKEND=flex|tch|wgpu|cuda): render `train` and 6 shards of `train_large`, stage 1 from random weights on `train`, stage 2 from stage 1 on both, render 4 more shards, stage 3 from stage 2, keypoint-wide and segmenter-wide from stage 3 on `train_wide` too, segmenter-wide then on `train_pallet` and `train_bins`, keypoint-wide then on all four (all resumable), copy to models/
+train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (BACKEND=flex|tch|wgpu|cuda): render `train` and 6 shards of `train_large`, stage 1 from random weights on `train`, stage 2 from stage 1 on both, render 4 more shards, stage 3 from stage 2, keypoint-wide and segmenter-wide from stage 3 on `train_wide` too, segmenter-wide then on `train_pallet` and `train_bins`, keypoint-wide then on all four, keypoint-sensor from stage 3 on `train_sensor` and `train_bins_sensor` (all resumable), copy to models/
 	$(PY) scripts/make_scenes.py --recipe train --dataset datasets/generated/train --boxpose $(BOXPOSE)
 	$(PY) scripts/make_scenes.py --recipe train_large --dataset datasets/generated/train_large \
 	  --num-shards 50 --shards $(TRAIN_LARGE_SHARDS) --no-inspect
@@ -143,6 +143,15 @@ train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (
 	$(TRAIN_BOXPOSE) train --config configs/keypoint-cheap.toml --init runs/keypoint-wide/model \
 	  --out runs/keypoint-cheap --backend $(BACKEND)
 	$(call publish_model,runs/keypoint-cheap,models/keypoint-wide)
+	# keypoint-sensor: stage 3 (keypoint-slim) fine-tuned with half of its crops on the simulated
+	# sensor's depth
+	$(PY) scripts/make_scenes.py --recipe train_sensor --dataset datasets/generated/train_sensor \
+	  --num-shards 4 --boxpose $(BOXPOSE) --no-inspect
+	$(PY) scripts/make_scenes.py --recipe train_bins_sensor --dataset datasets/generated/train_bins_sensor \
+	  --num-shards 4 --boxpose $(BOXPOSE) --no-inspect
+	$(TRAIN_BOXPOSE) train --config configs/keypoint-sensor-mix.toml --init runs/keypoint-slim-stage3/model \
+	  --out runs/keypoint-sensor --backend $(BACKEND)
+	$(call publish_model,runs/keypoint-sensor,models/keypoint-sensor)
 
 # Copies a trained run's model, history and config into a model folder as a whole: assembled
 # beside it (keeping its card.md and plots), then swapped in by two renames, so that a killed copy
