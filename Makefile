@@ -143,8 +143,8 @@ train: setup $(TRAIN_BOXPOSE) ## Train the shipped networks as their cards say (
 	$(TRAIN_BOXPOSE) train --config configs/keypoint-cheap.toml --init runs/keypoint-wide/model \
 	  --out runs/keypoint-cheap --backend $(BACKEND)
 	$(call publish_model,runs/keypoint-cheap,models/keypoint-wide)
-	# keypoint-sensor: stage 3 (keypoint-slim) fine-tuned with half of its crops on the simulated
-	# sensor's depth
+	# keypoint-sensor: stage 3 (keypoint-slim) fine-tuned with a quarter of its crops on the
+	# simulated sensor's depth
 	$(PY) scripts/make_scenes.py --recipe train_sensor --dataset datasets/generated/train_sensor \
 	  --num-shards 4 --boxpose $(BOXPOSE) --no-inspect
 	$(PY) scripts/make_scenes.py --recipe train_bins_sensor --dataset datasets/generated/train_bins_sensor \
