@@ -18,8 +18,8 @@ use boxpose_learn::segmentation::{self, SegmenterModel};
 use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::plots;
 use boxpose_learn::fit_table::{self, FitRow};
+use boxpose_report::plots;
 
 #[derive(clap::Args)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]

@@ -15,8 +15,8 @@ use boxpose_search::external_eval::{self, ExternalRow, ExternalSummary, METHOD};
 use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::plots;
 use boxpose_learn::evaluation::Crops;
+use boxpose_report::plots;
 
 /// Settings of one `eval --sut` run.
 pub struct Settings<'a> {

@@ -28,7 +28,7 @@ use boxpose_learn::segmentation::SegmenterModel;
 use nalgebra::Point3;
 use serde_json::json;
 
-use crate::plots::{self, OverlayBox};
+use boxpose_report::plots::{self, OverlayBox};
 
 #[derive(Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum SizeFit {

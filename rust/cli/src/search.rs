@@ -25,7 +25,7 @@ use boxpose_search_stats::{
 };
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::search_report;
+use boxpose_report::search_report;
 
 #[derive(clap::Args)]
 #[command(
@@ -333,7 +333,7 @@ enum SamplerArg {
 
 pub fn run(args: &Args) -> anyhow::Result<()> {
     match &args.command {
-        Some(Command::Report { run, worst }) => search_report::write(run, *worst),
+        Some(Command::Report { run, worst }) => write_report(run, *worst),
         Some(Command::Replay {
             run,
             sample,
@@ -356,7 +356,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             let summary = run.merge()?;
             print_summary(&run.dir, &summary);
             // the report draws the merged tables, and names the folder it is in now
-            search_report::write(&run.dir, 6)
+            write_report(&run.dir, 6)
         }
         Some(Command::Compare {
             before,
@@ -542,7 +542,13 @@ fn search(args: &RunArgs) -> anyhow::Result<()> {
     }
     let summary = run.merge()?;
     print_summary(out, &summary);
-    search_report::write(out, 6)?;
+    write_report(out, 6)
+}
+
+/// `RUN/report/` with the `worst` counterexamples drawn, and where it is.
+fn write_report(run: &Path, worst: usize) -> anyhow::Result<()> {
+    let page = search_report::write(run, worst)?;
+    println!("report: {}", page.display());
     Ok(())
 }
 
@@ -818,20 +824,20 @@ fn draw_replay(
         std::array::from_fn(|i| nalgebra::Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))
     });
     let overlay = out.join(format!("sample-{sample}.png"));
-    crate::plots::overlay(
+    boxpose_report::plots::overlay(
         &overlay,
         &frame.rgb,
         frame.width,
         frame.height,
         &frame.intrinsics,
-        &[crate::plots::OverlayBox {
+        &[boxpose_report::plots::OverlayBox {
             truth,
             peaks: peaks.clone(),
             fitted,
         }],
     )?;
     if let Some(truth) = &truth {
-        crate::plots::view_3d(
+        boxpose_report::plots::view_3d(
             &out.join(format!("sample-{sample}-3d.png")),
             &format!("sample {sample}, replayed"),
             truth,

@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use boxpose_data::Dataset;
-use boxpose_search::run::{Run, SampleRow};
-use nalgebra::Point3;
+use boxpose_search::run::Run;
 
-use crate::plots::{self, OverlayBox, SheetExtras};
+use boxpose_report::plots::{self, SheetExtras};
+use boxpose_report::search_report;
 
 /// Command-line options of `boxpose view`.
 #[derive(clap::Args)]
@@ -115,68 +115,9 @@ fn sample_extras(run_dir: &Path, sample: i64) -> anyhow::Result<SheetExtras> {
         .iter()
         .find(|r| r.sample_id == sample)
         .with_context(|| format!("{} has no sample {sample}", run_dir.display()))?;
-    Ok(sample_sheet(
+    Ok(search_report::sample_sheet(
         &run,
         row,
         format!("{} — sample {sample}", run_dir.display()),
     ))
-}
-
-/// What a sample's sheet adds to its frame's ground truth: the network's peaks and fitted box of
-/// the target, and a text panel of the sample's errors and parameter values (`boxpose view
-/// RUN --sample`, and each counterexample of the search report).
-pub fn sample_sheet(run: &Run, row: &SampleRow, title: String) -> SheetExtras {
-    let sample = row.sample_id;
-    let points = |values: &[f64]| -> Vec<Point3<f64>> {
-        values
-            .chunks(3)
-            .map(|p| Point3::new(p[0], p[1], p[2]))
-            .collect()
-    };
-    let fitted = row.fitted_corners_camera_m.as_deref().map(points);
-    let overlay = OverlayBox {
-        truth: None,
-        peaks: row
-            .peaks_camera_m
-            .as_deref()
-            .map(points)
-            .unwrap_or_default(),
-        fitted: fitted.and_then(|c| <[Point3<f64>; 8]>::try_from(c).ok()),
-    };
-    let number = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.4}"));
-    let mut text = vec![
-        format!(
-            "sample {sample}: {} ({} stage, iteration {})",
-            if row.failed { "failed" } else { "passed" },
-            row.stage,
-            row.iteration
-        ),
-        format!(
-            "paper error / (d²/3) = {}",
-            number(row.paper_error_normalized)
-        ),
-        format!("MSSD / d = {}", number(row.mssd_over_diameter)),
-        format!("cube MSSD / d = {}", number(row.cube_mssd_over_diameter)),
-        format!("rotation error = {} °", number(row.rotation_error_deg)),
-        format!(
-            "target {} ({} visible)",
-            match row.detected {
-                Some(true) => "found",
-                Some(false) => "not found",
-                None => "–",
-            },
-            number(row.target_visible_fraction.map(f64::from))
-        ),
-        String::new(),
-    ];
-    for (name, value) in run.record.dimensions.iter().zip(&row.params) {
-        if !name.contains(".orientation.") {
-            text.push(format!("{name} = {value:.4}"));
-        }
-    }
-    SheetExtras {
-        title,
-        overlay: Some(overlay),
-        text,
-    }
 }

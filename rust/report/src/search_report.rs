@@ -3,7 +3,7 @@
 //! where failures sit in parameter space, and the worst counterexamples drawn on their frames.
 
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use boxpose_data::Dataset;
@@ -12,7 +12,8 @@ use boxpose_search::sut::Predicate;
 use boxpose_search_stats::stats::normal_cdf as standard_normal_cdf;
 use nalgebra::Point3;
 
-use crate::plots::{self, OverlayBox};
+use crate::html::escape;
+use crate::plots::{self, OverlayBox, SheetExtras};
 
 /// Reads the predicate's metric off a sample (None where the sample has no such score).
 type MetricOf = fn(&SampleRow) -> Option<f64>;
@@ -20,7 +21,9 @@ type MetricOf = fn(&SampleRow) -> Option<f64>;
 /// Points of the estimate-against-samples curve.
 const CURVE_POINTS: usize = 60;
 
-pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
+/// Draws the run's figures and its `worst` counterexamples and publishes them with the page as
+/// `RUN/report/` in one step; returns the page's path.
+pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<PathBuf> {
     let run = Run::open(run_dir)?;
     let (rows, _) = run.rows()?;
     anyhow::ensure!(!rows.is_empty(), "{}: no sample yet", run_dir.display());
@@ -46,8 +49,7 @@ pub fn write(run_dir: &Path, worst: usize) -> anyhow::Result<()> {
     std::fs::write(tmp.join("index.html"), html).with_context(|| tmp.display().to_string())?;
     // the old report stays readable until the new one replaces it in one step
     boxpose_data::publish_folder(&tmp, &out)?;
-    println!("report: {}", out.join("index.html").display());
-    Ok(())
+    Ok(out.join("index.html"))
 }
 
 /// The run's figures in `tmp`, each with its caption: the error histogram (weighted for
@@ -215,7 +217,7 @@ fn draw_counterexamples(
                 }],
             )?;
             let sheet = format!("sample-{}-sheet.png", row.sample_id);
-            let extras = crate::view::sample_sheet(
+            let extras = sample_sheet(
                 run,
                 row,
                 format!("sample {} of {}", row.sample_id, run_dir.display()),
@@ -346,10 +348,63 @@ fn predicate_counts(rows: &[SampleRow]) -> String {
     )
 }
 
-fn escape(text: &str) -> String {
-    text.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
+/// What a sample's sheet adds to its frame's ground truth: the network's peaks and fitted box of
+/// the target, and a text panel of the sample's errors and parameter values (`boxpose view
+/// RUN --sample`, and each counterexample of the search report).
+pub fn sample_sheet(run: &Run, row: &SampleRow, title: String) -> SheetExtras {
+    let sample = row.sample_id;
+    let points = |values: &[f64]| -> Vec<Point3<f64>> {
+        values
+            .chunks(3)
+            .map(|p| Point3::new(p[0], p[1], p[2]))
+            .collect()
+    };
+    let fitted = row.fitted_corners_camera_m.as_deref().map(points);
+    let overlay = OverlayBox {
+        truth: None,
+        peaks: row
+            .peaks_camera_m
+            .as_deref()
+            .map(points)
+            .unwrap_or_default(),
+        fitted: fitted.and_then(|c| <[Point3<f64>; 8]>::try_from(c).ok()),
+    };
+    let number = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.4}"));
+    let mut text = vec![
+        format!(
+            "sample {sample}: {} ({} stage, iteration {})",
+            if row.failed { "failed" } else { "passed" },
+            row.stage,
+            row.iteration
+        ),
+        format!(
+            "paper error / (d²/3) = {}",
+            number(row.paper_error_normalized)
+        ),
+        format!("MSSD / d = {}", number(row.mssd_over_diameter)),
+        format!("cube MSSD / d = {}", number(row.cube_mssd_over_diameter)),
+        format!("rotation error = {} °", number(row.rotation_error_deg)),
+        format!(
+            "target {} ({} visible)",
+            match row.detected {
+                Some(true) => "found",
+                Some(false) => "not found",
+                None => "–",
+            },
+            number(row.target_visible_fraction.map(f64::from))
+        ),
+        String::new(),
+    ];
+    for (name, value) in run.record.dimensions.iter().zip(&row.params) {
+        if !name.contains(".orientation.") {
+            text.push(format!("{name} = {value:.4}"));
+        }
+    }
+    SheetExtras {
+        title,
+        overlay: Some(overlay),
+        text,
+    }
 }
 
 /// What perceives the target in a run, for the page's opening sentence.
