@@ -350,7 +350,17 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
             seed,
             threads,
             backend,
-        }) => variants(run, out, *per_failure, *sigma, *seed, *threads, *backend),
+        }) => variants(
+            run,
+            out,
+            &VariantDraw {
+                per_failure: *per_failure,
+                sigma: *sigma,
+                seed: *seed,
+            },
+            *threads,
+            *backend,
+        ),
         Some(Command::Merge { run }) => {
             let run = Run::open(run)?;
             let summary = run.merge()?;
@@ -667,68 +677,42 @@ fn check_run_args(args: &RunArgs) -> anyhow::Result<()> {
 /// What `fit` records for a run of another system under test (its fit is its own).
 const EXTERNAL_FIT: &str = "external";
 
-#[allow(clippy::too_many_arguments)]
 fn variants(
     run_dir: &Path,
     out: &Path,
-    per_failure: usize,
-    sigma: f64,
-    seed: u64,
+    draw: &VariantDraw,
     threads: usize,
     backend: BackendKind,
 ) -> anyhow::Result<()> {
-    anyhow::ensure!(per_failure >= 1, "--per-failure must be at least 1");
-    anyhow::ensure!(
-        sigma.is_finite() && sigma >= 0.0,
-        "--sigma {sigma} must be finite and non-negative"
-    );
-    // before the run is read: a folder of another dataset or run is refused whatever the run
-    let _claim = boxpose_data::output_folder::claim(
-        out,
-        "--out",
-        "search variants",
-        &boxpose_search::variants::OUTPUT,
-    )?;
-    let run = Run::open(run_dir)?;
-    let inside_run = std::path::absolute(out)?.starts_with(std::path::absolute(run_dir)?);
-    anyhow::ensure!(
-        !inside_run,
-        "--out {} is inside the run folder {}: choose a folder of its own",
-        out.display(),
-        run_dir.display()
-    );
-    let (rows, _) = run.rows()?;
-    let failures: Vec<_> = rows.iter().filter(|r| r.valid && r.failed).collect();
-    anyhow::ensure!(
-        !failures.is_empty(),
-        "{}: no valid sample failed, so there is nothing to vary",
-        run_dir.display()
-    );
-    let draw = VariantDraw {
-        per_failure,
-        sigma,
-        seed,
-    };
-    boxpose_search::variants::claim_folder(out, &run, &draw)?;
-    let space = system::space_of(&run)?;
-    let mut sut = system::load(&space, &run.record.settings, None, None, threads, backend)?;
-    // Whole frames: a training frame shows every box, not only the target's region.
-    sut.whole_frames = true;
-    let bar = ProgressBar::new(failures.len() as u64).with_style(ProgressStyle::with_template(
+    // drawn once the run is read and checked: a refused command shows no bar
+    let bar = ProgressBar::hidden().with_style(ProgressStyle::with_template(
         "rendering variants {bar:30} {pos}/{len} failures [{elapsed_precise}<{eta_precise}]",
     )?);
-    let written =
-        boxpose_search::variants::write(&space, &mut sut, &failures, &draw, out, || bar.inc(1))?;
+    let rendered = boxpose_search::variants::render_around_failures(
+        run_dir,
+        out,
+        draw,
+        threads,
+        backend,
+        |done, total| {
+            if bar.is_hidden() {
+                bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+            }
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        },
+    )?;
     bar.finish_and_clear();
     println!(
-        "{written} scenes rendered around {} failures of {} in {}",
-        failures.len(),
+        "{} scenes rendered around {} failures of {} in {}",
+        rendered.scenes,
+        rendered.failures,
         run_dir.display(),
         out.display()
     );
     println!(
         "fine-tune: boxpose train --init {} --dataset ORIGINAL --dataset {} --out RUN",
-        run.record.settings.model,
+        rendered.model,
         out.display()
     );
     Ok(())
@@ -780,8 +764,12 @@ fn replay(
     );
     std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
     if let Some((frames, instances)) = &outcome.rendered {
-        let overlay = draw_replay(out, sample, frames, instances, &outcome.peaks, &replayed)?;
-        println!("  drawn: {}", overlay.display());
+        let frame = boxpose_data::decode_frames(Path::new("<replayed render>"), frames, instances)?
+            .remove(0);
+        let peaks = outcome.peaks.iter().map(|p| (*p).into()).collect();
+        let title = format!("sample {sample}, replayed");
+        let overlay = search_report::draw_sample(out, &frame, peaks, &replayed, &title)?;
+        println!("  drawn: {}", out.join(overlay).display());
     }
     if recorded.failed != replayed.failed || recorded.valid != replayed.valid {
         println!(
@@ -799,53 +787,6 @@ fn replay(
         );
     }
     Ok(())
-}
-
-/// The replayed render with its true box, peaks and fitted box drawn (sample-N.png), and the
-/// 3D view when the target is in the frame; returns the overlay's path.
-fn draw_replay(
-    out: &Path,
-    sample: i64,
-    frames: &boxpose_data::arrow::record_batch::RecordBatch,
-    instances: &boxpose_data::arrow::record_batch::RecordBatch,
-    peaks: &[[f64; 3]],
-    replayed: &SampleRow,
-) -> anyhow::Result<PathBuf> {
-    let frame =
-        boxpose_data::decode_frames(Path::new("<replayed render>"), frames, instances)?.remove(0);
-    let truth = frame
-        .instances
-        .iter()
-        .find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID)
-        .map(|i| i.corners_camera.map(nalgebra::Point3::from));
-    let peaks: Vec<nalgebra::Point3<f64>> =
-        peaks.iter().map(|p| nalgebra::Point3::from(*p)).collect();
-    let fitted = replayed.fitted_corners_camera_m.as_deref().map(|c| {
-        std::array::from_fn(|i| nalgebra::Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))
-    });
-    let overlay = out.join(format!("sample-{sample}.png"));
-    boxpose_report::plots::overlay(
-        &overlay,
-        &frame.rgb,
-        frame.width,
-        frame.height,
-        &frame.intrinsics,
-        &[boxpose_report::plots::OverlayBox {
-            truth,
-            peaks: peaks.clone(),
-            fitted,
-        }],
-    )?;
-    if let Some(truth) = &truth {
-        boxpose_report::plots::view_3d(
-            &out.join(format!("sample-{sample}-3d.png")),
-            &format!("sample {sample}, replayed"),
-            truth,
-            &peaks,
-            fitted.as_ref(),
-        )?;
-    }
-    Ok(overlay)
 }
 
 fn print_warnings(warnings: &[String]) {

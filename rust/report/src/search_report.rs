@@ -6,7 +6,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
-use boxpose_data::Dataset;
+use boxpose_data::{Dataset, Frame};
 use boxpose_search::run::{Run, RunSettings, SampleRow, Sampler, estimate};
 use boxpose_search::sut::Predicate;
 use boxpose_search_stats::stats::normal_cdf as standard_normal_cdf;
@@ -187,34 +187,12 @@ fn draw_counterexamples(
             let Some(row) = failing.iter().find(|r| r.sample_id == frame.scene_id) else {
                 continue;
             };
-            let truth = frame
-                .instances
-                .iter()
-                .find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID)
-                .map(|i| i.corners_camera.map(Point3::from));
-            let peaks: Vec<Point3<f64>> = row
-                .peaks_camera_m
-                .as_deref()
-                .unwrap_or_default()
-                .chunks(3)
-                .map(|p| Point3::new(p[0], p[1], p[2]))
-                .collect();
-            let fitted: Option<[Point3<f64>; 8]> =
-                row.fitted_corners_camera_m.as_deref().map(|c| {
-                    std::array::from_fn(|i| Point3::new(c[3 * i], c[3 * i + 1], c[3 * i + 2]))
-                });
-            let name = format!("sample-{}.png", row.sample_id);
-            plots::overlay(
-                &tmp.join(&name),
-                &frame.rgb,
-                frame.width,
-                frame.height,
-                &frame.intrinsics,
-                &[OverlayBox {
-                    truth,
-                    peaks: peaks.clone(),
-                    fitted,
-                }],
+            let name = draw_sample(
+                tmp,
+                &frame,
+                points(row.peaks_camera_m.as_deref().unwrap_or_default()),
+                row,
+                &format!("sample {} (camera frame, m)", row.sample_id),
             )?;
             let sheet = format!("sample-{}-sheet.png", row.sample_id);
             let extras = sample_sheet(
@@ -223,16 +201,6 @@ fn draw_counterexamples(
                 format!("sample {} of {}", row.sample_id, run_dir.display()),
             );
             plots::frame_sheet(&tmp.join(&sheet), &frame, &extras)?;
-            if let Some(truth) = &truth {
-                let view = format!("sample-{}-3d.png", row.sample_id);
-                plots::view_3d(
-                    &tmp.join(&view),
-                    &format!("sample {} (camera frame, m)", row.sample_id),
-                    truth,
-                    &peaks,
-                    fitted.as_ref(),
-                )?;
-            }
             let crop = crops
                 .get(&row.sample_id)
                 .map_or(String::new(), |c| format!(" --crop {c}"));
@@ -245,6 +213,62 @@ fn draw_counterexamples(
         }
     }
     Ok(drawn)
+}
+
+/// A sample's frame with its target drawn — true box, the network's `peaks`, the fitted box — as
+/// `DIR/sample-N.png`, and when the frame shows the target its 3-D view `DIR/sample-N-3d.png`
+/// titled `view_title`; returns the overlay's file name. The search report draws its
+/// counterexamples with it, `boxpose search replay` its replayed sample.
+pub fn draw_sample(
+    dir: &Path,
+    frame: &Frame,
+    peaks: Vec<Point3<f64>>,
+    row: &SampleRow,
+    view_title: &str,
+) -> anyhow::Result<String> {
+    let truth = frame
+        .instances
+        .iter()
+        .find(|i| i.object_id == boxpose_search::scene::TARGET_OBJECT_ID)
+        .map(|i| i.corners_camera.map(Point3::from));
+    let fitted = fitted_corners(row);
+    let name = format!("sample-{}.png", row.sample_id);
+    plots::overlay(
+        &dir.join(&name),
+        &frame.rgb,
+        frame.width,
+        frame.height,
+        &frame.intrinsics,
+        &[OverlayBox {
+            truth,
+            peaks: peaks.clone(),
+            fitted,
+        }],
+    )?;
+    if let Some(truth) = &truth {
+        plots::view_3d(
+            &dir.join(format!("sample-{}-3d.png", row.sample_id)),
+            view_title,
+            truth,
+            &peaks,
+            fitted.as_ref(),
+        )?;
+    }
+    Ok(name)
+}
+
+/// Points of a flat x, y, z list (a sample row's peaks or corners).
+fn points(values: &[f64]) -> Vec<Point3<f64>> {
+    values
+        .chunks(3)
+        .map(|p| Point3::new(p[0], p[1], p[2]))
+        .collect()
+}
+
+/// The fitted box's corners of a sample row, when something was fitted.
+fn fitted_corners(row: &SampleRow) -> Option<[Point3<f64>; 8]> {
+    let corners = points(row.fitted_corners_camera_m.as_deref()?);
+    <[Point3<f64>; 8]>::try_from(corners).ok()
 }
 
 /// (samples spent, p̂, CI low, CI high) at up to [`CURVE_POINTS`] prefixes of the estimating stage.
@@ -353,13 +377,6 @@ fn predicate_counts(rows: &[SampleRow]) -> String {
 /// RUN --sample`, and each counterexample of the search report).
 pub fn sample_sheet(run: &Run, row: &SampleRow, title: String) -> SheetExtras {
     let sample = row.sample_id;
-    let points = |values: &[f64]| -> Vec<Point3<f64>> {
-        values
-            .chunks(3)
-            .map(|p| Point3::new(p[0], p[1], p[2]))
-            .collect()
-    };
-    let fitted = row.fitted_corners_camera_m.as_deref().map(points);
     let overlay = OverlayBox {
         truth: None,
         peaks: row
@@ -367,7 +384,7 @@ pub fn sample_sheet(run: &Run, row: &SampleRow, title: String) -> SheetExtras {
             .as_deref()
             .map(points)
             .unwrap_or_default(),
-        fitted: fitted.and_then(|c| <[Point3<f64>; 8]>::try_from(c).ok()),
+        fitted: fitted_corners(row),
     };
     let number = |v: Option<f64>| v.map_or("–".to_string(), |v| format!("{v:.4}"));
     let mut text = vec![

@@ -27,6 +27,22 @@ pub struct VariantDraw {
 }
 
 impl VariantDraw {
+    /// Refuses a draw that would write nothing or move by a meaningless amount.
+    pub fn check(&self) -> Result<()> {
+        if self.per_failure < 1 {
+            return Err(SearchError::Settings(
+                "--per-failure must be at least 1".into(),
+            ));
+        }
+        if !(self.sigma.is_finite() && self.sigma >= 0.0) {
+            return Err(SearchError::Settings(format!(
+                "--sigma {} must be finite and non-negative",
+                self.sigma
+            )));
+        }
+        Ok(())
+    }
+
     /// The inputs of variant `k` of `failure`: its z moved by N(0, σ²) noise drawn from
     /// (seed, sample id, k) alone, and its nuisance seed + k.
     pub fn inputs(&self, failure: &SampleRow, k: usize) -> Result<(Vec<f64>, i64)> {
@@ -140,4 +156,71 @@ pub fn write(
         finished();
     }
     Ok(written)
+}
+
+/// What [`render_around_failures`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Rendered {
+    /// Scenes written by this call (a resumed call skips finished failures).
+    pub scenes: usize,
+    /// The run's valid failing samples, one shard each.
+    pub failures: usize,
+    /// The run's keypoint network (what to fine-tune from).
+    pub model: String,
+}
+
+/// `boxpose search variants`: claims `out` (a folder of another dataset or run, or inside the run,
+/// is refused untouched), loads the run's own system (its space, networks and fit, rendering
+/// whole frames, `threads` Cycles threads, `backend`) and writes the variants of every valid
+/// failing sample of the run in `run_dir`. `progress(done, total)` is called after each failure.
+pub fn render_around_failures(
+    run_dir: &Path,
+    out: &Path,
+    draw: &VariantDraw,
+    threads: usize,
+    backend: boxpose_learn::backend::BackendKind,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Rendered> {
+    draw.check()?;
+    // before the run is read: a folder of another dataset or run is refused whatever the run
+    let _claim = boxpose_data::output_folder::claim(out, "--out", "search variants", &OUTPUT)?;
+    let run = Run::open(run_dir)?;
+    let absolute = |p: &Path| {
+        std::path::absolute(p).map_err(|e| SearchError::Io {
+            path: p.to_path_buf(),
+            message: e.to_string(),
+        })
+    };
+    if absolute(out)?.starts_with(absolute(run_dir)?) {
+        return Err(SearchError::Settings(format!(
+            "--out {} is inside the run folder {}: choose a folder of its own",
+            out.display(),
+            run_dir.display()
+        )));
+    }
+    let (rows, _) = run.rows()?;
+    let failures: Vec<&SampleRow> = rows.iter().filter(|r| r.valid && r.failed).collect();
+    if failures.is_empty() {
+        return Err(SearchError::Run {
+            path: run_dir.to_path_buf(),
+            problem: "no valid sample failed, so there is nothing to vary".into(),
+        });
+    }
+    claim_folder(out, &run, draw)?;
+    let space = crate::system::space_of(&run)?;
+    let mut system =
+        crate::system::load(&space, &run.record.settings, None, None, threads, backend)?;
+    // Whole frames: a training frame shows every box, not only the target's region.
+    system.whole_frames = true;
+    progress(0, failures.len());
+    let mut done = 0;
+    let scenes = write(&space, &mut system, &failures, draw, out, || {
+        done += 1;
+        progress(done, failures.len());
+    })?;
+    Ok(Rendered {
+        scenes,
+        failures: failures.len(),
+        model: run.record.settings.model.clone(),
+    })
 }
