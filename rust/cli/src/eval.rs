@@ -3,22 +3,18 @@
 //! Fig. 6: a log-scale histogram of the paper's error, as PNG.
 
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use anyhow::Context;
 use boxpose_data::Dataset;
-use boxpose_data::arrow::array::{ArrayRef, Float64Array, Int32Array};
 use boxpose_geometry::metrics::{PAPER_ERROR_THRESHOLD, normalized_paper_error};
 use boxpose_geometry::pipeline::Method;
 use boxpose_learn::backend::BackendKind;
-use boxpose_learn::data;
-use boxpose_learn::evaluation::{self, CropSource, Crops, InstanceEval};
+use boxpose_learn::evaluation::{self, Crops, DatasetEvaluation};
 use boxpose_learn::inference::KeypointModel;
-use boxpose_learn::segmentation::{self, SegmenterModel};
+use boxpose_learn::segmentation::SegmenterModel;
 use boxpose_search_stats::stats::clopper_pearson;
 use indicatif::{ProgressBar, ProgressStyle};
 
-use boxpose_learn::fit_table::{self, FitRow};
 use boxpose_report::plots;
 
 #[derive(clap::Args)]
@@ -201,7 +197,27 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let dataset = Dataset::open(dataset_path)?;
     crate::inspect::warn_if_incomplete(&dataset);
-    let evaluated = evaluate(args, &model, segmenter.as_ref(), &dataset)?;
+    let options = evaluation::DatasetOptions {
+        held_out: args.held_out,
+        min_visible_fraction: args.min_visible_fraction,
+        sensor_depth: args.sensor_depth,
+        batch_size: args.batch_size,
+        refine_depth: args.refine_depth,
+    };
+    let bar = ProgressBar::new(0).with_style(ProgressStyle::with_template(
+        "evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
+    )?);
+    let evaluated = evaluation::evaluate_dataset(
+        &model,
+        segmenter.as_ref(),
+        &dataset,
+        &options,
+        |done, total| {
+            bar.set_length(total);
+            bar.set_position(done);
+        },
+    )?;
+    bar.finish_and_clear();
     anyhow::ensure!(
         !evaluated.evals.is_empty(),
         "{}: no instance is visible enough to evaluate",
@@ -209,11 +225,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     );
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
-    write_rows(
-        &args.out.join("eval.parquet"),
-        &evaluated.fit_rows,
-        &evaluated.evals,
-    )?;
+    evaluated.write_table(&args.out.join("eval.parquet"))?;
     let summary = evaluation::summarize(&evaluated.evals);
     boxpose_data::write_file_atomically(
         &args.out.join("summary.json"),
@@ -261,86 +273,13 @@ fn run_external(args: &Args, spec: &str, dataset: &Path) -> anyhow::Result<()> {
     })
 }
 
-/// What evaluating a dataset's boxes gives: a row per box and fit, each box's evaluation, and the
-/// segmenter's detections scored (empty with ground-truth crops).
-struct Evaluated {
-    fit_rows: Vec<FitRow>,
-    evals: Vec<InstanceEval>,
-    detections: segmentation::DetectionScorer,
-}
-
-/// Every chosen box of the dataset (the held-out scenes with --held-out) through
-/// `evaluation::evaluate_frame`; frames stream through one at a time, the segmenter's AP keeps
-/// only overlaps.
-fn evaluate(
-    args: &Args,
-    model: &KeypointModel,
-    segmenter: Option<&SegmenterModel>,
-    dataset: &Dataset,
-) -> anyhow::Result<Evaluated> {
-    let evaluated_scene = |scene_id: i64| {
-        args.held_out
-            .is_none_or(|modulus| data::is_held_out(scene_id, i64::from(modulus)))
-    };
-    let frames = dataset.frames()?;
-    let total = frames.instance_count(evaluated_scene);
-    let bar = ProgressBar::new(total as u64).with_style(ProgressStyle::with_template(
-        "evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
-    )?);
-    let mut out = Evaluated {
-        fit_rows: Vec::new(),
-        evals: Vec::new(),
-        detections: segmentation::DetectionScorer::default(),
-    };
-    for frame in frames {
-        let mut frame = frame?;
-        if !evaluated_scene(frame.scene_id) {
-            continue;
-        }
-        data::perceived_depth(&mut frame, args.sensor_depth, dataset.root())?;
-        let frame = &frame;
-        let chosen: Vec<_> = frame
-            .instances
-            .iter()
-            .filter(|i| data::is_target(i, args.min_visible_fraction))
-            .collect();
-        let crops = segmenter.map_or(CropSource::GroundTruth, CropSource::Segmenter);
-        let evaluated = evaluation::evaluate_frame(
-            model,
-            frame,
-            &chosen,
-            crops,
-            args.batch_size,
-            args.refine_depth,
-        )?;
-        if let Some(detections) = &evaluated.detections {
-            out.detections.add(frame, detections);
-        }
-        for (instance, eval) in chosen.iter().zip(evaluated.evals) {
-            out.fit_rows
-                .extend(eval.fits.iter().map(|(method, outcome)| FitRow {
-                    scene_id: instance.scene_id,
-                    frame_id: instance.frame_id,
-                    object_id: instance.object_id,
-                    method: *method,
-                    diameter_m: eval.diameter_m,
-                    outcome: outcome.clone(),
-                }));
-            out.evals.push(eval);
-        }
-        bar.inc(frame.instances.len() as u64);
-    }
-    bar.finish_and_clear();
-    Ok(out)
-}
-
 /// The histogram of the paper's error of three fits, normalised by the box's d²/3 so that the
 /// paper's unit-box threshold marks the counterexamples for every box size; None (and an earlier
 /// histogram removed) when no fit succeeded.
 fn write_histogram(
     args: &Args,
     dataset_path: &Path,
-    evaluated: &Evaluated,
+    evaluated: &DatasetEvaluation,
 ) -> anyhow::Result<Option<PathBuf>> {
     let errors = |method: Method| -> Vec<f64> {
         evaluated
@@ -379,7 +318,7 @@ fn write_histogram(
 fn print_report(
     args: &Args,
     dataset_path: &Path,
-    evaluated: &Evaluated,
+    evaluated: &DatasetEvaluation,
     summary: &evaluation::Summary,
     with_segmenter: bool,
 ) {
@@ -453,23 +392,4 @@ fn print_targets(summary: &evaluation::Summary) {
         summary.robust_right_quarter_turn_near_square,
         summary.near_square_instances,
     );
-}
-
-/// The fit rows with each instance's heatmap MSE and corners found beside them.
-fn write_rows(path: &Path, rows: &[FitRow], evals: &[InstanceEval]) -> anyhow::Result<()> {
-    let per_instance = rows.len() / evals.len();
-    let mut columns = fit_table::columns(rows);
-    let repeat = |i: usize| &evals[i / per_instance];
-    columns.push(Arc::new(
-        (0..rows.len())
-            .map(|i| Some(repeat(i).heatmap_mse).filter(|_| !repeat(i).missed))
-            .collect::<Float64Array>(),
-    ) as ArrayRef);
-    columns.push(Arc::new(
-        (0..rows.len())
-            .map(|i| repeat(i).corners_found as i32)
-            .collect::<Int32Array>(),
-    ) as ArrayRef);
-    boxpose_data::write_table(path, &boxpose_data::schema::EVAL, columns)?;
-    Ok(())
 }

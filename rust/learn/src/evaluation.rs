@@ -2,7 +2,11 @@
 //! pose fit's metrics; and the crops they are scored on, from the ground truth or the segmenter.
 //! Shared by validation during training, `boxpose eval` and the counterexample search.
 
-use boxpose_data::{Frame, Instance};
+use std::path::Path;
+use std::sync::Arc;
+
+use boxpose_data::arrow::array::{ArrayRef, Float64Array, Int32Array};
+use boxpose_data::{Dataset, Frame, Instance};
 use boxpose_geometry::BoxModel;
 use boxpose_geometry::metrics;
 use boxpose_geometry::pipeline::{self, FitOutcome, Method, Scores};
@@ -11,6 +15,7 @@ use nalgebra::{Isometry3, Point3, Vector3};
 use crate::LearnError;
 use crate::config::NetworkConfig;
 use crate::data;
+use crate::fit_table::{self, FitRow};
 use crate::inference::{self, BoxQuery, CropRequest, KeypointModel, Perception};
 use crate::segmentation::{self, Detection, SegmenterModel};
 
@@ -517,4 +522,119 @@ pub fn evaluate_frame(
         evals,
         detections: found.detections,
     })
+}
+
+/// Which boxes of a dataset [`evaluate_dataset`] evaluates, and how (`boxpose eval`'s options).
+#[derive(Debug, Clone, Copy)]
+pub struct DatasetOptions {
+    /// Only the held-out scenes (scene_id % N == 0).
+    pub held_out: Option<u32>,
+    /// Boxes less visible than this are not evaluated.
+    pub min_visible_fraction: f32,
+    /// The perception reads the frames' simulated sensor depth.
+    pub sensor_depth: bool,
+    /// Crops per forward pass.
+    pub batch_size: usize,
+    /// Known-size fits laid on the depth image ([`evaluate_frame`]).
+    pub refine_depth: bool,
+}
+
+impl DatasetOptions {
+    /// Whether the scene's boxes are evaluated.
+    pub fn evaluates_scene(&self, scene_id: i64) -> bool {
+        self.held_out
+            .is_none_or(|modulus| data::is_held_out(scene_id, i64::from(modulus)))
+    }
+}
+
+/// A dataset evaluated: a row per box and fit, each box's evaluation, and the segmenter's
+/// detections scored (empty with ground-truth crops).
+pub struct DatasetEvaluation {
+    pub fit_rows: Vec<FitRow>,
+    pub evals: Vec<InstanceEval>,
+    pub detections: segmentation::DetectionScorer,
+}
+
+/// Every chosen box of `dataset` through [`evaluate_frame`], on the segmenter's crops when one is
+/// given; frames stream through one at a time, the segmenter's AP keeps only overlaps.
+/// `progress(done, total)` counts the evaluated scenes' instances.
+pub fn evaluate_dataset(
+    model: &KeypointModel,
+    segmenter: Option<&SegmenterModel>,
+    dataset: &Dataset,
+    options: &DatasetOptions,
+    mut progress: impl FnMut(u64, u64),
+) -> Result<DatasetEvaluation, LearnError> {
+    let frames = dataset.frames()?;
+    let total = frames.instance_count(|scene| options.evaluates_scene(scene)) as u64;
+    progress(0, total);
+    let mut done = 0;
+    let mut out = DatasetEvaluation {
+        fit_rows: Vec::new(),
+        evals: Vec::new(),
+        detections: segmentation::DetectionScorer::default(),
+    };
+    for frame in frames {
+        let mut frame = frame?;
+        if !options.evaluates_scene(frame.scene_id) {
+            continue;
+        }
+        data::perceived_depth(&mut frame, options.sensor_depth, dataset.root())?;
+        let frame = &frame;
+        let chosen: Vec<_> = frame
+            .instances
+            .iter()
+            .filter(|i| data::is_target(i, options.min_visible_fraction))
+            .collect();
+        let crops = segmenter.map_or(CropSource::GroundTruth, CropSource::Segmenter);
+        let evaluated = evaluate_frame(
+            model,
+            frame,
+            &chosen,
+            crops,
+            options.batch_size,
+            options.refine_depth,
+        )?;
+        if let Some(detections) = &evaluated.detections {
+            out.detections.add(frame, detections);
+        }
+        for (instance, eval) in chosen.iter().zip(evaluated.evals) {
+            out.fit_rows
+                .extend(eval.fits.iter().map(|(method, outcome)| FitRow {
+                    scene_id: instance.scene_id,
+                    frame_id: instance.frame_id,
+                    object_id: instance.object_id,
+                    method: *method,
+                    diameter_m: eval.diameter_m,
+                    outcome: outcome.clone(),
+                }));
+            out.evals.push(eval);
+        }
+        done += frame.instances.len() as u64;
+        progress(done, total);
+    }
+    Ok(out)
+}
+
+impl DatasetEvaluation {
+    /// `eval.parquet`: the fit rows with each instance's heatmap MSE and corners found beside
+    /// them (the EVAL schema).
+    pub fn write_table(&self, path: &Path) -> Result<(), LearnError> {
+        let rows = &self.fit_rows;
+        let per_instance = rows.len() / self.evals.len().max(1);
+        let mut columns = fit_table::columns(rows);
+        let instance = |i: usize| &self.evals[i / per_instance];
+        columns.push(Arc::new(
+            (0..rows.len())
+                .map(|i| Some(instance(i).heatmap_mse).filter(|_| !instance(i).missed))
+                .collect::<Float64Array>(),
+        ) as ArrayRef);
+        columns.push(Arc::new(
+            (0..rows.len())
+                .map(|i| instance(i).corners_found as i32)
+                .collect::<Int32Array>(),
+        ) as ArrayRef);
+        boxpose_data::write_table(path, &boxpose_data::schema::EVAL, columns)?;
+        Ok(())
+    }
 }
