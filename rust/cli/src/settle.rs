@@ -3,11 +3,10 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::time::Instant;
 
 use anyhow::Context;
-use boxpose_data::{Dataset, Object, Pose, Scene};
-use boxpose_physics::{RecipePhysics, SceneDescription, SettleOutcome, Settler, down_face};
+use boxpose_data::{Dataset, Object, Scene};
+use boxpose_physics::{RecipePhysics, settle_and_compare};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
@@ -139,30 +138,17 @@ fn settle_scene(
         Some(r) => *r,
         None => RecipePhysics::from_toml(&scene.recipe_toml).context("the scene's recipe_toml")?,
     };
-    let mut objects = objects.to_vec();
-    objects.sort_by_key(|o| o.object_id);
-    anyhow::ensure!(
-        objects.len() == scene.num_objects as usize,
-        "{} objects rows, but the scene declares num_objects = {}",
-        objects.len(),
-        scene.num_objects
-    );
-    let description = SceneDescription::from_objects(recipe.support, &objects);
-    let compile_start = Instant::now();
-    let mut settler = Settler::new(&description, &recipe.settle)?;
-    let compile_s = compile_start.elapsed().as_secs_f64();
-    let (outcome, walls) = settle_timed(&mut settler, &description, args)?;
-    let wall_s = walls[walls.len() / 2];
-    let (faces_agree, max_diff, mean_diff) = agreement(&objects, &outcome.poses);
-    let n = objects.len();
+    let repeats = if args.bench { args.repeat } else { 1 };
+    let a = settle_and_compare(objects, scene.num_objects as usize, &recipe, repeats)?;
+    let (outcome, n, wall_s) = (&a.outcome, objects.len(), a.median_wall_s());
     let c = &outcome.certificate;
     let line = if args.json {
         json!({
             "scene_id": scene.scene_id,
             "boxes": n,
             "mujoco_settle_s": wall_s,
-            "mujoco_compile_s": compile_s,
-            "repeats": walls.len(),
+            "mujoco_compile_s": a.compile_s,
+            "repeats": a.walls_s.len(),
             "settled": outcome.settled,
             "stable": outcome.stable,
             "rejection": outcome.rejection.map(|r| r.as_str()),
@@ -172,24 +158,25 @@ fn settle_scene(
             "min_signed_distance_m": c.min_signed_distance_m,
             "drake_stable": scene.stable,
             "drake_settle_time_s": scene.settle_time_s,
-            "faces_agree": faces_agree,
-            "same_face": faces_agree == n,
-            "max_position_diff_m": max_diff,
-            "mean_position_diff_m": mean_diff,
+            "faces_agree": a.faces_agree,
+            "same_face": a.faces_agree == n,
+            "max_position_diff_m": a.max_position_diff_m,
+            "mean_position_diff_m": a.mean_position_diff_m,
         })
         .to_string()
     } else {
         format!(
-            "scene {:>5}  {n:>2} boxes  mujoco {:<6} drake {:<6}  faces {faces_agree}/{n}  Δpos max {:>6.1} mm mean {:>6.1} mm  settle {:.2} s sim  {:>7.2} ms wall{}",
+            "scene {:>5}  {n:>2} boxes  mujoco {:<6} drake {:<6}  faces {}/{n}  Δpos max {:>6.1} mm mean {:>6.1} mm  settle {:.2} s sim  {:>7.2} ms wall{}",
             scene.scene_id,
             verdict(outcome.stable, outcome.rejection.map(|r| r.as_str())),
             verdict(scene.stable, None),
-            max_diff * 1e3,
-            mean_diff * 1e3,
+            a.faces_agree,
+            a.max_position_diff_m * 1e3,
+            a.mean_position_diff_m * 1e3,
             c.settle_time_s,
             wall_s * 1e3,
             if args.bench {
-                format!(" (median of {})", walls.len())
+                format!(" (median of {})", a.walls_s.len())
             } else {
                 String::new()
             },
@@ -200,49 +187,12 @@ fn settle_scene(
             boxes: n,
             stable: outcome.stable,
             drake_stable: scene.stable,
-            faces_agree,
-            max_position_diff_m: max_diff,
+            faces_agree: a.faces_agree,
+            max_position_diff_m: a.max_position_diff_m,
             wall_s,
         },
         line,
     ))
-}
-
-/// Settles the scene once, and with `--bench` `--repeat` − 1 more times from the same initial
-/// poses: the first outcome and every run's wall time, sorted (the median is the middle one).
-fn settle_timed(
-    settler: &mut Settler,
-    description: &SceneDescription,
-    args: &Args,
-) -> anyhow::Result<(SettleOutcome, Vec<f64>)> {
-    let outcome = settler.settle()?;
-    let mut walls = vec![outcome.certificate.wall_time_s];
-    if args.bench {
-        let initial = description.initial_poses();
-        for _ in 1..args.repeat {
-            walls.push(settler.settle_from(&initial)?.certificate.wall_time_s);
-        }
-    }
-    walls.sort_by(f64::total_cmp);
-    Ok((outcome, walls))
-}
-
-/// How MuJoCo's settled poses agree with Drake's: boxes resting on the same face, and the
-/// largest and mean distance between their centres.
-fn agreement(objects: &[Object], poses: &[Pose]) -> (usize, f64, f64) {
-    let mut faces_agree = 0;
-    let mut diffs = Vec::new();
-    for (o, p) in objects.iter().zip(poses) {
-        faces_agree += usize::from(down_face(o.world_box.quat_wxyz).0 == down_face(p.quat_wxyz).0);
-        let d = (0..3)
-            .map(|k| (o.world_box.translation[k] - p.translation[k]).powi(2))
-            .sum::<f64>()
-            .sqrt();
-        diffs.push(d);
-    }
-    let max_diff = diffs.iter().copied().fold(0.0, f64::max);
-    let mean_diff = diffs.iter().sum::<f64>() / diffs.len().max(1) as f64;
-    (faces_agree, max_diff, mean_diff)
 }
 
 fn verdict(stable: bool, why: Option<&str>) -> String {

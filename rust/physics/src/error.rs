@@ -24,6 +24,8 @@ pub enum PhysicsError {
         quat_wxyz: [f64; 4],
         norm: f64,
     },
+    #[error("{rows} objects rows, but the scene declares num_objects = {declared}")]
+    ObjectCount { rows: usize, declared: usize },
     #[error("{count} initial poses given for a scene of {expected} boxes")]
     PoseCount { count: usize, expected: usize },
     #[error("box {index} cannot be moved: the pile has {count} boxes")]

@@ -10,12 +10,14 @@
 //! at z = 0 (see [`Support`]). Poses are `T_world_box` as in the dataset contract: unit quaternion (w, x, y, z)
 //! and the box centre.
 
+mod agreement;
 mod drops;
 mod error;
 mod mjcf;
 mod scene;
 mod settle;
 
+pub use agreement::{Agreement, settle_and_compare};
 pub use boxpose_data::Pose;
 pub use drops::settle_drop;
 pub use error::{PhysicsError, Result};
