@@ -51,6 +51,14 @@ pub struct SegmenterConfig {
     pub centre_threshold: f32,
     /// Instances with fewer output pixels are dropped.
     pub min_pixels: usize,
+    /// The size frames are resized to at inference (multiples of 32), when not the training
+    /// input's: the weights are convolutional, and read larger than trained at they keep the
+    /// small and touching boxes of dense bins apart (docs/learning.md, "The segmenter's reading
+    /// size"). Training and its validation use the input size.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inference_width: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inference_height: Option<usize>,
 }
 
 impl SegmenterConfig {
@@ -61,6 +69,17 @@ impl SegmenterConfig {
         self.backbone == trained.backbone
             && self.input_width == trained.input_width
             && self.input_height == trained.input_height
+    }
+
+    /// The configuration inference runs with: the input resized to the inference size, if one
+    /// is set.
+    pub fn for_inference(&self) -> SegmenterConfig {
+        let mut config = self.clone();
+        if let (Some(width), Some(height)) = (self.inference_width, self.inference_height) {
+            config.input_width = width;
+            config.input_height = height;
+        }
+        config
     }
 
     pub fn output_size(&self) -> [usize; 2] {
@@ -77,6 +96,17 @@ impl SegmenterConfig {
                 "input {}×{} must be positive multiples of 32",
                 self.input_width, self.input_height
             )));
+        }
+        match (self.inference_width, self.inference_height) {
+            (None, None) => {}
+            (Some(w), Some(h))
+                if w > 0 && w.is_multiple_of(32) && h > 0 && h.is_multiple_of(32) => {}
+            (w, h) => {
+                return Err(LearnError::Config(format!(
+                    "inference_width {w:?} and inference_height {h:?}: give both, positive \
+                     multiples of 32, or neither"
+                )));
+            }
         }
         if !(self.centre_sigma > 0.0) {
             return Err(LearnError::Config("centre_sigma must be positive".into()));
@@ -373,7 +403,7 @@ impl SegmenterModel {
             |c: &SegmenterConfig| ResNetDeconv::new(c.backbone, OUTPUTS, &device),
         )?;
         Ok(Self {
-            config,
+            config: config.for_inference(),
             net,
             device,
         })

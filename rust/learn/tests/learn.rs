@@ -412,6 +412,8 @@ fn the_segmenter_targets_decode_back_into_the_true_instances() {
         foreground_threshold: 0.5,
         centre_threshold: 0.5,
         min_pixels: 2,
+        inference_width: None,
+        inference_height: None,
     };
     let frame = two_box_frame();
     let target = segmentation::frame_targets(&config, &frame);
@@ -507,6 +509,8 @@ fn a_segmenter_may_be_fine_tuned_with_other_loss_settings_and_thresholds_but_not
         foreground_threshold: 0.5,
         centre_threshold: 0.5,
         min_pixels: 2,
+        inference_width: None,
+        inference_height: None,
     };
     let retuned = SegmenterConfig {
         centre_sigma: 2.0,
@@ -518,6 +522,14 @@ fn a_segmenter_may_be_fine_tuned_with_other_loss_settings_and_thresholds_but_not
         ..trained.clone()
     };
     assert!(retuned.can_fine_tune_from(&trained));
+    // reading frames at another size is inference's choice: the weights still fine-tune
+    let read_larger = SegmenterConfig {
+        inference_width: Some(96),
+        inference_height: Some(64),
+        ..trained.clone()
+    };
+    assert!(read_larger.can_fine_tune_from(&trained));
+    assert!(trained.can_fine_tune_from(&read_larger));
     for other in [
         SegmenterConfig {
             backbone: Backbone::Slim,
@@ -553,4 +565,47 @@ fn every_shipped_segmenter_config_loads() {
         loaded.contains(&"segmenter-wide.toml".to_string()),
         "{loaded:?}"
     );
+}
+
+#[test]
+fn a_segmenter_reads_frames_at_its_inference_size_and_trains_at_its_input_size() {
+    use boxpose_learn::segmentation::SegmenterConfig;
+    let trained = SegmenterConfig {
+        backbone: Backbone::Tiny,
+        input_width: 64,
+        input_height: 64,
+        centre_sigma: 1.5,
+        centre_weight: 1.0,
+        offset_weight: 1.0,
+        foreground_threshold: 0.5,
+        centre_threshold: 0.5,
+        min_pixels: 2,
+        inference_width: Some(96),
+        inference_height: Some(64),
+    };
+    trained.validate().unwrap();
+    let inference = trained.for_inference();
+    assert_eq!((inference.input_width, inference.input_height), (96, 64));
+    assert_eq!(inference.output_size(), [24, 16]);
+    assert_eq!(trained.output_size(), [16, 16]);
+    let unset = SegmenterConfig {
+        inference_width: None,
+        inference_height: None,
+        ..trained.clone()
+    };
+    assert_eq!(unset.for_inference(), unset);
+    for (w, h) in [(Some(96), None), (Some(100), Some(64)), (Some(0), Some(64))] {
+        let bad = SegmenterConfig {
+            inference_width: w,
+            inference_height: h,
+            ..trained.clone()
+        };
+        let err = bad.validate().unwrap_err().to_string();
+        assert!(err.contains("inference_width"), "{err}");
+    }
+    // written only when set: model folders without it read as before
+    let text = toml::to_string(&unset).unwrap();
+    assert!(!text.contains("inference"), "{text}");
+    let back: SegmenterConfig = toml::from_str(&toml::to_string(&trained).unwrap()).unwrap();
+    assert_eq!(back, trained);
 }
