@@ -399,10 +399,9 @@ fn two_box_frame() -> boxpose_data::Frame {
     }
 }
 
-#[test]
-fn the_segmenter_targets_decode_back_into_the_true_instances() {
-    use boxpose_learn::segmentation::{self, SegmenterConfig};
-    let config = SegmenterConfig {
+/// A tiny segmenter's settings: 64×64 input, read at that size.
+fn tiny_segmenter() -> boxpose_learn::segmentation::SegmenterConfig {
+    boxpose_learn::segmentation::SegmenterConfig {
         backbone: Backbone::Tiny,
         input_width: 64,
         input_height: 64,
@@ -414,7 +413,13 @@ fn the_segmenter_targets_decode_back_into_the_true_instances() {
         min_pixels: 2,
         inference_width: None,
         inference_height: None,
-    };
+    }
+}
+
+#[test]
+fn the_segmenter_targets_decode_back_into_the_true_instances() {
+    use boxpose_learn::segmentation::{self, SegmenterConfig};
+    let config = tiny_segmenter();
     let frame = two_box_frame();
     let target = segmentation::frame_targets(&config, &frame);
     let plane = 16 * 16;
@@ -499,19 +504,7 @@ fn a_detection_carried_to_the_same_view_at_twice_the_resolution_or_a_region_of_i
 #[test]
 fn a_segmenter_may_be_fine_tuned_with_other_loss_settings_and_thresholds_but_not_another_input() {
     use boxpose_learn::segmentation::SegmenterConfig;
-    let trained = SegmenterConfig {
-        backbone: Backbone::Tiny,
-        input_width: 64,
-        input_height: 64,
-        centre_sigma: 1.5,
-        centre_weight: 1.0,
-        offset_weight: 1.0,
-        foreground_threshold: 0.5,
-        centre_threshold: 0.5,
-        min_pixels: 2,
-        inference_width: None,
-        inference_height: None,
-    };
+    let trained = tiny_segmenter();
     let retuned = SegmenterConfig {
         centre_sigma: 2.0,
         centre_weight: 100.0,
@@ -571,17 +564,9 @@ fn every_shipped_segmenter_config_loads() {
 fn a_segmenter_reads_frames_at_its_inference_size_and_trains_at_its_input_size() {
     use boxpose_learn::segmentation::SegmenterConfig;
     let trained = SegmenterConfig {
-        backbone: Backbone::Tiny,
-        input_width: 64,
-        input_height: 64,
-        centre_sigma: 1.5,
-        centre_weight: 1.0,
-        offset_weight: 1.0,
-        foreground_threshold: 0.5,
-        centre_threshold: 0.5,
-        min_pixels: 2,
         inference_width: Some(96),
         inference_height: Some(64),
+        ..tiny_segmenter()
     };
     trained.validate().unwrap();
     let inference = trained.for_inference();
