@@ -418,7 +418,7 @@ fn tiny_segmenter() -> boxpose_learn::segmentation::SegmenterConfig {
 
 #[test]
 fn the_segmenter_targets_decode_back_into_the_true_instances() {
-    use boxpose_learn::segmentation::{self, SegmenterConfig};
+    use boxpose_learn::segmentation;
     let config = tiny_segmenter();
     let frame = two_box_frame();
     let target = segmentation::frame_targets(&config, &frame);
