@@ -52,9 +52,10 @@ pub struct SegmenterConfig {
     /// Instances with fewer output pixels are dropped.
     pub min_pixels: usize,
     /// The size frames are resized to at inference (multiples of 32), when not the training
-    /// input's: the weights are convolutional, and read larger than trained at they keep the
-    /// small and touching boxes of dense bins apart (docs/learning.md, "The segmenter's reading
-    /// size"). Training and its validation use the input size.
+    /// input's. The weights are convolutional: read larger than trained at, they keep more of the
+    /// touching boxes of dense bins apart, but lose some of what they learnt at the training
+    /// scale elsewhere (pallets, floors; docs/learning.md, "The reading size"). Training and its
+    /// validation use the input size.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub inference_width: Option<usize>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
