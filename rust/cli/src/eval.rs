@@ -197,27 +197,7 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
     };
     let dataset = Dataset::open(dataset_path)?;
     crate::inspect::warn_if_incomplete(&dataset);
-    let options = evaluation::DatasetOptions {
-        held_out: args.held_out,
-        min_visible_fraction: args.min_visible_fraction,
-        sensor_depth: args.sensor_depth,
-        batch_size: args.batch_size,
-        refine_depth: args.refine_depth,
-    };
-    let bar = ProgressBar::new(0).with_style(ProgressStyle::with_template(
-        "evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
-    )?);
-    let evaluated = evaluation::evaluate_dataset(
-        &model,
-        segmenter.as_ref(),
-        &dataset,
-        &options,
-        |done, total| {
-            bar.set_length(total);
-            bar.set_position(done);
-        },
-    )?;
-    bar.finish_and_clear();
+    let evaluated = evaluate(args, &model, segmenter.as_ref(), &dataset)?;
     anyhow::ensure!(
         !evaluated.evals.is_empty(),
         "{}: no instance is visible enough to evaluate",
@@ -271,6 +251,32 @@ fn run_external(args: &Args, spec: &str, dataset: &Path) -> anyhow::Result<()> {
         held_out: args.held_out,
         sensor_depth: args.sensor_depth,
     })
+}
+
+/// Every chosen box of the dataset (the held-out scenes with --held-out), with a progress bar.
+fn evaluate(
+    args: &Args,
+    model: &KeypointModel,
+    segmenter: Option<&SegmenterModel>,
+    dataset: &Dataset,
+) -> anyhow::Result<DatasetEvaluation> {
+    let options = evaluation::DatasetOptions {
+        held_out: args.held_out,
+        min_visible_fraction: args.min_visible_fraction,
+        sensor_depth: args.sensor_depth,
+        batch_size: args.batch_size,
+        refine_depth: args.refine_depth,
+    };
+    let bar = ProgressBar::new(0).with_style(ProgressStyle::with_template(
+        "evaluating {bar:30} {pos}/{len} instances [{elapsed_precise}<{eta_precise}]",
+    )?);
+    let evaluated =
+        evaluation::evaluate_dataset(model, segmenter, dataset, &options, |done, total| {
+            bar.set_length(total);
+            bar.set_position(done);
+        })?;
+    bar.finish_and_clear();
+    Ok(evaluated)
 }
 
 /// The histogram of the paper's error of three fits, normalised by the box's d²/3 so that the
