@@ -26,7 +26,6 @@ use boxpose_learn::inference::{KeypointModel, Perception};
 use boxpose_learn::prediction::{self, BoxFit, Target};
 use boxpose_learn::segmentation::SegmenterModel;
 use nalgebra::Point3;
-use serde_json::json;
 
 use boxpose_report::plots::{self, OverlayBox};
 
@@ -203,12 +202,12 @@ fn finish(
     let json_path = args.out.join("predictions.json");
     boxpose_data::write_file_atomically(
         &json_path,
-        serde_json::to_string_pretty(&to_json(
+        serde_json::to_string_pretty(&prediction::document(
             &frame,
             &targets,
             &predictions,
             &fits,
-            args.size_fit,
+            args.size_fit.name(),
         ))?
         .as_bytes(),
     )?;
@@ -350,51 +349,4 @@ fn warn_implausible_depths(
 
 fn load_segmenter(path: &Path, backend: BackendKind) -> anyhow::Result<SegmenterModel> {
     Ok(SegmenterModel::load(path, backend.device()?)?)
-}
-
-/// The JSON of every box. A fit's `confidence.margin_nats` is null when no other box hypothesis
-/// exists (an infinite margin).
-fn to_json(
-    frame: &Frame,
-    targets: &[Target],
-    predictions: &[Perception],
-    fits: &[Result<BoxFit, String>],
-    method: SizeFit,
-) -> serde_json::Value {
-    let boxes: Vec<_> = targets
-        .iter()
-        .zip(predictions.iter().zip(fits))
-        .map(|(t, (p, fit))| {
-            let fit = fit.as_ref().map(|fit| {
-                let q = fit.pose.rotation.quaternion();
-                let c = &fit.confidence;
-                json!({
-                    "size_fit": method.name(),
-                    "pose_quat_wxyz": [q.w, q.i, q.j, q.k],
-                    "pose_translation_m": fit.pose.translation.vector.as_slice(),
-                    "size_m": fit.model.size().as_slice(),
-                    "corners_camera_m": fit.corners().iter().map(|c| [c.x, c.y, c.z]).collect::<Vec<_>>(),
-                    "inliers": fit.inliers,
-                    "inlier_rms_m": fit.inlier_rms,
-                    "confidence": {
-                        "confidence": c.confidence,
-                        "margin_nats": c.margin_nats,
-                        "inliers": c.inliers,
-                        "noise_scale_m": c.noise_scale_m,
-                        "mirror_ambiguous": c.mirror_ambiguous,
-                    },
-                })
-            });
-            json!({
-                "object_id": t.object_id,
-                "bbox": t.bbox,
-                "reference_depth_m": t.crop.z_ref,
-                "peaks_camera_m": p.points.iter().map(|c| [c.x, c.y, c.z]).collect::<Vec<_>>(),
-                "peak_scores": p.peaks.iter().map(|k| k.score).collect::<Vec<_>>(),
-                "fit": fit.as_ref().ok(),
-                "fit_error": fit.as_ref().err(),
-            })
-        })
-        .collect();
-    json!({ "scene_id": frame.scene_id, "frame_id": frame.frame_id, "boxes": boxes })
 }

@@ -1,7 +1,8 @@
 //! `boxpose predict`'s boxes: where each comes from (a ground-truth box, a segmenter detection or
 //! a given bounding box) and its crop, the pose-and-size fit reported of its peaks with the fit's
-//! confidence, and the columns of `predictions.parquet` (schema `PREDICTIONS`). Every box goes
-//! through [`inference::perceive`], the pipeline of `boxpose eval` and the search.
+//! confidence, and its two written forms: the columns of `predictions.parquet` (schema
+//! `PREDICTIONS`) and the boxes of `predictions.json` ([`Document`]). Every box goes through
+//! [`inference::perceive`], the pipeline of `boxpose eval` and the search.
 
 use std::sync::Arc;
 
@@ -14,6 +15,7 @@ use boxpose_geometry::adaptive::FitConfidence;
 use boxpose_geometry::pipeline::{Fitted, Method};
 use boxpose_geometry::{BoxModel, GeometryError};
 use nalgebra::{Isometry3, Point3};
+use serde::Serialize;
 
 use crate::LearnError;
 use crate::config::NetworkConfig;
@@ -278,4 +280,102 @@ pub fn columns(
                 .collect::<StringArray>(),
         ),
     ]
+}
+
+/// `predictions.json`: one frame's boxes, the same facts as the Parquet table's rows (serialized
+/// by the binary; a non-finite `margin_nats`, no other box hypothesis, is written as null).
+#[derive(Debug, Serialize)]
+pub struct Document {
+    pub scene_id: i64,
+    pub frame_id: i32,
+    pub boxes: Vec<DocumentBox>,
+}
+
+/// A box of [`Document`]: its target, its peaks, and its fit or why there is none.
+#[derive(Debug, Serialize)]
+pub struct DocumentBox {
+    pub object_id: Option<i32>,
+    pub bbox: [i32; 4],
+    pub reference_depth_m: f64,
+    pub peaks_camera_m: Vec<[f64; 3]>,
+    /// Widened to f64, as the Parquet column's float32 reads in pandas.
+    pub peak_scores: Vec<f64>,
+    pub fit: Option<DocumentFit>,
+    pub fit_error: Option<String>,
+}
+
+/// A fit of [`DocumentBox`].
+#[derive(Debug, Serialize)]
+pub struct DocumentFit {
+    pub size_fit: String,
+    pub pose_quat_wxyz: [f64; 4],
+    pub pose_translation_m: [f64; 3],
+    pub size_m: [f64; 3],
+    pub corners_camera_m: [[f64; 3]; 8],
+    pub inliers: Vec<bool>,
+    pub inlier_rms_m: f64,
+    pub confidence: DocumentConfidence,
+}
+
+/// [`FitConfidence`]'s fields, as `predictions.json` writes them.
+#[derive(Debug, Serialize)]
+pub struct DocumentConfidence {
+    pub confidence: f64,
+    pub margin_nats: f64,
+    pub inliers: usize,
+    pub noise_scale_m: f64,
+    pub mirror_ambiguous: bool,
+}
+
+impl From<FitConfidence> for DocumentConfidence {
+    fn from(c: FitConfidence) -> Self {
+        Self {
+            confidence: c.confidence,
+            margin_nats: c.margin_nats,
+            inliers: c.inliers,
+            noise_scale_m: c.noise_scale_m,
+            mirror_ambiguous: c.mirror_ambiguous,
+        }
+    }
+}
+
+/// The [`Document`] of `predict`'s outputs for one frame; `size_fit` names the fit.
+pub fn document(
+    frame: &Frame,
+    targets: &[Target],
+    perceptions: &[Perception],
+    outcomes: &[Result<BoxFit, String>],
+    size_fit: &str,
+) -> Document {
+    let xyz = |c: &Point3<f64>| [c.x, c.y, c.z];
+    let boxes = targets
+        .iter()
+        .zip(perceptions.iter().zip(outcomes))
+        .map(|(t, (p, outcome))| DocumentBox {
+            object_id: t.object_id,
+            bbox: t.bbox,
+            reference_depth_m: t.crop.z_ref,
+            peaks_camera_m: p.points.iter().map(xyz).collect(),
+            peak_scores: p.peaks.iter().map(|k| f64::from(k.score)).collect(),
+            fit: outcome.as_ref().ok().map(|fit| {
+                let q = fit.pose.rotation.quaternion();
+                DocumentFit {
+                    size_fit: size_fit.to_string(),
+                    pose_quat_wxyz: [q.w, q.i, q.j, q.k],
+                    pose_translation_m: fit.pose.translation.vector.into(),
+                    size_m: fit.model.size().into(),
+                    corners_camera_m: fit.corners().map(|c| xyz(&c)),
+                    inliers: fit.inliers.clone(),
+                    inlier_rms_m: fit.inlier_rms,
+                    confidence: fit.confidence.into(),
+                }
+            }),
+            fit_error: outcome.as_ref().err().cloned(),
+        })
+        .collect();
+    Document {
+        scene_id: frame.scene_id,
+        frame_id: frame.frame_id,
+        boxes,
+    }
 }
