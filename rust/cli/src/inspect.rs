@@ -76,7 +76,7 @@ pub fn warn_if_incomplete(dataset: &Dataset) {
             && !missing.is_empty()
         {
             eprintln!(
-                "warning: {}: {} of {count} shards missing (an unfinished generation?); this                  output covers only the rest — `boxpose inspect` says what is missing",
+                "warning: {}: {} of {count} shards missing (an unfinished generation?); this output covers only the rest — `boxpose inspect` says what is missing",
                 dataset.root().join(table.name).display(),
                 missing.len()
             );

@@ -1,0 +1,148 @@
+"""bop_toolkit's own evaluation scripts on a `boxpose export bop` folder: the pinned copy in
+third_party/bop_toolkit, the dataset registered by scripts/register_bop_toolkit.py from the
+export's bop_toolkit_dataset_params.txt, and a results CSV of perturbed poses. Its MSSD of every
+estimate and its recall at each of BOP's thresholds equal `boxpose eval-results bop`'s."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import bpy  # noqa: F401  (installed by `make setup`: a missing bpy fails, never skips)
+import numpy as np
+import pandas as pd
+import pytest
+
+from conftest import render_synthetic_dataset, run_boxpose
+
+REPO = Path(__file__).resolve().parents[1]
+BOP_TOOLKIT = REPO / "third_party" / "bop_toolkit"
+# a dataset name without "_" or "-": bop_toolkit reads it from METHOD_DATASET-SPLIT.csv
+NAME = "boxposetest"
+RESULTS = f"perturbed_{NAME}-test.csv"
+# BOP's AR_MSSD thresholds, × the object's diameter
+THRESHOLDS = [round(0.05 * k, 2) for k in range(1, 11)]
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory, boxpose_bin) -> dict:
+    """The tiny dataset, its export under a BOP_PATH folder, and a bop_toolkit copy with the
+    export registered."""
+    root = tmp_path_factory.mktemp("bop_toolkit")
+    dataset = render_synthetic_dataset(root / "ds", 64, 48, shared_size_in_scene_0=True)
+    datasets = root / "datasets"
+    run_boxpose(boxpose_bin, "export", "bop", dataset, datasets / NAME)
+    toolkit = root / "bop_toolkit"
+    shutil.copytree(BOP_TOOLKIT, toolkit)
+    register = [sys.executable, REPO / "scripts" / "register_bop_toolkit.py", toolkit, datasets / NAME]
+    r = subprocess.run(register, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return dict(root=root, dataset=dataset, datasets=datasets, toolkit=toolkit, register=register)
+
+
+def perturbed_results(export: Path) -> str:
+    """A results CSV: every annotated box's true pose turned about a random axis by 0–20° and
+    shifted by up to 15 mm (errors spread over BOP's thresholds), scored in random order."""
+    rng = np.random.default_rng(7)
+    lines = ["scene_id,im_id,obj_id,score,R,t,time"]
+    for scene in sorted((export / "test").iterdir()):
+        for im_id, boxes in json.loads((scene / "scene_gt.json").read_text()).items():
+            for g in boxes:
+                axis = rng.normal(size=3)
+                axis /= np.linalg.norm(axis)
+                angle = np.radians(rng.uniform(0.0, 20.0))
+                k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+                turn = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+                r = np.array(g["cam_R_m2c"]).reshape(3, 3) @ turn
+                t = np.array(g["cam_t_m2c"]) + rng.uniform(-15.0, 15.0, 3)
+                values = " ".join(map(repr, r.ravel().tolist())), " ".join(map(repr, t.tolist()))
+                score = rng.uniform(0.1, 1.0)
+                lines.append(f"{int(scene.name)},{im_id},{g['obj_id']},{score},{values[0]},{values[1]},-1")
+    return "\n".join(lines) + "\n"
+
+
+def bop_toolkit(exported: dict, script: str, *args) -> None:
+    env = dict(
+        os.environ,
+        PYTHONPATH=str(exported["toolkit"]),
+        BOP_PATH=str(exported["datasets"]),
+        BOP_RESULTS_PATH=str(exported["root"] / "results"),
+        BOP_EVAL_PATH=str(exported["root"] / "eval"),
+        BOP_NUM_WORKERS="1",
+    )
+    r = subprocess.run(
+        [sys.executable, exported["toolkit"] / "scripts" / script, *map(str, args)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=exported["toolkit"],
+    )
+    assert r.returncode == 0, r.stderr[-3000:]
+
+
+def test_bop_toolkit_scores_an_export_as_eval_results_does(exported, boxpose_bin):
+    export = exported["datasets"] / NAME
+    results = exported["root"] / "results"
+    results.mkdir()
+    (results / RESULTS).write_text(perturbed_results(export))
+    # BOP'19: every estimate up to the number of boxes per object and image, the targets file's
+    # boxes (visib_fract >= 0.1)
+    bop_toolkit(
+        exported,
+        "eval_calc_errors.py",
+        "--error_type=mssd",
+        "--n_top=-1",
+        f"--result_filenames={RESULTS}",
+    )
+    errors_dir = f"{RESULTS[:-4]}/error=mssd_ntop=-1"
+    for th in THRESHOLDS:  # one threshold a call: a list is one multi-part threshold (rete)
+        bop_toolkit(
+            exported,
+            "eval_calc_scores.py",
+            f"--error_dir_paths={errors_dir}",
+            f"--correct_th_mssd={th}",
+        )
+    ours = exported["root"] / "eval_results"
+    run_boxpose(
+        boxpose_bin, "eval-results", "bop", results / RESULTS, exported["dataset"], "--out", ours
+    )
+    table = pd.read_parquet(ours / "eval_results.parquet")
+
+    # the error of every estimate, box by box (bop_toolkit writes mm). The export's models round
+    # the box size to 0.1 mm, which moves a corner by at most 0.05·√3 mm and its error under a
+    # turn by θ ≤ 20° by at most 2·sin(θ/2) times that (< 0.04 mm)
+    # An estimate has an error against every box of its obj_id (scene 0's two boxes share one);
+    # each box's is its nearest estimate's, the one both matchings pair it with (the moves are
+    # far smaller than the boxes' spacing)
+    theirs = {}
+    for path in (exported["root"] / "eval" / errors_dir).glob("errors_*.json"):
+        for e in json.loads(path.read_text()):
+            for gt_id, (error,) in e["errors"].items():
+                key = (e["scene_id"], e["im_id"], int(gt_id))
+                theirs[key] = min(error, theirs.get(key, np.inf))
+    targets = table[table.visib_fract >= 0.1].set_index(["scene_id", "im_id", "gt_id"])
+    assert len(targets) >= 8 and set(theirs) == set(targets.index)
+    for key, error_mm in theirs.items():
+        assert error_mm == pytest.approx(1000.0 * targets.loc[key, "mssd_m"], abs=0.04), key
+
+    # the recall at each threshold: spread, and the same
+    recalls = []
+    for th in THRESHOLDS:
+        scores = exported["root"] / "eval" / errors_dir / f"scores_th={th:.3f}_min-visib=-1.000.json"
+        recall = json.loads(scores.read_text())["recall"]
+        assert recall == pytest.approx((targets.mssd_m < th * targets.diameter_m).mean(), abs=1e-12)
+        recalls.append(recall)
+    assert recalls[0] < 1.0 and recalls == sorted(recalls)
+    # every box of this dataset is a target, so the mean over the thresholds is eval-results'
+    # AR_MSSD
+    assert len(targets) == len(table)
+    summary = json.loads((ours / "summary.json").read_text())
+    assert summary["ar_mssd"] == pytest.approx(np.mean(recalls), abs=1e-12)
+
+
+def test_a_dataset_is_registered_once(exported):
+    r = subprocess.run(exported["register"], capture_output=True, text=True)
+    assert r.returncode == 1
+    assert f'the dataset "{NAME}" is already registered' in r.stderr
