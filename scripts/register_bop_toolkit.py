@@ -18,7 +18,9 @@ ENTRY_FILE = "bop_toolkit_dataset_params.txt"
 # Where each entry goes: after the line opening a dict (so that the dict's last entry, written
 # without a trailing comma, stays as it is), or before the `else:` of the unknown-dataset error.
 DICT_OPENINGS = ("    obj_ids = {\n", "    symmetric_obj_ids = {\n")
-UNKNOWN_DATASET = '    else:\n        raise ValueError("Unknown BOP dataset ({}).".format(dataset_name))\n'
+UNKNOWN_DATASET = (
+    '    else:\n        raise ValueError("Unknown BOP dataset ({}).".format(dataset_name))\n'
+)
 
 
 def entries(text: str) -> list[str]:
@@ -37,12 +39,12 @@ def register(source: str, text: str) -> str:
     if f"dataset_name == {name.group(1)}:" in source:
         raise ValueError(f"the dataset {name.group(1)} is already registered")
     model_ids, symmetric_ids, split = entries(text)
-    for opening, entry in zip(DICT_OPENINGS, (model_ids, symmetric_ids)):
+    for opening, entry in zip(DICT_OPENINGS, (model_ids, symmetric_ids), strict=True):
         if source.count(opening) != 1:
             raise ValueError(f"expected one line {opening.strip()!r}")
         source = source.replace(opening, opening + "        " + entry, 1)
     if source.count(UNKNOWN_DATASET) != 1:
-        raise ValueError("expected one `else: raise ValueError(\"Unknown BOP dataset ...\")`")
+        raise ValueError('expected one `else: raise ValueError("Unknown BOP dataset ...")`')
     return source.replace(UNKNOWN_DATASET, split + UNKNOWN_DATASET, 1)
 
 

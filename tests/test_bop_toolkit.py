@@ -36,7 +36,8 @@ def exported(tmp_path_factory, boxpose_bin) -> dict:
     run_boxpose(boxpose_bin, "export", "bop", dataset, datasets / NAME)
     toolkit = root / "bop_toolkit"
     shutil.copytree(BOP_TOOLKIT, toolkit)
-    register = [sys.executable, REPO / "scripts" / "register_bop_toolkit.py", toolkit, datasets / NAME]
+    script = REPO / "scripts" / "register_bop_toolkit.py"
+    register = [sys.executable, script, toolkit, datasets / NAME]
     r = subprocess.run(register, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     return dict(root=root, dataset=dataset, datasets=datasets, toolkit=toolkit, register=register)
@@ -53,13 +54,16 @@ def perturbed_results(export: Path) -> str:
                 axis = rng.normal(size=3)
                 axis /= np.linalg.norm(axis)
                 angle = np.radians(rng.uniform(0.0, 20.0))
-                k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-                turn = np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+                x, y, z = axis
+                cross = np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]])
+                turn = np.eye(3) + np.sin(angle) * cross + (1 - np.cos(angle)) * cross @ cross
                 r = np.array(g["cam_R_m2c"]).reshape(3, 3) @ turn
                 t = np.array(g["cam_t_m2c"]) + rng.uniform(-15.0, 15.0, 3)
                 values = " ".join(map(repr, r.ravel().tolist())), " ".join(map(repr, t.tolist()))
                 score = rng.uniform(0.1, 1.0)
-                lines.append(f"{int(scene.name)},{im_id},{g['obj_id']},{score},{values[0]},{values[1]},-1")
+                lines.append(
+                    f"{int(scene.name)},{im_id},{g['obj_id']},{score},{values[0]},{values[1]},-1"
+                )
     return "\n".join(lines) + "\n"
 
 
@@ -130,8 +134,8 @@ def test_bop_toolkit_scores_an_export_as_eval_results_does(exported, boxpose_bin
     # the recall at each threshold: spread, and the same
     recalls = []
     for th in THRESHOLDS:
-        scores = exported["root"] / "eval" / errors_dir / f"scores_th={th:.3f}_min-visib=-1.000.json"
-        recall = json.loads(scores.read_text())["recall"]
+        scores = f"scores_th={th:.3f}_min-visib=-1.000.json"
+        recall = json.loads((exported["root"] / "eval" / errors_dir / scores).read_text())["recall"]
         assert recall == pytest.approx((targets.mssd_m < th * targets.diameter_m).mean(), abs=1e-12)
         recalls.append(recall)
     assert recalls[0] < 1.0 and recalls == sorted(recalls)

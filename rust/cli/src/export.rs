@@ -31,8 +31,8 @@ use indicatif::{ProgressBar, ProgressStyle};
         dataset's visible_fraction is measured against. The output folder is written under OUT.partial \
         and renamed to OUT when complete; OUT must not exist or be empty.",
     after_help = "Examples:\n  \
-        boxpose export bop datasets/generated/demo build/bop/boxpose_demo\n  \
-        boxpose export bop datasets/generated/demo build/bop/boxpose_demo --split val --min-visib-fract 0.2\n  \
+        boxpose export bop datasets/generated/demo build/bop/boxposedemo\n  \
+        boxpose export bop datasets/generated/demo build/bop/boxposedemo --split val --min-visib-fract 0.2\n  \
         boxpose export coco datasets/generated/demo build/coco/demo\n  \
         boxpose export coco datasets/generated/demo build/coco/demo_keypoints --keypoints\n\n\
         See docs/export.md for every file, field and unit."
@@ -85,6 +85,10 @@ pub fn run(args: &Args) -> anyhow::Result<()> {
                 split: a.split.clone(),
                 min_visib_fract: a.min_visib_fract,
                 source: dataset_name(&a.dataset),
+                name: a
+                    .out
+                    .file_name()
+                    .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
             };
             let written = export(&a.dataset, &a.out, "bop", |dataset, tmp, on_frame| {
                 Ok(boxpose_formats::write_bop(

@@ -29,6 +29,9 @@ pub struct BopOptions {
     pub min_visib_fract: f64,
     /// The dataset's name as the export records its source (dataset_info.json and .md).
     pub source: String,
+    /// The export's name for bop_toolkit (its folder's name): the key of the entry in
+    /// bop_toolkit_dataset_params.txt.
+    pub name: String,
 }
 
 /// What an export wrote.
@@ -218,7 +221,47 @@ pub fn write_bop(
         models: ids.len(),
     };
     write_dataset_info(&ids, options, &summary, out)?;
+    let scene_ids: Vec<i64> = scenes.keys().copied().collect();
+    let image_size = camera
+        .as_ref()
+        .map(|c| (c["width"].clone(), c["height"].clone()));
+    write_bop_toolkit_entry(&options.name, &ids, &scene_ids, image_size, out)?;
     Ok(summary)
+}
+
+/// The bop_toolkit commit whose `dataset_params.py` the entry was written for (and that
+/// third_party/bop_toolkit holds).
+pub const BOP_TOOLKIT_COMMIT: &str = "cea62d651c7e395b2e1962b9749e4e89693c6ac4";
+
+/// bop_toolkit_dataset_params.txt: the three entries that register the export with bop_toolkit,
+/// which knows its datasets by name in `bop_toolkit_lib/dataset_params.py` (the object ids, the
+/// symmetric ones: every box, and the split's scenes and image size). Each `# N.` line says where
+/// its entry goes; `scripts/register_bop_toolkit.py` pastes them.
+fn write_bop_toolkit_entry(
+    name: &str,
+    ids: &BTreeMap<crate::objects::SizeKey, u32>,
+    scene_ids: &[i64],
+    image_size: Option<(Value, Value)>,
+    out: &Path,
+) -> Result<()> {
+    let obj_ids: Vec<u32> = ids.values().copied().collect();
+    let (width, height) = image_size.unwrap_or((json!(0), json!(0)));
+    let text = format!(
+        "# boxpose export: the entries of bop_toolkit_lib/dataset_params.py (bop_toolkit {BOP_TOOLKIT_COMMIT})\n\
+         # that register this export as the BOP dataset {name:?}: the export folder's name, under the\n\
+         # folder bop_toolkit reads datasets from (BOP_PATH). bop_toolkit takes a results file's dataset\n\
+         # from its name, METHOD_DATASET-SPLIT.csv, so DATASET must hold no '_' or '-'.\n\
+         # Each entry goes where its `# N.` line says; scripts/register_bop_toolkit.py pastes them.\n\
+         # 1. get_model_params, in the obj_ids dict:\n\
+         {name:?}: {obj_ids:?},\n\
+         # 2. get_model_params, in the symmetric_obj_ids dict (every box has discrete symmetries):\n\
+         {name:?}: {obj_ids:?},\n\
+         # 3. get_split_params, before the final `else:` that raises \"Unknown BOP dataset\":\n\
+         \x20   elif dataset_name == {name:?}:\n\
+         \x20       p[\"scene_ids\"] = {scene_ids:?}\n\
+         \x20       p[\"im_size\"] = ({width}, {height})\n"
+    );
+    write_text(&out.join("bop_toolkit_dataset_params.txt"), &text)
 }
 
 /// dataset_info.json and dataset_info.md: where the export came from, its units and its objects.
