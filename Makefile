@@ -227,11 +227,13 @@ bench-search: setup ## Search: CPU-seconds per sample by stage (ground-truth and
 bench-scale-out: setup ## python -m boxpose_ray on a loopback Ray head with 1 and 2 CPUs against one process (search and scenes)
 	scripts/bench_scale_out.sh
 
-# PyTorch only for the comparison benchmark: PyPI's torch wheel brings CUDA libraries (≈ 6 GB).
+# PyTorch, apart from .venv: for the comparison benchmark and the test of boxpose_io.torch (with
+# pyarrow, which boxpose_io imports). PyPI's torch wheel brings CUDA libraries (≈ 4 GB to
+# download, ≈ 7 GB installed) that nothing here loads: it runs on the CPU.
 TORCH_VENV := build/torch-venv
-$(TORCH_VENV)/.stamp:
-	$(PYTHON_BOOTSTRAP) -m venv $(TORCH_VENV)
-	$(TORCH_VENV)/bin/pip install --quiet torch==2.9.0 "numpy<2"
+$(TORCH_VENV)/.stamp: requirements-torch.txt
+	test -x $(TORCH_VENV)/bin/python || $(PYTHON_BOOTSTRAP) -m venv $(TORCH_VENV)
+	$(TORCH_VENV)/bin/pip install --quiet -r requirements-torch.txt
 	touch $@
 
 bench-backends: setup ## Keypoint network training speed on every backend built here (flex; tch, wgpu, cuda once `make train BACKEND=…` built them), one run
@@ -249,7 +251,7 @@ bench-learn: setup $(TORCH_VENV)/.stamp ## Keypoint network training step and pe
 # `*.proptest-regressions` file, which is replayed first on every run.
 PROPTEST_SEED ?= 20261201
 
-test: setup ## Run every test: Rust unit/property tests, then the Python/Rust end-to-end tests
+test: setup $(TORCH_VENV)/.stamp ## Run every test: Rust unit/property tests, then the Python/Rust end-to-end tests
 	PROPTEST_RNG_SEED=$(PROPTEST_SEED) cargo test --release --workspace
 	$(PY) -m pytest -q -m "not faults" tests
 

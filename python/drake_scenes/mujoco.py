@@ -10,34 +10,25 @@ from __future__ import annotations
 
 import contextlib
 import json
-import shutil
 import subprocess
 import time
 from pathlib import Path
 
 import numpy as np
 
+from boxpose_io import binary
 from drake_scenes.plant import BoxBody
 from drake_scenes.recipe import Recipe, RecipeError
 from drake_scenes.settle import Certificate, SettleResult
 
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_BOXPOSE = REPO / "target" / "release" / "boxpose"
-
 
 def find_boxpose(boxpose: Path | None) -> Path:
-    """The `boxpose` binary: `boxpose` if given, else the repository's release build, else the
-    one on PATH; a RecipeError (the recipe asks for MuJoCo) that says how to get one otherwise."""
-    candidates = [boxpose] if boxpose is not None else [DEFAULT_BOXPOSE]
-    if boxpose is None and (on_path := shutil.which("boxpose")):
-        candidates.append(Path(on_path))
-    for candidate in candidates:
-        if candidate.is_file():
-            return candidate
-    raise RecipeError(
-        f'settle.engine = "mujoco" needs the boxpose binary, not found at {candidates[0]}: '
-        "build it with `make rust`, or pass --boxpose PATH"
-    )
+    """The `boxpose` binary (`boxpose_io.binary.find_boxpose`); a RecipeError (the recipe asks for
+    MuJoCo) that says how to get one otherwise."""
+    try:
+        return binary.find_boxpose(boxpose)
+    except FileNotFoundError as e:
+        raise RecipeError(f'settle.engine = "mujoco" needs the boxpose binary: {e}') from None
 
 
 class MujocoSettler:

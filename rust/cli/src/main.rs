@@ -12,6 +12,7 @@ mod inspect;
 mod interrupt;
 mod predict;
 mod render;
+mod samples;
 mod search;
 mod settle;
 mod settle_drops;
@@ -88,6 +89,7 @@ enum Command {
     /// Train the instance segmenter (foreground, object centres, offsets; bottom-up grouping)
     /// on whole frames; validates mask and bounding-box AP on held-out scenes.
     TrainSegmenter(train::SegmenterArgs),
+    Samples(samples::Args),
     /// Predict box poses in one RGBD frame with a trained model; writes Parquet, JSON and an
     /// overlay PNG (true box white, NMS peaks black, fitted box grey).
     Predict(predict::Args),
@@ -179,6 +181,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Render(args) => render::run(&args)?,
         Command::Train(args) => train::run(&args)?,
         Command::TrainSegmenter(args) => train::run_segmenter(&args)?,
+        Command::Samples(args) => samples::run(&args)?,
         Command::Predict(args) => predict::run(&args)?,
         Command::Eval(args) => eval::run(&args)?,
         Command::Search(args) => search::run(&args)?,

@@ -74,13 +74,7 @@ impl RunArgs {
     }
 
     fn override_config(&self, data: &mut DataConfig, o: &mut OptimizerConfig) {
-        if !self.datasets.is_empty() {
-            data.datasets = self.datasets.clone();
-            data.repeat.clear();
-        }
-        if !self.repeat.is_empty() {
-            data.repeat = self.repeat.clone();
-        }
+        override_datasets(data, &self.datasets, &self.repeat);
         o.steps = self.steps.unwrap_or(o.steps);
         o.batch_size = self.batch_size.unwrap_or(o.batch_size);
         o.learning_rate = self.learning_rate.unwrap_or(o.learning_rate);
@@ -127,6 +121,17 @@ impl RunArgs {
             println!("stopped early; run the same command again to resume");
         }
         Ok(())
+    }
+}
+
+/// `--dataset` (in place of the config's datasets and their repeat) and `--repeat`.
+pub(crate) fn override_datasets(data: &mut DataConfig, datasets: &[PathBuf], repeat: &[usize]) {
+    if !datasets.is_empty() {
+        data.datasets = datasets.to_vec();
+        data.repeat.clear();
+    }
+    if !repeat.is_empty() {
+        data.repeat = repeat.to_vec();
     }
 }
 

@@ -287,12 +287,8 @@ pub(crate) fn resample_input(
         }
     };
     for row in 0..height {
-        let v = origin[1] + (row as f64 + 0.5) * step[1];
         for col in 0..width {
-            let u = origin[0] + (col as f64 + 0.5) * step[0];
-            // Pixel-index (OpenCV) coordinates, the intrinsics' and so the turn's.
-            let [x, y] = [u - 0.5, v - 0.5];
-            let [x, y] = turn.map_or([x, y], |turn| turn.original_position([x, y]));
+            let [x, y] = source_position(origin, step, [row, col], turn);
             let (y_floor, fy) = (y.floor(), (y - y.floor()) as f32);
             let (x_floor, fx) = (x.floor(), (x - x.floor()) as f32);
             let (xi, yi) = (x_floor as isize, y_floor as isize);
@@ -320,6 +316,43 @@ pub(crate) fn resample_input(
         }
     }
     input
+}
+
+/// Where input pixel `[row, col]` of the region that starts at `origin` and advances `step` image
+/// pixels per input pixel reads the frame: its centre in the frame's pixel-index (OpenCV)
+/// coordinates, the intrinsics' and so the turn's, read through the turn when there is one.
+fn source_position(
+    origin: [f64; 2],
+    step: [f64; 2],
+    [row, col]: [usize; 2],
+    turn: Option<&InPlaneTurn>,
+) -> [f64; 2] {
+    let u = origin[0] + (col as f64 + 0.5) * step[0];
+    let v = origin[1] + (row as f64 + 0.5) * step[1];
+    let [x, y] = [u - 0.5, v - 0.5];
+    turn.map_or([x, y], |turn| turn.original_position([x, y]))
+}
+
+/// The box's own mask in a sample's crop, `[S, S]` at the network input's size S: 1 where the
+/// frame pixel the input's depth channel reads (the nearest, through the sample's turn) shows the
+/// box of mask value `label`, 0 elsewhere and outside the frame.
+pub fn crop_mask(config: &NetworkConfig, frame: &Frame, sample: &Sample, label: u16) -> Vec<u8> {
+    let size = config.input_size;
+    let step = sample.window.side / size as f64;
+    let origin = [sample.window.x0, sample.window.y0];
+    let (w, h) = (frame.width as f64, frame.height as f64);
+    let mut mask = vec![0u8; size * size];
+    for row in 0..size {
+        for col in 0..size {
+            let [x, y] = source_position(origin, [step, step], [row, col], sample.turn.as_ref());
+            let (xn, yn) = (x.round(), y.round());
+            if xn >= 0.0 && yn >= 0.0 && xn < w && yn < h {
+                let i = yn as usize * frame.width + xn as usize;
+                mask[row * size + col] = u8::from(frame.instance_mask[i] == label);
+            }
+        }
+    }
+    mask
 }
 
 /// Colour jitter on RGB in [0, 255]; noise and dropout on raw depth in metres.
@@ -371,6 +404,21 @@ pub struct Sample {
     pub input: Vec<f32>,
     pub target: Vec<f32>,
     pub grid: VoxelGrid,
+    /// The crop, in the pixel coordinates of the image it was read from (the turned camera's
+    /// when there is a turn).
+    pub window: CropWindow,
+    /// The corners the target was drawn at: the box's true corners in the camera's frame (the
+    /// turned camera's when there is a turn).
+    pub corners_camera: [[f64; 3]; 8],
+    /// The in-plane turn of the camera the crop was read through (training augmentation).
+    pub(crate) turn: Option<InPlaneTurn>,
+}
+
+impl Sample {
+    /// The angle the camera was turned by about its optical axis (radians, 0 without a turn).
+    pub fn turn_rad(&self) -> f64 {
+        self.turn.map_or(0.0, |t| t.sin.atan2(t.cos))
+    }
 }
 
 /// The crop of a ground-truth instance: its visible bbox (jittered when augmenting) and the
@@ -524,6 +572,9 @@ pub(crate) fn sample_at(
         input,
         target,
         grid,
+        window: *window,
+        corners_camera: corners,
+        turn: turn.copied(),
     })
 }
 
@@ -888,5 +939,60 @@ mod tests {
                 "{angle_deg}°: the spot turned by {turned_by:.1}° about the box's centre"
             );
         }
+    }
+
+    #[test]
+    fn a_crop_mask_covers_the_pixels_whose_depth_the_crop_reads_from_the_box() {
+        let config = NetworkConfig {
+            backbone: Backbone::Tiny,
+            input_size: 64,
+            depth_bins: 8,
+            depth_range_m: [-0.12, 0.24],
+            sigma_voxels: 1.0,
+            crop_margin: 1.25,
+            depth_scale_crop_m: None,
+            peak_refine_radius: 1,
+        };
+        let augment = AugmentConfig {
+            shift: 0.0,
+            scale: 0.0,
+            color: 0.0,
+            depth_noise_m: 0.0,
+            depth_dropout: 0.0,
+            rotation_deg: 180.0,
+            sensor_depth: 0.0,
+        };
+        let (frame, _) = spot_frame();
+        let instance = &frame.instances[0];
+        let plane = 64 * 64;
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        let unturned = instance_sample(&config, &frame, instance, None).unwrap();
+        let mut samples = vec![unturned];
+        for angle_deg in [90.0f64, -30.0, 180.0] {
+            let turn = InPlaneTurn::new(&frame.intrinsics, angle_deg.to_radians());
+            let bbox = instance.visible_bbox.unwrap();
+            let turned = (&augment, &mut rng);
+            samples.push(
+                turned_instance_sample(&config, &frame, instance, bbox, &turn, turned).unwrap(),
+            );
+        }
+        for sample in &samples {
+            let mask = crop_mask(&config, &frame, sample, instance.mask_label());
+            // The box lies at its crop's reference depth (1 m, the median of its own pixels):
+            // its pixels read depth 0 exactly; the background (1.5 m) reads +3 (clamped), and
+            // every window here lies inside the frame.
+            let on_box: Vec<u8> = sample.input[3 * plane..]
+                .iter()
+                .map(|&z| u8::from(z == 0.0))
+                .collect();
+            let count = mask.iter().filter(|&&m| m == 1).count();
+            assert!(
+                count > 100,
+                "{count} mask pixels at {}°",
+                sample.turn_rad().to_degrees()
+            );
+            assert_eq!(mask, on_box, "at {}°", sample.turn_rad().to_degrees());
+        }
+        assert!((samples[2].turn_rad().to_degrees() + 30.0).abs() < 1e-9);
     }
 }

@@ -2,6 +2,7 @@
 //! heatmap MSE, and held-out scores from the evaluation of each crop's fits.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use boxpose_data::Frame;
 use boxpose_geometry::BoxModel;
@@ -96,25 +97,48 @@ impl ExampleSource for KeypointTask {
         item: usize,
         rng: &mut ChaCha8Rng,
     ) -> Result<(Vec<f32>, Vec<f32>), LearnError> {
+        let (sample, _) = self.training_sample(item, rng)?;
+        Ok((sample.input, sample.target))
+    }
+}
+
+impl KeypointTask {
+    /// Training item `item` as training draws it with `rng` (the depth it reads, then the crop's
+    /// augmentation), and the frame it was read from (the sensor's depth in place when the draw
+    /// chose it).
+    pub fn training_sample(
+        &self,
+        item: usize,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(data::Sample, Arc<Frame>), LearnError> {
         let pick = self.set.train[item];
-        let frame = self.set.frame(pick.0)?;
+        let mut frame = self.set.frame(pick.0)?;
         let augment = &self.config.augment;
         // drawn only when asked for, so that other configs' random streams stay as they were
-        let sensed = (augment.sensor_depth > 0.0
+        if augment.sensor_depth > 0.0
             && frame.sensor_depth.is_some()
-            && rng.random_bool(augment.sensor_depth))
-        .then(|| {
+            && rng.random_bool(augment.sensor_depth)
+        {
             let mut sensed = Frame::clone(&frame);
             sensed.use_sensor_depth();
-            sensed
-        });
+            frame = Arc::new(sensed);
+        }
         let sample = data::instance_sample(
             &self.config.network,
-            sensed.as_ref().unwrap_or(&frame),
+            &frame,
             self.set.instance(pick),
             Some((augment, rng)),
         )?;
-        Ok((sample.input, sample.target))
+        Ok((sample, frame))
+    }
+
+    /// Held-out item `item` as validation reads it (no augmentation), and its frame.
+    pub fn held_out_sample(&self, item: usize) -> Result<(data::Sample, Arc<Frame>), LearnError> {
+        let pick = self.set.val[item];
+        let frame = self.set.frame(pick.0)?;
+        let sample =
+            data::instance_sample(&self.config.network, &frame, self.set.instance(pick), None)?;
+        Ok((sample, frame))
     }
 }
 

@@ -10,7 +10,9 @@
 //! - [`training`]: the loop, validation and checkpoints for any [`training::Task`], reporting to
 //!   a [`training::TrainObserver`];
 //! - [`keypoint`]: the keypoint network's task; [`segmentation`]: the segmenter (its model,
-//!   grouping, AP and task), which finds the boxes (and their crops) in a whole frame.
+//!   grouping, AP and task), which finds the boxes (and their crops) in a whole frame;
+//! - [`sample_server`]: the keypoint task's training examples for another framework's loop
+//!   (protocol `boxpose-samples/1`, no burn).
 
 pub mod backend;
 pub mod config;
@@ -23,6 +25,7 @@ pub mod loader;
 pub mod model;
 pub mod model_dir;
 pub mod prediction;
+pub mod sample_server;
 pub mod segmentation;
 pub mod training;
 
