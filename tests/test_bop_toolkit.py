@@ -86,64 +86,81 @@ def bop_toolkit(exported: dict, script: str, *args) -> None:
     assert r.returncode == 0, r.stderr[-3000:]
 
 
+def bop_toolkit_errors(exported: dict, error_type: str) -> tuple[str, dict]:
+    """eval_calc_errors.py as BOP'19 runs it (every estimate up to the number of boxes per object
+    and image, the targets file's boxes: visib_fract >= 0.1): its folder and, per box, its error.
+    An estimate has an error against every box of its obj_id (scene 0's two boxes share one);
+    each box's is its nearest estimate's, the one both matchings pair it with (the moves are far
+    smaller than the boxes' spacing)."""
+    bop_toolkit(
+        exported,
+        "eval_calc_errors.py",
+        f"--error_type={error_type}",
+        "--n_top=-1",
+        f"--result_filenames={RESULTS}",
+    )
+    errors_dir = f"{RESULTS[:-4]}/error={error_type}_ntop=-1"
+    errors = {}
+    for path in (exported["root"] / "eval" / errors_dir).glob("errors_*.json"):
+        for e in json.loads(path.read_text()):
+            for gt_id, (error,) in e["errors"].items():
+                key = (e["scene_id"], e["im_id"], int(gt_id))
+                errors[key] = min(error, errors.get(key, np.inf))
+    return errors_dir, errors
+
+
+def bop_toolkit_recall(exported: dict, errors_dir: str, error_type: str, threshold: float) -> float:
+    # one threshold a call: a list is one multi-part threshold (rete)
+    bop_toolkit(
+        exported,
+        "eval_calc_scores.py",
+        f"--error_dir_paths={errors_dir}",
+        f"--correct_th_{error_type}={threshold}",
+    )
+    scores = (
+        exported["root"] / "eval" / errors_dir / f"scores_th={threshold:.3f}_min-visib=-1.000.json"
+    )
+    return json.loads(scores.read_text())["recall"]
+
+
 def test_bop_toolkit_scores_an_export_as_eval_results_does(exported, boxpose_bin):
     export = exported["datasets"] / NAME
     results = exported["root"] / "results"
     results.mkdir()
     (results / RESULTS).write_text(perturbed_results(export))
-    # BOP'19: every estimate up to the number of boxes per object and image, the targets file's
-    # boxes (visib_fract >= 0.1)
-    bop_toolkit(
-        exported,
-        "eval_calc_errors.py",
-        "--error_type=mssd",
-        "--n_top=-1",
-        f"--result_filenames={RESULTS}",
-    )
-    errors_dir = f"{RESULTS[:-4]}/error=mssd_ntop=-1"
-    for th in THRESHOLDS:  # one threshold a call: a list is one multi-part threshold (rete)
-        bop_toolkit(
-            exported,
-            "eval_calc_scores.py",
-            f"--error_dir_paths={errors_dir}",
-            f"--correct_th_mssd={th}",
-        )
     ours = exported["root"] / "eval_results"
     run_boxpose(
         boxpose_bin, "eval-results", "bop", results / RESULTS, exported["dataset"], "--out", ours
     )
     table = pd.read_parquet(ours / "eval_results.parquet")
-
-    # the error of every estimate, box by box (bop_toolkit writes mm). The export's models round
-    # the box size to 0.1 mm, which moves a corner by at most 0.05·√3 mm and its error under a
-    # turn by θ ≤ 20° by at most 2·sin(θ/2) times that (< 0.04 mm)
-    # An estimate has an error against every box of its obj_id (scene 0's two boxes share one);
-    # each box's is its nearest estimate's, the one both matchings pair it with (the moves are
-    # far smaller than the boxes' spacing)
-    theirs = {}
-    for path in (exported["root"] / "eval" / errors_dir).glob("errors_*.json"):
-        for e in json.loads(path.read_text()):
-            for gt_id, (error,) in e["errors"].items():
-                key = (e["scene_id"], e["im_id"], int(gt_id))
-                theirs[key] = min(error, theirs.get(key, np.inf))
-    targets = table[table.visib_fract >= 0.1].set_index(["scene_id", "im_id", "gt_id"])
-    assert len(targets) >= 8 and set(theirs) == set(targets.index)
-    for key, error_mm in theirs.items():
-        assert error_mm == pytest.approx(1000.0 * targets.loc[key, "mssd_m"], abs=0.04), key
-
-    # the recall at each threshold: spread, and the same
-    recalls = []
-    for th in THRESHOLDS:
-        scores = f"scores_th={th:.3f}_min-visib=-1.000.json"
-        recall = json.loads((exported["root"] / "eval" / errors_dir / scores).read_text())["recall"]
-        assert recall == pytest.approx((targets.mssd_m < th * targets.diameter_m).mean(), abs=1e-12)
-        recalls.append(recall)
-    assert recalls[0] < 1.0 and recalls == sorted(recalls)
-    # every box of this dataset is a target, so the mean over the thresholds is eval-results'
-    # AR_MSSD
-    assert len(targets) == len(table)
     summary = json.loads((ours / "summary.json").read_text())
-    assert summary["ar_mssd"] == pytest.approx(np.mean(recalls), abs=1e-12)
+    targets = table[table.visib_fract >= 0.1].set_index(["scene_id", "im_id", "gt_id"])
+    # every box of this dataset is a target, so the summary's average recalls are over the same
+    # boxes as bop_toolkit's
+    assert len(targets) == len(table) >= 8
+    width = json.loads((export / "camera.json").read_text())["width"]
+
+    # MSSD, bop_toolkit in mm. The export's models round the box size to 0.1 mm, which moves a
+    # corner by at most 0.05·√3 mm and its error under a turn by θ ≤ 20° by at most 2·sin(θ/2)
+    # times that (< 0.04 mm). MSPD in pixels: that rounding moves a corner's image by < 0.02 px.
+    for error_type, column, scale, tolerance, thresholds, normalizer, average in (
+        ("mssd", "mssd_m", 1000.0, 0.04, THRESHOLDS, targets.diameter_m, "ar_mssd"),
+        ("mspd", "mspd_px", 1.0, 0.02, [5.0 * k for k in range(1, 11)], width / 640, "ar_mspd"),
+    ):
+        errors_dir, theirs = bop_toolkit_errors(exported, error_type)
+        assert set(theirs) == set(targets.index), error_type
+        for key, error in theirs.items():
+            assert error == pytest.approx(scale * targets.loc[key, column], abs=tolerance), key
+        # the recall at each threshold (× the diameter for MSSD, × width/640 for MSPD): spread,
+        # and the same
+        recalls = []
+        for th in thresholds:
+            recall = bop_toolkit_recall(exported, errors_dir, error_type, th)
+            ours_at = (targets[column] < th * normalizer).mean()
+            assert recall == pytest.approx(ours_at, abs=1e-12), (error_type, th)
+            recalls.append(recall)
+        assert recalls[0] < recalls[-1] and recalls == sorted(recalls), (error_type, recalls)
+        assert summary[average] == pytest.approx(np.mean(recalls), abs=1e-12), error_type
 
 
 def test_a_dataset_is_registered_once(exported):

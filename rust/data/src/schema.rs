@@ -1094,6 +1094,12 @@ pub const EVAL_RESULTS: Table = Table {
             "Corner MSSD modulo the cube's rotations of the matched estimate (the primary metric).",
         )),
         nullable(col("add_s_m", Float64, "m", "ADD-S (BOP's adi).")),
+        nullable(col(
+            "mspd_px",
+            Float64,
+            "px",
+            "MSPD of the matched estimate: the corners' largest shift in the image, modulo the box's symmetries.",
+        )),
         nullable(col("paper_error_m2", Float64, "m²", "The paper's error.")),
         nullable(col(
             "paper_error_normalized",

@@ -43,6 +43,9 @@ pub struct Truth {
     pub obj_id: u32,
     pub model: BoxModel,
     pub pose: Isometry3<f64>,
+    /// Its frame's fx, fy, cx, cy and width (pixels), for MSPD.
+    pub intrinsics: [f64; 4],
+    pub image_width: usize,
 }
 
 /// Metrics of one matched estimate (metres, m², degrees), as in eval.parquet.
@@ -51,6 +54,8 @@ pub struct Scores {
     pub cube_mssd: f64,
     pub mssd: f64,
     pub add_s: f64,
+    /// Pixels.
+    pub mspd: f64,
     pub paper_error: f64,
     pub paper_error_normalized: f64,
     pub rotation_error_deg: f64,
@@ -164,6 +169,7 @@ fn score(truth: &Truth, estimate: &Isometry3<f64>) -> Result<Scores, GeometryErr
         cube_mssd: metrics::cube_mssd(&truth.model, estimate, &truth.model, &truth.pose)?,
         mssd: metrics::mssd(&truth.model, estimate, &truth.pose)?,
         add_s: metrics::add_s(&truth.model, estimate, &truth.pose)?,
+        mspd: metrics::mspd(&truth.model, estimate, &truth.pose, truth.intrinsics)?,
         paper_error,
         paper_error_normalized: paper_error / (d * d / 3.0),
         rotation_error_deg: metrics::rotation_error_deg(&truth.model, estimate, &truth.pose)?,
@@ -183,6 +189,7 @@ fn read_truths(dataset: &Dataset) -> Result<(Vec<Truth>, FrameTruths)> {
     for frame in dataset.frames()? {
         let frame = frame?;
         let list = frames.entry((frame.scene_id, frame.frame_id)).or_default();
+        let k = frame.intrinsics;
         for instance in frame.instances {
             let obj_id = obj_id(&ids, &instance)?;
             let model = BoxModel::new(Vector3::from(instance.size)).map_err(|source| {
@@ -204,6 +211,8 @@ fn read_truths(dataset: &Dataset) -> Result<(Vec<Truth>, FrameTruths)> {
                 obj_id,
                 model,
                 pose,
+                intrinsics: [k.fx, k.fy, k.cx, k.cy],
+                image_width: frame.width,
             });
         }
     }
@@ -343,6 +352,20 @@ impl ResultsScore {
             .collect()
     }
 
+    /// BOP's AR_MSPD of `rows`: each MSPD against 5, 10, …, 50 pixels times its image's width
+    /// over 640, a missed instance +∞.
+    fn average_recall_mspd(&self, rows: &[&Row]) -> f64 {
+        let at_width_640: Vec<f64> = rows
+            .iter()
+            .map(|r| {
+                r.matched.as_ref().map_or(f64::INFINITY, |(_, s)| {
+                    s.mspd * 640.0 / self.truths[r.gt].image_width as f64
+                })
+            })
+            .collect();
+        metrics::average_recall_at(&at_width_640, &metrics::AR_MSPD_THRESHOLDS_PX)
+    }
+
     /// The share of `rows` whose `error` is below `k` diameters; NaN for no rows.
     fn recall(&self, rows: &[&Row], error: fn(&Scores) -> f64, k: f64) -> f64 {
         if rows.is_empty() {
@@ -380,10 +403,12 @@ impl ResultsScore {
             "recall_mssd_0.1d": self.recall(&all, |s| s.mssd, 0.1),
             "ar_cube_mssd": metrics::average_recall(&self.over_diameter(&all, |s| s.cube_mssd)),
             "ar_mssd": metrics::average_recall(&self.over_diameter(&all, |s| s.mssd)),
+            "ar_mspd": self.average_recall_mspd(&all),
             "mean_over_matched": {
                 "cube_mssd_m": mean(|s| s.cube_mssd),
                 "mssd_m": mean(|s| s.mssd),
                 "add_s_m": mean(|s| s.add_s),
+                "mspd_px": mean(|s| s.mspd),
                 "paper_error_m2": mean(|s| s.paper_error),
                 "paper_error_normalized": mean(|s| s.paper_error_normalized),
                 "rotation_error_deg": mean(|s| s.rotation_error_deg),
@@ -501,6 +526,7 @@ impl ResultsScore {
             metric(|s| s.mssd),
             metric(|s| s.cube_mssd),
             metric(|s| s.add_s),
+            metric(|s| s.mspd),
             metric(|s| s.paper_error),
             metric(|s| s.paper_error_normalized),
             metric(|s| s.rotation_error_deg),

@@ -234,6 +234,42 @@ pub fn mssd(model: &BoxModel, estimate: &Isometry3<f64>, truth: &Isometry3<f64>)
         .fold(f64::INFINITY, f64::min))
 }
 
+/// Maximum symmetry-aware projection distance (BOP, Hodaň et al. 2020), in pixels:
+///
+/// e_MSPD = min_{S ∈ G} max_{x ∈ V} ‖π(estimate·x) − π(truth·S·x)‖
+///
+/// with π the pinhole projection of `intrinsics` [fx, fy, cx, cy] (π(p) = (fx·p_x/p_z + cx,
+/// fy·p_y/p_z + cy)), G the box's rotation group ([`BoxModel::symmetries`]) and V its corners: the
+/// vertices bop_toolkit takes the maximum over, which for an exported box are its corners. Both
+/// poses must put the box in front of the camera for the distance to mean anything.
+pub fn mspd(
+    model: &BoxModel,
+    estimate: &Isometry3<f64>,
+    truth: &Isometry3<f64>,
+    intrinsics: [f64; 4],
+) -> Result<f64> {
+    ensure_pose("estimate", estimate)?;
+    ensure_pose("truth", truth)?;
+    ensure_finite("intrinsics", &intrinsics)?;
+    let [fx, fy, cx, cy] = intrinsics;
+    let project = |p: Point3<f64>| [fx * p.x / p.z + cx, fy * p.y / p.z + cy];
+    let corners = model.corners();
+    Ok(model
+        .symmetries()
+        .iter()
+        .map(|s| {
+            corners
+                .iter()
+                .map(|x| {
+                    let [u, v] = project(estimate * x);
+                    let [u_true, v_true] = project(truth * (s.rotation * x));
+                    (u - u_true).hypot(v - v_true)
+                })
+                .fold(0.0, f64::max)
+        })
+        .fold(f64::INFINITY, f64::min))
+}
+
 /// Corner MSSD modulo the cube's rotations: how far the fitted corners really are from the true
 /// ones, whatever corner each is called.
 ///
@@ -284,15 +320,26 @@ pub const AR_MSSD_THRESHOLDS: [f64; 10] = [0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35
 /// with `errors_over_diameter` the n errors divided by each object's diameter; a fit that returned
 /// no pose is passed as +∞ (a miss at every threshold). 0 for no errors.
 pub fn average_recall(errors_over_diameter: &[f64]) -> f64 {
-    if errors_over_diameter.is_empty() {
+    average_recall_at(errors_over_diameter, &AR_MSSD_THRESHOLDS)
+}
+
+/// The thresholds of BOP's average recall of MSPD (Hodaň et al. 2020): 5, 10, …, 50 pixels at an
+/// image width of 640, scaled with the width.
+pub const AR_MSPD_THRESHOLDS_PX: [f64; 10] =
+    [5.0, 10.0, 15.0, 20.0, 25.0, 30.0, 35.0, 40.0, 45.0, 50.0];
+
+/// The average recall of `errors` over `thresholds`: (1/|Θ|) Σ_{θ ∈ Θ} (1/n) · #{k : e_k < θ}
+/// (a missing pose passed as +∞); 0 for no errors.
+pub fn average_recall_at(errors: &[f64], thresholds: &[f64]) -> f64 {
+    if errors.is_empty() || thresholds.is_empty() {
         return 0.0;
     }
-    let n = errors_over_diameter.len() as f64;
-    AR_MSSD_THRESHOLDS
+    let n = errors.len() as f64;
+    thresholds
         .iter()
-        .map(|&theta| errors_over_diameter.iter().filter(|&&e| e < theta).count() as f64 / n)
+        .map(|&theta| errors.iter().filter(|&&e| e < theta).count() as f64 / n)
         .sum::<f64>()
-        / AR_MSSD_THRESHOLDS.len() as f64
+        / thresholds.len() as f64
 }
 
 /// Rotation error modulo the box's symmetries, in degrees:
@@ -483,7 +530,36 @@ pub fn failure_auroc(outcomes: &[(bool, f64)]) -> Option<f64> {
 
 #[cfg(test)]
 mod tests {
-    use super::failure_auroc;
+    use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
+
+    use super::{failure_auroc, mspd};
+    use crate::box_model::BoxModel;
+
+    #[test]
+    fn mspd_is_the_largest_corner_shift_in_the_image_modulo_the_symmetries() {
+        let model = BoxModel::new(Vector3::new(0.2, 0.1, 0.06)).unwrap();
+        let k = [600.0, 500.0, 320.0, 240.0];
+        let truth = Isometry3::from_parts(
+            Translation3::new(0.05, -0.02, 1.0),
+            UnitQuaternion::from_euler_angles(0.3, -0.2, 0.5),
+        );
+        assert_eq!(mspd(&model, &truth, &truth, k).unwrap(), 0.0);
+        // a half turn about the box's own x axis is one of its symmetries: no error
+        let flipped =
+            truth * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI);
+        assert!(mspd(&model, &flipped, &truth, k).unwrap() < 1e-9);
+        // a shift of 1 cm along the camera's x axis moves every corner by fx·0.01/z pixels: the
+        // largest for the nearest corner
+        let shifted = Translation3::new(0.01, 0.0, 0.0) * truth;
+        let nearest_z = model
+            .corners()
+            .iter()
+            .map(|c| (truth * c).z)
+            .fold(f64::INFINITY, f64::min);
+        let error = mspd(&model, &shifted, &truth, k).unwrap();
+        assert!((error - 600.0 * 0.01 / nearest_z).abs() < 1e-9, "{error}");
+        assert!(mspd(&model, &shifted, &truth, [f64::NAN, 1.0, 0.0, 0.0]).is_err());
+    }
 
     #[test]
     fn auroc_of_confidence_as_a_failure_predictor() {
