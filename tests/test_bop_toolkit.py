@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from boxpose_io.rotations import quat_to_matrix
 from conftest import render_synthetic_dataset, run_boxpose
 
 REPO = Path(__file__).resolve().parents[1]
@@ -22,6 +23,7 @@ BOP_TOOLKIT = REPO / "third_party" / "bop_toolkit"
 # a dataset name without "_" or "-": bop_toolkit reads it from METHOD_DATASET-SPLIT.csv
 NAME = "boxposetest"
 RESULTS = f"perturbed_{NAME}-test.csv"
+PREDICTED = f"predict_{NAME}-test.csv"
 # BOP's AR_MSSD thresholds, × the object's diameter
 THRESHOLDS = [round(0.05 * k, 2) for k in range(1, 11)]
 
@@ -86,7 +88,7 @@ def bop_toolkit(exported: dict, script: str, *args) -> None:
     assert r.returncode == 0, r.stderr[-3000:]
 
 
-def bop_toolkit_errors(exported: dict, error_type: str) -> tuple[str, dict]:
+def bop_toolkit_errors(exported: dict, error_type: str, results: str) -> tuple[str, dict]:
     """eval_calc_errors.py as BOP'19 runs it (every estimate up to the number of boxes per object
     and image, the targets file's boxes: visib_fract >= 0.1): its folder and, per box, its error.
     An estimate has an error against every box of its obj_id (scene 0's two boxes share one);
@@ -97,9 +99,9 @@ def bop_toolkit_errors(exported: dict, error_type: str) -> tuple[str, dict]:
         "eval_calc_errors.py",
         f"--error_type={error_type}",
         "--n_top=-1",
-        f"--result_filenames={RESULTS}",
+        f"--result_filenames={results}",
     )
-    errors_dir = f"{RESULTS[:-4]}/error={error_type}_ntop=-1"
+    errors_dir = f"{results[:-4]}/error={error_type}_ntop=-1"
     errors = {}
     for path in (exported["root"] / "eval" / errors_dir).glob("errors_*.json"):
         for e in json.loads(path.read_text()):
@@ -147,7 +149,7 @@ def test_bop_toolkit_scores_an_export_as_eval_results_does(exported, boxpose_bin
         ("mssd", "mssd_m", 1000.0, 0.04, THRESHOLDS, targets.diameter_m, "ar_mssd"),
         ("mspd", "mspd_px", 1.0, 0.02, [5.0 * k for k in range(1, 11)], width / 640, "ar_mspd"),
     ):
-        errors_dir, theirs = bop_toolkit_errors(exported, error_type)
+        errors_dir, theirs = bop_toolkit_errors(exported, error_type, RESULTS)
         assert set(theirs) == set(targets.index), error_type
         for key, error in theirs.items():
             assert error == pytest.approx(scale * targets.loc[key, column], abs=tolerance), key
@@ -161,6 +163,58 @@ def test_bop_toolkit_scores_an_export_as_eval_results_does(exported, boxpose_bin
             recalls.append(recall)
         assert recalls[0] < recalls[-1] and recalls == sorted(recalls), (error_type, recalls)
         assert summary[average] == pytest.approx(np.mean(recalls), abs=1e-12), error_type
+
+
+def predicted_results(exported: dict, boxpose_bin) -> str:
+    """A results CSV of `boxpose predict` (the shipped keypoint network on ground-truth crops, the
+    size fit) on scene 1's frames, whose boxes all differ in size: each box with its own obj_id
+    (gt_id is the object id: every frame lists every box), the fit's confidence as the score."""
+    export = exported["datasets"] / NAME
+    lines = ["scene_id,im_id,obj_id,score,R,t,time"]
+    scene_gt = json.loads((export / "test" / "000001" / "scene_gt.json").read_text())
+    for im_id, boxes in scene_gt.items():
+        out = exported["root"] / "predict" / im_id
+        run_boxpose(
+            boxpose_bin,
+            "predict",
+            exported["dataset"],
+            "--scene",
+            1,
+            "--frame",
+            im_id,
+            "--out",
+            out,
+        )
+        for b in json.loads((out / "predictions.json").read_text())["boxes"]:
+            fit = b["fit"]
+            if fit is None:
+                continue
+            r = quat_to_matrix(fit["pose_quat_wxyz"])
+            t = 1000.0 * np.array(fit["pose_translation_m"])
+            values = " ".join(map(repr, r.ravel().tolist())), " ".join(map(repr, t.tolist()))
+            obj_id, score = boxes[b["object_id"]]["obj_id"], fit["confidence"]["confidence"]
+            lines.append(f"1,{im_id},{obj_id},{score},{values[0]},{values[1]},-1")
+    assert len(lines) > 4
+    return "\n".join(lines) + "\n"
+
+
+def test_bop_toolkit_scores_predict_s_poses_as_eval_results_does(exported, boxpose_bin):
+    results = exported["root"] / "results"
+    results.mkdir(exist_ok=True)
+    (results / PREDICTED).write_text(predicted_results(exported, boxpose_bin))
+    ours = exported["root"] / "eval_results_predicted"
+    run_boxpose(
+        boxpose_bin, "eval-results", "bop", results / PREDICTED, exported["dataset"], "--out", ours
+    )
+    table = pd.read_parquet(ours / "eval_results.parquet").set_index(["scene_id", "im_id", "gt_id"])
+    errors_dir, theirs = bop_toolkit_errors(exported, "mssd", PREDICTED)
+    # scene 0 has no estimate: a miss in both
+    assert {key[0] for key in theirs} == {1} and len(theirs) == table.matched.sum() >= 4
+    for key, error in theirs.items():
+        assert error == pytest.approx(1000.0 * table.loc[key, "mssd_m"], abs=0.04), key
+    for th in (0.1, 0.3, 0.5):
+        recall = bop_toolkit_recall(exported, errors_dir, "mssd", th)
+        assert recall == pytest.approx((table.mssd_m < th * table.diameter_m).mean(), abs=1e-12)
 
 
 def test_a_dataset_is_registered_once(exported):
