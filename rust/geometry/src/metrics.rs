@@ -221,17 +221,28 @@ pub fn add_s_corners(
 pub fn mssd(model: &BoxModel, estimate: &Isometry3<f64>, truth: &Isometry3<f64>) -> Result<f64> {
     ensure_pose("estimate", estimate)?;
     ensure_pose("truth", truth)?;
+    Ok(min_over_symmetries_of_max_over_corners(model, |x, s_x| {
+        (estimate * x - truth * s_x).norm()
+    }))
+}
+
+/// min_{S ∈ G} max_{x ∈ V} distance(x, S·x) over the box's rotation group G and corners V (box
+/// frame): the form of [`mssd`] and [`mspd`].
+fn min_over_symmetries_of_max_over_corners(
+    model: &BoxModel,
+    distance: impl Fn(&Point3<f64>, &Point3<f64>) -> f64,
+) -> f64 {
     let corners = model.corners();
-    Ok(model
+    model
         .symmetries()
         .iter()
         .map(|s| {
             corners
                 .iter()
-                .map(|x| (estimate * x - truth * (s.rotation * x)).norm())
+                .map(|x| distance(x, &(s.rotation * x)))
                 .fold(0.0, f64::max)
         })
-        .fold(f64::INFINITY, f64::min))
+        .fold(f64::INFINITY, f64::min)
 }
 
 /// Maximum symmetry-aware projection distance (BOP, Hodaň et al. 2020), in pixels:
@@ -253,21 +264,11 @@ pub fn mspd(
     ensure_finite("intrinsics", &intrinsics)?;
     let [fx, fy, cx, cy] = intrinsics;
     let project = |p: Point3<f64>| [fx * p.x / p.z + cx, fy * p.y / p.z + cy];
-    let corners = model.corners();
-    Ok(model
-        .symmetries()
-        .iter()
-        .map(|s| {
-            corners
-                .iter()
-                .map(|x| {
-                    let [u, v] = project(estimate * x);
-                    let [u_true, v_true] = project(truth * (s.rotation * x));
-                    (u - u_true).hypot(v - v_true)
-                })
-                .fold(0.0, f64::max)
-        })
-        .fold(f64::INFINITY, f64::min))
+    Ok(min_over_symmetries_of_max_over_corners(model, |x, s_x| {
+        let [u, v] = project(estimate * x);
+        let [u_true, v_true] = project(truth * s_x);
+        (u - u_true).hypot(v - v_true)
+    }))
 }
 
 /// Corner MSSD modulo the cube's rotations: how far the fitted corners really are from the true

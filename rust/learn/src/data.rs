@@ -859,8 +859,8 @@ mod tests {
         (frame, spot)
     }
 
-    #[test]
-    fn a_turned_crop_and_its_target_show_the_same_corner_where_the_turn_puts_it() {
+    /// A tiny network's 64² crops, and an augmentation that only turns the camera.
+    fn turning_config() -> (NetworkConfig, AugmentConfig) {
         let config = NetworkConfig {
             backbone: Backbone::Tiny,
             input_size: 64,
@@ -880,6 +880,12 @@ mod tests {
             rotation_deg: 180.0,
             sensor_depth: 0.0,
         };
+        (config, augment)
+    }
+
+    #[test]
+    fn a_turned_crop_and_its_target_show_the_same_corner_where_the_turn_puts_it() {
+        let (config, augment) = turning_config();
         let (frame, spot) = spot_frame();
         let instance = &frame.instances[0];
         let plane = 64 * 64;
@@ -943,25 +949,7 @@ mod tests {
 
     #[test]
     fn a_crop_mask_covers_the_pixels_whose_depth_the_crop_reads_from_the_box() {
-        let config = NetworkConfig {
-            backbone: Backbone::Tiny,
-            input_size: 64,
-            depth_bins: 8,
-            depth_range_m: [-0.12, 0.24],
-            sigma_voxels: 1.0,
-            crop_margin: 1.25,
-            depth_scale_crop_m: None,
-            peak_refine_radius: 1,
-        };
-        let augment = AugmentConfig {
-            shift: 0.0,
-            scale: 0.0,
-            color: 0.0,
-            depth_noise_m: 0.0,
-            depth_dropout: 0.0,
-            rotation_deg: 180.0,
-            sensor_depth: 0.0,
-        };
+        let (config, augment) = turning_config();
         let (frame, _) = spot_frame();
         let instance = &frame.instances[0];
         let plane = 64 * 64;
