@@ -52,11 +52,8 @@ impl KeypointTask {
         }
         let samples = picks
             .par_iter()
-            .map(|&pick| {
-                let frame = set.frame(pick.0)?;
-                data::instance_sample(&config.network, &frame, set.instance(pick), None)
-            })
-            .collect::<Result<Vec<_>, _>>()?;
+            .map(|&pick| Ok(self.plain_sample(pick)?.0))
+            .collect::<Result<Vec<_>, LearnError>>()?;
         let device = net.devices().into_iter().next().unwrap_or_default();
         let model = KeypointModel {
             config: config.network.clone(),
@@ -132,9 +129,12 @@ impl KeypointTask {
         Ok((sample, frame))
     }
 
-    /// Held-out item `item` as validation reads it (no augmentation), and its frame.
-    pub fn held_out_sample(&self, item: usize) -> Result<(data::Sample, Arc<Frame>), LearnError> {
-        let pick = self.set.val[item];
+    /// The instance `pick` (frame, instance) of either split without augmentation, as validation
+    /// reads it, and its frame.
+    pub fn plain_sample(
+        &self,
+        pick: (usize, usize),
+    ) -> Result<(data::Sample, Arc<Frame>), LearnError> {
         let frame = self.set.frame(pick.0)?;
         let sample =
             data::instance_sample(&self.config.network, &frame, self.set.instance(pick), None)?;

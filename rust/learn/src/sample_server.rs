@@ -173,15 +173,7 @@ pub fn answer(
         (Split::Train, Some(seed)) => {
             task.training_sample(request.index, &mut ChaCha8Rng::seed_from_u64(seed))?
         }
-        (Split::Train, None) => {
-            let frame = task.set.frame(pick.0)?;
-            let instance = task.set.instance(pick);
-            (
-                data::instance_sample(&task.config.network, &frame, instance, None)?,
-                frame,
-            )
-        }
-        (Split::HeldOut, _) => task.held_out_sample(request.index)?,
+        _ => task.plain_sample(pick)?,
     };
     let instance = task.set.instance(pick);
     let mask = data::crop_mask(&task.config.network, &frame, &sample, instance.mask_label());
