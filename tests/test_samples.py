@@ -96,8 +96,8 @@ def test_a_bad_request_is_answered_and_a_broken_one_ends_the_server(server, data
 
 def test_a_torch_training_loop_learns_from_the_samples(dataset, boxpose_bin, tmp_path):
     """The real torch (CPU), two DataLoader workers each with its own server: an item through the
-    loader is the server's item of the same seed, epochs differ, and a small network's weighted
-    heatmap loss falls over 40 steps."""
+    loader is the server's item of the same seed, epochs differ, a killed server is started again
+    for the next item, and a small network's weighted heatmap loss falls over 40 steps."""
     assert TORCH_PYTHON.is_file(), f"{TORCH_PYTHON} is missing: `make test` creates it"
     script = textwrap.dedent(
         f"""
@@ -120,6 +120,10 @@ def test_a_torch_training_loop_learns_from_the_samples(dataset, boxpose_bin, tmp
         samples.set_epoch(1)
         next_epoch_differs = not torch.equal(first, samples[2]["input"])
         samples.set_epoch(0)
+        killed = samples._server.process.pid
+        samples._server.process.kill(); samples._server.process.wait()
+        again = samples[2]["input"]
+        restarted = torch.equal(first, again) and samples._server.process.pid != killed
 
         net = torch.nn.Sequential(
             torch.nn.Conv2d(4, 16, 3, padding=1), torch.nn.ReLU(), torch.nn.MaxPool2d(2),
@@ -147,6 +151,7 @@ def test_a_torch_training_loop_learns_from_the_samples(dataset, boxpose_bin, tmp
             held_out_shape = list(batch["input"].shape)
         print(json.dumps(dict(
             items=len(samples), same=same, next_epoch_differs=next_epoch_differs,
+            restarted=restarted,
             first=float(np.mean(losses[:4])), last=float(np.mean(losses[-4:])), steps=len(losses),
             scenes=sorted(scenes), held_out_shape=held_out_shape)))
         """
@@ -157,7 +162,7 @@ def test_a_torch_training_loop_learns_from_the_samples(dataset, boxpose_bin, tmp
     )
     assert r.returncode == 0, r.stderr[-3000:]
     result = json.loads(r.stdout.strip().splitlines()[-1])
-    assert result["same"] and result["next_epoch_differs"], result
+    assert result["same"] and result["next_epoch_differs"] and result["restarted"], result
     assert result["scenes"] == [1] and result["steps"] >= 40, result
     assert result["held_out_shape"][1:] == [4, 64, 64], result
     assert result["last"] < 0.7 * result["first"], result

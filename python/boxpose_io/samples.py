@@ -40,6 +40,11 @@ class SampleServer:
             raise SampleServerError(f"expected protocol {PROTOCOL}, got {self.hello!r}")
         self.requests = 0
 
+    @property
+    def running(self) -> bool:
+        """Whether the process is still there (an answered error leaves it serving)."""
+        return self.process.poll() is None
+
     def _stderr(self) -> str:
         self.process.wait(timeout=30)
         return self.process.stderr.read().decode(errors="replace").strip()

@@ -15,7 +15,8 @@ Each item is what ``boxpose train`` computes for the same config, computed by th
 process per DataLoader worker, started in the worker on its first item. The items are
 the RGB-D crop as the network's input, the target heatmap, the box's mask in the crop, its true
 corners with their visibility, the intrinsics and the crop window (docs/learning.md, "Training in
-PyTorch"). Frames are read from the dataset's shards when an item needs them, not ahead.
+PyTorch"). Frames are read from the dataset's shards when an item needs them, not ahead. A server
+that ends (killed, crashed) is started again for the next item, which is tried once more.
 
 Needs torch (not a dependency of boxpose: install the build you train with).
 """
@@ -30,7 +31,7 @@ import numpy as np
 import torch
 
 from boxpose_io.binary import find_boxpose
-from boxpose_io.samples import SampleServer
+from boxpose_io.samples import SampleServer, SampleServerError
 
 
 class KeypointSamples(torch.utils.data.Dataset):
@@ -104,7 +105,17 @@ class KeypointSamples(torch.utils.data.Dataset):
     def __getitem__(self, index: int) -> dict:
         if not 0 <= index < len(self):
             raise IndexError(f"item {index} of {len(self)}")
-        answer = self._connection().get(self.split, int(index), self.item_seed(index))
+        request = (self.split, int(index), self.item_seed(index))
+        try:
+            answer = self._connection().get(*request)
+        except SampleServerError:
+            if self._server.running:
+                raise  # answered: the request's own error
+            # the process ended (killed for memory, crashed): a fresh one tries the item once more,
+            # and a crash of every try still raises, with the new process's message
+            self._server.close()
+            self._server = None
+            answer = self._connection().get(*request)
         item = {name: torch.from_numpy(answer[name].copy()) for name in ("input", "target", "mask")}
         for name, dtype in (
             ("corners_camera_m", torch.float64),
