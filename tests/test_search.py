@@ -1151,10 +1151,11 @@ def test_independent_runs_agree_or_are_named_when_their_intervals_do_not_overlap
 def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings(
     tiny_network, failing_run, spaces, boxpose_bin, tmp_path
 ):
-    """`boxpose improve` at tiny settings: two rounds of search, variants, fine-tuning and paired
-    evaluation, killed once a round's network exists and resumed by the same command, which
-    redoes no finished step. (A one-step tiny network and a threshold nothing meets make every
-    sample fail: the plumbing is tested, not the gain.)"""
+    """`boxpose improve --control` at tiny settings: two rounds of search, variants, fine-tuning
+    and paired evaluation beside the equal-budget control arm, killed once a round's network
+    exists and resumed by the same command, which redoes no finished step. (A one-step tiny
+    network and a threshold nothing meets make every sample fail: the plumbing is tested, not the
+    gain.)"""
     out = tmp_path / "loop"
     command = [
         str(boxpose_bin), "improve", str(spaces["single"]), "--out", str(out),
@@ -1162,7 +1163,7 @@ def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings
         "--rounds", "2", "--search-samples", "2", "--eval-samples", "2", "--batch-size", "2",
         "--per-failure", "1", "--steps", "1", "--batch-size-train", "1",
         "--fail-when", "mssd:0.000001", "--threads", "1", "--learnt-repeat", "2",
-        "--held-out-dataset", str(failing_run / "counterexamples"), "--held-out", "2",
+        "--held-out-dataset", str(failing_run / "counterexamples"), "--held-out", "2", "--control",
     ]  # fmt: skip
     loop = subprocess.Popen(command, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     first_network = out / "round-00" / "train" / "model" / "network.toml"
@@ -1214,6 +1215,28 @@ def test_improve_runs_its_rounds_resumes_after_a_kill_and_refuses_other_settings
         assert link in page and (out / link).is_file()
     for row in rounds.itertuples():
         assert f"({row.failures_after} of {row.pairs})" in page
+
+    # the control: in each round as many nominal samples as the loop drew (2 searched, 1 variant
+    # per failure), every one kept, learnt from by the control's own networks with the original
+    # data's mix, and its networks paired with the loop's on the same evaluation inputs
+    assert "equal-budget control" in page and "against the equal-budget control" in r.stdout
+    for row in rounds.itertuples():
+        control = out / f"round-{row.round:02d}" / "control"
+        drew = pd.read_parquet(control / "nominal" / "samples.parquet")
+        assert len(drew) == 2 + row.search_failures
+        assert drew.failed.sum() == drew.valid.sum()
+        learnt = tomllib.loads((control / "train" / "config.toml").read_text())["data"]["datasets"]
+        nominal = [str(out / f"round-{k:02d}" / "control" / "nominal" / "counterexamples")
+                   for k in range(row.round + 1)]  # fmt: skip
+        assert [d for d in learnt if "round-" in d] == nominal, learnt
+        c = json.loads((out / f"round-{row.round:02d}" / "control-compare.json").read_text())
+        assert (c["pairs"], c["before"]["failures"]) == (row.control_pairs, row.control_failures)
+        against = (row.fixed_against_control, row.new_against_control)
+        assert (len(c["fixed"]), len(c["new"])) == against
+        control_run = pd.read_parquet(out / "eval" / f"control-{row.round + 1}" / "samples.parquet")
+        loop_run = pd.read_parquet(out / "eval" / f"model-{row.round + 1}" / "samples.parquet")
+        assert (control_run.seed.to_numpy() == loop_run.seed.to_numpy()).all()
+        assert (out / f"round-{row.round:02d}" / "control-held-out-compare.json").is_file()
 
     changed = list(command)
     changed[changed.index("--steps") + 1] = "2"

@@ -116,6 +116,14 @@ pub struct Args {
     /// val_modulus).
     #[arg(long, value_name = "N", default_value_t = 10, value_parser = clap::value_parser!(u32).range(2..))]
     held_out: u32,
+    /// Run the equal-budget control beside the loop: in every round that learns, as many
+    /// nominal samples of the space as the loop drew (its search and variants; seed + 2e6 + r),
+    /// every one kept, and the same fine-tuning of the control's own networks on them with
+    /// --dataset; its networks are evaluated on the same inputs and held-out boxes and paired
+    /// with the loop's (RUN/round-NN/control/, RUN/eval/control-K, control-compare.json, the
+    /// control columns of rounds.csv): does learning from failures beat learning more of the world?
+    #[arg(long)]
+    control: bool,
     /// Backend of every step's networks (searches, variants, fine-tuning; a binary built with
     /// it, e.g. `make train BACKEND=tch`'s). Not part of the loop's identity: a resumed loop
     /// may change it.
@@ -153,6 +161,7 @@ impl Args {
             held_out_datasets: self.held_out_datasets.clone(),
             held_out: self.held_out,
             backend: self.backend,
+            control: self.control,
         }
     }
 }
@@ -221,5 +230,17 @@ impl Observer for Printer {
             c.new.len(),
             c.mcnemar_p,
         );
+        if let Some(a) = &r.against_control {
+            let c = &a.evaluation;
+            println!(
+                "round {}: against the equal-budget control's {:.3e} on {} pairs, the loop fixed {} and newly failed {}, McNemar p = {:.3e}",
+                r.round,
+                c.before.p_hat,
+                c.pairs,
+                c.fixed.len(),
+                c.new.len(),
+                c.mcnemar_p
+            );
+        }
     }
 }

@@ -5,6 +5,12 @@
 //! the old on fresh inputs that no round picked variants from: one Monte Carlo
 //! evaluation seed for every network, so rounds compare pair by pair (`search compare`).
 //!
+//! With `--control`, every round that learns is matched by an equal-budget control arm: as many
+//! nominal samples of the space as the loop drew (its search and its variants), every one kept as
+//! training data, and the same fine-tuning of the control's own networks on them; the loop's
+//! networks are then paired with the control's on the same evaluation inputs and held-out boxes,
+//! which says whether learning from failures beat learning more of the world.
+//!
 //! Every step is one `boxpose` command run as a child process in its own folder of the run, and
 //! each of those resumes by itself; the loop only decides which step comes next from what the run
 //! folder holds. A kill loses at most the step in flight, and the same command resumes.
@@ -16,12 +22,23 @@ use std::process::Command;
 use anyhow::Context;
 use boxpose_data::output_folder::{IMPROVE_SETTINGS_FILE as SETTINGS_FILE, refuse_foreign};
 use boxpose_learn::backend::BackendKind;
-use boxpose_report::improve_page::{LoopSettings, Round, write_rounds_csv, write_rounds_page};
+use boxpose_report::improve_page::{
+    AgainstControl, LoopSettings, Round, write_rounds_csv, write_rounds_page,
+};
 use boxpose_search::compare::{BoxKey, PairedComparison, compare};
 use boxpose_search::run::Run;
 
 /// Search seeds of the rounds are `seed + 1 + round`; the evaluation's is far from them.
 pub const EVALUATION_SEED_OFFSET: u64 = 1_000_000;
+
+/// The control's nominal samples of round `round` are drawn with seed `seed +
+/// CONTROL_SEED_OFFSET + round`: apart from the rounds' searches and the evaluation.
+pub const CONTROL_SEED_OFFSET: u64 = 2_000_000;
+
+/// The control's predicate: every sample with a pose fails it (a cube MSSD above a billionth of
+/// the diameter; a box not found fails any predicate), so its search keeps every valid sample it
+/// renders as a dataset row, rendered as the loop's counterexamples are.
+const EVERY_SAMPLE_FAILS: &str = "cube-mssd:0.000000001";
 
 /// The networks of one step of the loop: the keypoint network, and the segmenter that crops
 /// for it (with predicted crops).
@@ -71,6 +88,8 @@ pub struct Settings {
     pub held_out: u32,
     /// Not part of the loop's identity: a resumed loop may change it.
     pub backend: BackendKind,
+    /// Run the equal-budget control arm beside the loop (module documentation).
+    pub control: bool,
 }
 
 /// What the loop tells as it goes (the binary prints it; the library does not).
@@ -158,6 +177,9 @@ impl Settings {
             settings["segmenter_config"] = serde_json::json!(config);
             settings["segmenter_steps"] = self.segmenter_steps.into();
         }
+        if self.control {
+            settings["control"] = true.into();
+        }
         settings
     }
 
@@ -175,6 +197,7 @@ impl Settings {
             fail_when: &self.fail_when,
             evaluation_samples: self.eval_samples,
             evaluation_seed: self.seed + EVALUATION_SEED_OFFSET,
+            control: self.control,
         }
     }
 }
@@ -205,7 +228,18 @@ pub fn run(
     };
     let mut learnt_from: Vec<PathBuf> = Vec::new();
     let mut rounds = Vec::new();
-    evaluate(settings, &mut steps, 0, &networks)?;
+    evaluate(
+        settings,
+        &mut steps,
+        &evaluation_dir(settings, 0),
+        &networks,
+    )?;
+    // the control starts from the same networks, judged by the same first evaluation
+    let mut control = settings.control.then(|| ControlArm {
+        networks: networks.clone(),
+        learnt_from: Vec::new(),
+        evaluation: evaluation_dir(settings, 0),
+    });
     for round in 0..settings.rounds {
         let dir = settings.out.join(format!("round-{round:02}"));
         let search = dir.join("search");
@@ -221,25 +255,40 @@ pub fn run(
             steps.observer.kept(round);
             false
         };
-        evaluate(settings, &mut steps, round + 1, &networks)?;
-        let comparison = compare(
-            &Run::open(&evaluation_dir(settings, round))?,
-            &Run::open(&evaluation_dir(settings, round + 1))?,
-        )?;
+        let (before, after) = (
+            evaluation_dir(settings, round),
+            evaluation_dir(settings, round + 1),
+        );
+        evaluate(settings, &mut steps, &after, &networks)?;
+        let comparison = compare(&Run::open(&before)?, &Run::open(&after)?)?;
         boxpose_data::write_file_atomically(
             &dir.join("compare.json"),
             serde_json::to_string_pretty(&comparison)?.as_bytes(),
         )?;
-        let held_out = compare_held_out(settings, round, method.name(), &dir)?;
+        let held_out = compare_held_out(
+            settings,
+            (&before, &after),
+            method.name(),
+            &dir.join("held-out-compare.json"),
+        )?;
         for (dataset, c) in settings.held_out_datasets.iter().zip(&held_out) {
             steps.observer.held_out(round, dataset, &c.1);
         }
+        let against_control = match &mut control {
+            Some(arm) => {
+                let round_drew = settings.search_samples + settings.per_failure * failures;
+                let drew = learnt.then_some(round_drew);
+                Some(arm.round(settings, &mut steps, round, drew, &after, method.name())?)
+            }
+            None => None,
+        };
         rounds.push(Round {
             round,
             search_failures: failures,
             fine_tuned: learnt,
             evaluation: comparison,
             held_out,
+            against_control,
         });
         steps.observer.round(rounds.last().expect("just pushed"));
     }
@@ -407,15 +456,14 @@ fn search_round(
     Ok(rows.iter().filter(|r| r.valid && r.failed).count())
 }
 
-/// Network `network`'s evaluation on the loop's common evaluation inputs and on every held-out
-/// dataset (resumed, or kept).
+/// The evaluation of `networks` into `out` on the loop's common evaluation inputs and on every
+/// held-out dataset (resumed, or kept).
 fn evaluate(
     settings: &Settings,
     steps: &mut Steps,
-    network: usize,
+    out: &Path,
     networks: &Networks,
 ) -> anyhow::Result<()> {
-    let out = evaluation_dir(settings, network);
     if !out.join("summary.json").is_file() {
         let seed = settings.seed + EVALUATION_SEED_OFFSET;
         steps.run(&search_command(
@@ -423,11 +471,11 @@ fn evaluate(
             networks,
             settings.eval_samples,
             seed,
-            &out,
+            out,
         ))?;
     }
     for dataset in &settings.held_out_datasets {
-        let out = held_out_dir(settings, network, dataset);
+        let out = held_out_dir(out, dataset);
         if out.join("summary.json").is_file() {
             continue;
         }
@@ -460,22 +508,21 @@ fn held_out_name(dataset: &Path) -> String {
         .map_or_else(|| path_arg(dataset), |n| n.to_string_lossy().into_owned())
 }
 
-fn held_out_dir(settings: &Settings, network: usize, dataset: &Path) -> PathBuf {
-    evaluation_dir(settings, network)
-        .join("held-out")
-        .join(held_out_name(dataset))
+/// Where an evaluation keeps its run on `dataset`'s held-out scenes.
+fn held_out_dir(evaluation: &Path, dataset: &Path) -> PathBuf {
+    evaluation.join("held-out").join(held_out_name(dataset))
 }
 
 /// One held-out dataset's pairing of a round's two networks.
 type HeldOutComparison = (String, PairedComparison<BoxKey>);
 
-/// Round `round`'s networks paired box by box on every held-out dataset (`method`'s fit, cube
-/// MSSD < 0.1 d), written to the round's `held-out-compare.json`.
+/// Two evaluations' networks paired box by box on every held-out dataset (`method`'s fit, cube
+/// MSSD < 0.1 d), written to `path`.
 fn compare_held_out(
     settings: &Settings,
-    round: usize,
+    (before, after): (&Path, &Path),
     method: &str,
-    dir: &Path,
+    path: &Path,
 ) -> anyhow::Result<Vec<HeldOutComparison>> {
     let mut comparisons = Vec::new();
     if settings.held_out_datasets.is_empty() {
@@ -483,19 +530,92 @@ fn compare_held_out(
     }
     let mut all = serde_json::Map::new();
     for dataset in &settings.held_out_datasets {
-        let outcomes = |network: usize| {
-            let table = held_out_dir(settings, network, dataset).join("eval.parquet");
+        let outcomes = |evaluation: &Path| {
+            let table = held_out_dir(evaluation, dataset).join("eval.parquet");
             boxpose_search::compare::eval_outcomes(&table, method, 0.1)
         };
-        let c = boxpose_search::compare::pair(&outcomes(round)?, &outcomes(round + 1)?);
+        let c = boxpose_search::compare::pair(&outcomes(before)?, &outcomes(after)?);
         all.insert(held_out_name(dataset), serde_json::to_value(&c)?);
         comparisons.push((held_out_name(dataset), c));
     }
-    boxpose_data::write_file_atomically(
-        &dir.join("held-out-compare.json"),
-        serde_json::to_string_pretty(&all)?.as_bytes(),
-    )?;
+    boxpose_data::write_file_atomically(path, serde_json::to_string_pretty(&all)?.as_bytes())?;
     Ok(comparisons)
+}
+
+/// The equal-budget control's state as the rounds go: its networks, the nominal sets it learnt
+/// from, and the evaluation of its current networks.
+struct ControlArm {
+    networks: Networks,
+    learnt_from: Vec<PathBuf>,
+    evaluation: PathBuf,
+}
+
+impl ControlArm {
+    /// The control's round `round` (each step resumed, or kept): when the loop learnt this
+    /// round, having drawn `drew` samples (its search and its variants), as many nominal samples,
+    /// every one kept, and the loop's fine-tuning of the control's networks on them and every
+    /// earlier round's (with --dataset, the same mix), then their evaluation. Either way the
+    /// control's current networks are paired with the loop's of the round (evaluated in
+    /// `loop_evaluation`), on the evaluation inputs and every held-out dataset, written to the
+    /// round's `control-compare.json` with the control "before" and the loop "after".
+    fn round(
+        &mut self,
+        settings: &Settings,
+        steps: &mut Steps,
+        round: usize,
+        drew: Option<usize>,
+        loop_evaluation: &Path,
+        method: &str,
+    ) -> anyhow::Result<AgainstControl> {
+        let dir = settings.out.join(format!("round-{round:02}"));
+        if let Some(samples) = drew {
+            let control_dir = dir.join("control");
+            let nominal = control_dir.join("nominal");
+            if !nominal.join("summary.json").is_file() {
+                let seed = settings.seed + CONTROL_SEED_OFFSET + round as u64;
+                let mut command = search_command(settings, &self.networks, samples, seed, &nominal);
+                let predicate = command
+                    .iter()
+                    .position(|a| a == "--fail-when")
+                    .expect("set")
+                    + 1;
+                command[predicate] = EVERY_SAMPLE_FAILS.into();
+                steps.run(&command)?;
+            }
+            // a search without a valid sample writes no rows: the round adds nothing to learn
+            let rows = nominal.join("counterexamples");
+            if rows.is_dir() {
+                self.learnt_from.push(rows);
+            }
+            self.networks = fine_tune(
+                settings,
+                steps,
+                &self.networks,
+                &self.learnt_from,
+                &control_dir,
+            )?;
+            self.evaluation = settings
+                .out
+                .join("eval")
+                .join(format!("control-{}", round + 1));
+            evaluate(settings, steps, &self.evaluation, &self.networks)?;
+        }
+        let evaluation = compare(&Run::open(&self.evaluation)?, &Run::open(loop_evaluation)?)?;
+        let held_out = compare_held_out(
+            settings,
+            (&self.evaluation, loop_evaluation),
+            method,
+            &dir.join("control-held-out-compare.json"),
+        )?;
+        boxpose_data::write_file_atomically(
+            &dir.join("control-compare.json"),
+            serde_json::to_string_pretty(&evaluation)?.as_bytes(),
+        )?;
+        Ok(AgainstControl {
+            evaluation,
+            held_out,
+        })
+    }
 }
 
 fn variants_command(settings: &Settings, round: usize, search: &Path, out: &Path) -> Vec<String> {
@@ -672,6 +792,7 @@ mod tests {
             held_out_datasets: Vec::new(),
             held_out: 10,
             backend: BackendKind::Flex,
+            control: false,
         }
     }
 

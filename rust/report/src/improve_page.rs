@@ -1,6 +1,7 @@
 //! `boxpose improve`'s rounds: one CSV row and one HTML table row per round, each round's failure
 //! rate before and after on the common evaluation inputs with its interval, the fixed and new
-//! failures, McNemar's p and the held-out pairings.
+//! failures, McNemar's p and the held-out pairings; with a control arm, the loop's networks
+//! against the control's.
 
 use std::fmt::Write as _;
 use std::path::Path;
@@ -20,6 +21,15 @@ pub struct Round {
     pub evaluation: PairedComparison,
     /// The same, box by box on each held-out dataset (its name first).
     pub held_out: Vec<(String, PairedComparison<BoxKey>)>,
+    /// With a control arm: its networks (before) against the loop's (after) after this round.
+    pub against_control: Option<AgainstControl>,
+}
+
+/// The equal-budget control's networks ("before") paired with the loop's ("after") of a round:
+/// on the evaluation inputs, and box by box on each held-out dataset.
+pub struct AgainstControl {
+    pub evaluation: PairedComparison,
+    pub held_out: Vec<(String, PairedComparison<BoxKey>)>,
 }
 
 /// What the loop ran, for the page's opening sentence.
@@ -33,19 +43,39 @@ pub struct LoopSettings<'a> {
     pub fail_when: &'a str,
     pub evaluation_samples: usize,
     pub evaluation_seed: u64,
+    /// Whether an equal-budget control arm ran beside the loop.
+    pub control: bool,
 }
 
-/// `rounds.csv`: one row per round, what it learnt from and its paired evaluation.
+/// `rounds.csv`: one row per round, what it learnt from and its paired evaluation, and with a
+/// control arm the control's failures on the same pairs and the loop's fixed / new against it
+/// (empty without one).
 pub fn write_rounds_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
     let mut text = String::from(
         "round,search_failures,fine_tuned,pairs,failures_before,p_before,p_before_lo,p_before_hi,\
-         failures_after,p_after,p_after_lo,p_after_hi,fixed,new,mcnemar_p\n",
+         failures_after,p_after,p_after_lo,p_after_hi,fixed,new,mcnemar_p,control_pairs,\
+         control_failures,control_p,control_p_lo,control_p_hi,fixed_against_control,\
+         new_against_control,control_mcnemar_p\n",
     );
     for r in rounds {
         let c = &r.evaluation;
+        let control = r.against_control.as_ref().map_or(",,,,,,,".into(), |a| {
+            let c = &a.evaluation;
+            format!(
+                "{},{},{},{},{},{},{},{}",
+                c.pairs,
+                c.before.failures,
+                c.before.p_hat,
+                c.before.ci95.0,
+                c.before.ci95.1,
+                c.fixed.len(),
+                c.new.len(),
+                c.mcnemar_p
+            )
+        });
         writeln!(
             text,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{control}",
             r.round,
             r.search_failures,
             r.fine_tuned,
@@ -103,13 +133,18 @@ pub fn write_rounds_page(
     writeln!(
         h,
         "<table><tr><th>round</th><th>search failures</th><th>fine-tuned</th><th>p̂ before</th>\
-         <th>p̂ after</th><th>fixed</th><th>new</th><th>McNemar p</th><th>held out: success before → after (fixed / new, p)</th></tr>"
+         <th>p̂ after</th><th>fixed</th><th>new</th><th>McNemar p</th><th>held out: success before → after (fixed / new, p)</th>{}</tr>",
+        if settings.control {
+            "<th>the equal-budget control: its p̂; the loop's fixed / new against it, p; held out</th>"
+        } else {
+            ""
+        }
     )?;
     for r in rounds {
         let c = &r.evaluation;
         writeln!(
             h,
-            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3e}</td><td>{}</td></tr>",
+            "<tr><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{}</td><td>{:.3e}</td><td>{}</td>{}</tr>",
             r.round,
             r.search_failures,
             if r.fine_tuned { "yes" } else { "no failure" },
@@ -118,7 +153,10 @@ pub fn write_rounds_page(
             c.fixed.len(),
             c.new.len(),
             c.mcnemar_p,
-            held_out_cell(&r.held_out)
+            held_out_cell(&r.held_out),
+            r.against_control
+                .as_ref()
+                .map_or(String::new(), control_cell),
         )?;
     }
     writeln!(h, "</table><h2>Each network's evaluation</h2><ul>")?;
@@ -131,6 +169,20 @@ pub fn write_rounds_page(
     }
     writeln!(h, "</ul></body></html>")?;
     Ok(boxpose_data::write_file_atomically(path, h.as_bytes())?)
+}
+
+/// The control's cell of a round: its failure rate on the pairs, the loop's fixed / new against
+/// it with McNemar's p, and the held-out pairings against it.
+fn control_cell(a: &AgainstControl) -> String {
+    let c = &a.evaluation;
+    format!(
+        "<td>{}; {} / {}, {:.2e}<br>{}</td>",
+        percent(&c.before),
+        c.fixed.len(),
+        c.new.len(),
+        c.mcnemar_p,
+        held_out_cell(&a.held_out)
+    )
 }
 
 /// A failure rate as the rounds page shows it: percent with its interval and counts.
@@ -186,6 +238,7 @@ mod tests {
             fine_tuned: true,
             evaluation,
             held_out: Vec::new(),
+            against_control: None,
         }];
         write_rounds_csv(&dir.join("rounds.csv"), &rounds).unwrap();
         let csv = std::fs::read_to_string(dir.join("rounds.csv")).unwrap();
@@ -205,6 +258,7 @@ mod tests {
             fail_when: "paper",
             evaluation_samples: 100,
             evaluation_seed: 1_000_000,
+            control: false,
         };
         write_rounds_page(&dir.join("report.html"), &settings, &rounds).unwrap();
         let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
@@ -212,6 +266,58 @@ mod tests {
         assert!(html.contains("10.00 % [4.90, 17.62] (10 of 100)"), "{html}");
         assert!(html.contains("<td>7</td><td>1</td>"));
         assert!(html.contains("eval/model-1/report/index.html"));
+        assert!(!html.contains("equal-budget control"));
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_control_arm_adds_its_columns_and_a_round_without_one_leaves_them_empty() {
+        let dir = std::env::temp_dir().join(format!("boxpose-control-page-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let outcomes = |failing: std::ops::Range<i64>| -> Vec<(i64, bool)> {
+            (0..50).map(|i| (i, failing.contains(&i))).collect()
+        };
+        let round = |round, against_control| Round {
+            round,
+            search_failures: 3,
+            fine_tuned: true,
+            evaluation: boxpose_search::compare::pair(&outcomes(0..10), &outcomes(0..2)),
+            held_out: Vec::new(),
+            against_control,
+        };
+        // the control fails 0..6, the loop 0..2: 4 fixed against it, none new
+        let control = AgainstControl {
+            evaluation: boxpose_search::compare::pair(&outcomes(0..6), &outcomes(0..2)),
+            held_out: Vec::new(),
+        };
+        let rounds = [round(0, Some(control)), round(1, None)];
+        write_rounds_csv(&dir.join("rounds.csv"), &rounds).unwrap();
+        let csv = std::fs::read_to_string(dir.join("rounds.csv")).unwrap();
+        let rows: Vec<Vec<&str>> = csv.lines().map(|l| l.split(',').collect()).collect();
+        let column = |name: &str| rows[0].iter().position(|c| *c == name).unwrap();
+        assert!(rows.iter().all(|r| r.len() == rows[0].len()), "{csv}");
+        assert_eq!(rows[1][column("control_failures")], "6");
+        assert_eq!(rows[1][column("fixed_against_control")], "4");
+        assert_eq!(rows[1][column("new_against_control")], "0");
+        assert_eq!(rows[2][column("control_failures")], "");
+        let settings = LoopSettings {
+            space: "s",
+            model: Path::new("m"),
+            segmenter: None,
+            fit: "paper",
+            crops: "gt",
+            fail_when: "paper",
+            evaluation_samples: 50,
+            evaluation_seed: 1_000_000,
+            control: true,
+        };
+        write_rounds_page(&dir.join("report.html"), &settings, &rounds).unwrap();
+        let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
+        assert!(html.contains("equal-budget control"));
+        assert!(
+            html.contains("12.00 % [4.53, 24.31] (6 of 50); 4 / 0"),
+            "{html}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
