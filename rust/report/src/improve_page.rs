@@ -224,6 +224,20 @@ pub fn success_percent(r: &Rate) -> f64 {
 mod tests {
     use super::*;
 
+    fn loop_settings(space: &str, evaluation_samples: usize, control: bool) -> LoopSettings<'_> {
+        LoopSettings {
+            space,
+            model: Path::new("m"),
+            segmenter: None,
+            fit: "paper",
+            crops: "gt",
+            fail_when: "paper",
+            evaluation_samples,
+            evaluation_seed: 1_000_000,
+            control,
+        }
+    }
+
     #[test]
     fn the_pages_hold_one_row_per_round() {
         let dir = std::env::temp_dir().join(format!("boxpose-improve-page-{}", std::process::id()));
@@ -249,17 +263,7 @@ mod tests {
                 .unwrap()
                 .starts_with("0,12,true,100,10,0.1,")
         );
-        let settings = LoopSettings {
-            space: "a<b",
-            model: Path::new("m"),
-            segmenter: None,
-            fit: "paper",
-            crops: "gt",
-            fail_when: "paper",
-            evaluation_samples: 100,
-            evaluation_seed: 1_000_000,
-            control: false,
-        };
+        let settings = loop_settings("a<b", 100, false);
         write_rounds_page(&dir.join("report.html"), &settings, &rounds).unwrap();
         let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
         assert!(html.contains("a&lt;b"));
@@ -300,17 +304,7 @@ mod tests {
         assert_eq!(rows[1][column("fixed_against_control")], "4");
         assert_eq!(rows[1][column("new_against_control")], "0");
         assert_eq!(rows[2][column("control_failures")], "");
-        let settings = LoopSettings {
-            space: "s",
-            model: Path::new("m"),
-            segmenter: None,
-            fit: "paper",
-            crops: "gt",
-            fail_when: "paper",
-            evaluation_samples: 50,
-            evaluation_seed: 1_000_000,
-            control: true,
-        };
+        let settings = loop_settings("s", 50, true);
         write_rounds_page(&dir.join("report.html"), &settings, &rounds).unwrap();
         let html = std::fs::read_to_string(dir.join("report.html")).unwrap();
         assert!(html.contains("equal-budget control"));
