@@ -65,12 +65,12 @@ pub fn write_rounds_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
                 "{},{},{},{},{},{},{},{}",
                 c.pairs,
                 c.before.failures,
-                c.before.p_hat,
-                c.before.ci95.0,
-                c.before.ci95.1,
+                csv_real(c.before.p_hat),
+                csv_real(c.before.ci95.0),
+                csv_real(c.before.ci95.1),
                 c.fixed.len(),
                 c.new.len(),
-                c.mcnemar_p
+                csv_real(c.mcnemar_p)
             )
         });
         writeln!(
@@ -81,19 +81,30 @@ pub fn write_rounds_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
             r.fine_tuned,
             c.pairs,
             c.before.failures,
-            c.before.p_hat,
-            c.before.ci95.0,
-            c.before.ci95.1,
+            csv_real(c.before.p_hat),
+            csv_real(c.before.ci95.0),
+            csv_real(c.before.ci95.1),
             c.after.failures,
-            c.after.p_hat,
-            c.after.ci95.0,
-            c.after.ci95.1,
+            csv_real(c.after.p_hat),
+            csv_real(c.after.ci95.0),
+            csv_real(c.after.ci95.1),
             c.fixed.len(),
             c.new.len(),
-            c.mcnemar_p,
+            csv_real(c.mcnemar_p),
         )?;
     }
     Ok(boxpose_data::write_file_atomically(path, text.as_bytes())?)
+}
+
+/// A real number as a CSV field that reads back exactly: Rust's shortest round-trip digits, with
+/// an exponent for very small values (a McNemar p of 1e-100 would otherwise be written as a
+/// hundred zeros and its digits).
+fn csv_real(x: f64) -> String {
+    if x == 0.0 || (1e-4..1e16).contains(&x.abs()) {
+        format!("{x}")
+    } else {
+        format!("{x:e}")
+    }
 }
 
 /// `report.html`: the rounds at a glance, and a link to each network's evaluation report (its
@@ -313,5 +324,24 @@ mod tests {
             "{html}"
         );
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn csv_reals_read_back_exactly_and_tiny_p_values_are_short() {
+        for x in [
+            0.0,
+            1.0,
+            0.347,
+            0.0022049824851509,
+            1e-4,
+            9.99e-5,
+            3.839723267588848e-101,
+        ] {
+            let text = csv_real(x);
+            assert_eq!(text.parse::<f64>().unwrap(), x, "{text}");
+            assert!(text.len() <= 24, "{text}");
+        }
+        assert_eq!(csv_real(0.347), "0.347");
+        assert_eq!(csv_real(3.84e-101), "3.84e-101");
     }
 }
