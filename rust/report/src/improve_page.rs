@@ -62,12 +62,9 @@ pub fn write_rounds_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
         let control = r.against_control.as_ref().map_or(",,,,,,,".into(), |a| {
             let c = &a.evaluation;
             format!(
-                "{},{},{},{},{},{},{},{}",
+                "{},{},{},{},{}",
                 c.pairs,
-                c.before.failures,
-                csv_real(c.before.p_hat),
-                csv_real(c.before.ci95.0),
-                csv_real(c.before.ci95.1),
+                rate_fields(&c.before),
                 c.fixed.len(),
                 c.new.len(),
                 csv_real(c.mcnemar_p)
@@ -75,25 +72,30 @@ pub fn write_rounds_csv(path: &Path, rounds: &[Round]) -> anyhow::Result<()> {
         });
         writeln!(
             text,
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{control}",
+            "{},{},{},{},{},{},{},{},{},{control}",
             r.round,
             r.search_failures,
             r.fine_tuned,
             c.pairs,
-            c.before.failures,
-            csv_real(c.before.p_hat),
-            csv_real(c.before.ci95.0),
-            csv_real(c.before.ci95.1),
-            c.after.failures,
-            csv_real(c.after.p_hat),
-            csv_real(c.after.ci95.0),
-            csv_real(c.after.ci95.1),
+            rate_fields(&c.before),
+            rate_fields(&c.after),
             c.fixed.len(),
             c.new.len(),
             csv_real(c.mcnemar_p),
         )?;
     }
     Ok(boxpose_data::write_file_atomically(path, text.as_bytes())?)
+}
+
+/// A rate's four CSV fields: failures, p̂ and its 95 % interval.
+fn rate_fields(rate: &Rate) -> String {
+    format!(
+        "{},{},{},{}",
+        rate.failures,
+        csv_real(rate.p_hat),
+        csv_real(rate.ci95.0),
+        csv_real(rate.ci95.1)
+    )
 }
 
 /// A real number as a CSV field that reads back exactly: Rust's shortest round-trip digits, with
