@@ -629,6 +629,20 @@ def test_python_writer_rejects_nan_and_unknown_columns(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
+def test_frames_shards_carry_the_page_index_for_reading_one_frame(dataset):
+    """The Python writer indexes the frames' pages (a reader of one frame, as training is, seeks
+    its pages instead of decompressing its row group's); the other tables need no index."""
+    root, _ = dataset
+    for shard in sorted((root / "frames").glob("*.parquet")):
+        metadata = pq.ParquetFile(shard).metadata
+        chunks = [
+            metadata.row_group(g).column(c)
+            for g in range(metadata.num_row_groups)
+            for c in range(metadata.num_columns)
+        ]
+        assert chunks and all(chunk.has_offset_index for chunk in chunks), shard
+
+
 def test_read_dataset_returns_every_table_in_the_contract(dataset):
     """`boxpose_io.read_dataset`: the tables with pyarrow alone, checked against the contract."""
     root, tables = dataset

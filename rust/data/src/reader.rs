@@ -8,7 +8,10 @@ use crate::arrow::compute::{cast, concat_batches, filter_record_batch};
 use crate::arrow::datatypes::{DataType, Float32Type, Float64Type, Int32Type, Int64Type};
 use crate::arrow::record_batch::RecordBatch;
 use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::{ParquetRecordBatchReaderBuilder, RowSelection, RowSelector};
+use parquet::arrow::arrow_reader::{
+    ArrowReaderOptions, ParquetRecordBatchReaderBuilder, RowSelection, RowSelector,
+};
+use parquet::file::metadata::PageIndexPolicy;
 
 use crate::error::{DataError, Result};
 use crate::rows::{Frame, Instance, Object, Scene};
@@ -395,10 +398,15 @@ pub struct FrameEntry {
 
 impl FrameEntry {
     /// Reads and decodes this frame alone: only its row of the shard is decoded, and validated
-    /// as every row is.
+    /// as every row is. Shards written with a page index (every writer here since 2026-12-07)
+    /// decompress only this row's pages; older ones decompress its row group's pages up to it.
     pub fn read(&self) -> Result<Frame> {
         let path: &Path = &self.path;
-        let builder = shard_builder(path, &schema::FRAMES)?;
+        let builder = shard_builder_with(
+            path,
+            &schema::FRAMES,
+            ArrowReaderOptions::new().with_offset_index_policy(PageIndexPolicy::Optional),
+        )?;
         check_columns(path, &schema::FRAMES, builder.schema())?;
         let only_this_row =
             RowSelection::from(vec![RowSelector::skip(self.row), RowSelector::select(1)]);
@@ -745,15 +753,26 @@ fn shard_builder(
     path: &Path,
     table: &'static Table,
 ) -> Result<ParquetRecordBatchReaderBuilder<fs::File>> {
+    shard_builder_with(path, table, ArrowReaderOptions::new())
+}
+
+/// [`shard_builder`] with reader options, e.g. the page index for reading one row.
+fn shard_builder_with(
+    path: &Path,
+    table: &'static Table,
+    options: ArrowReaderOptions,
+) -> Result<ParquetRecordBatchReaderBuilder<fs::File>> {
     let file = fs::File::open(path).map_err(|source| DataError::Io {
         path: path.to_path_buf(),
         source,
     })?;
     let file_len = file.metadata().map(|m| m.len()).unwrap_or(0);
     let builder =
-        ParquetRecordBatchReaderBuilder::try_new(file).map_err(|source| DataError::Parquet {
-            path: path.to_path_buf(),
-            source,
+        ParquetRecordBatchReaderBuilder::try_new_with_options(file, options).map_err(|source| {
+            DataError::Parquet {
+                path: path.to_path_buf(),
+                source,
+            }
         })?;
     check_column_chunks(path, builder.metadata(), file_len)?;
     check_metadata(

@@ -82,6 +82,8 @@ fn write_parquet_in_row_groups(
     let mut props = WriterProperties::builder()
         .set_compression(Compression::ZSTD(ZstdLevel::try_new(3).map_err(parquet)?))
         .set_key_value_metadata(Some(metadata));
+    // In small row groups (frames) each image starts a page and the offset index, written by
+    // default, finds it: `FrameEntry::read` decompresses one row's pages, not its row group's.
     if row_group_rows.is_some() {
         props = props.set_max_row_group_row_count(row_group_rows);
     }
@@ -229,5 +231,49 @@ mod tests {
         }
         let names: Vec<_> = fs::read_dir(root.path()).unwrap().collect();
         assert_eq!(names.len(), 1, "nothing left beside it");
+    }
+
+    /// A table in small row groups (frames) puts each image in pages of its own and writes the
+    /// offset index that finds them, so one row is read without decompressing its neighbours.
+    #[test]
+    fn rows_in_small_row_groups_start_their_own_pages_and_are_indexed() {
+        use crate::arrow::array::{BinaryArray, Int64Array};
+        use crate::arrow::datatypes::{DataType, Field, Schema};
+        use parquet::arrow::arrow_reader::{ArrowReaderOptions, ParquetRecordBatchReaderBuilder};
+        use parquet::file::metadata::PageIndexPolicy;
+        use std::sync::Arc;
+
+        let (rows, per_group, image_bytes) = (20, 16, 1_300_000); // a 640×480 depth image
+        let schema = Arc::new(Schema::new(vec![
+            Field::new("id", DataType::Int64, false),
+            Field::new("image", DataType::Binary, false),
+        ]));
+        let images: Vec<Vec<u8>> = (0..rows).map(|r| vec![r as u8; image_bytes]).collect();
+        let batch = RecordBatch::try_new(
+            schema.clone(),
+            vec![
+                Arc::new(Int64Array::from_iter_values(0..rows as i64)),
+                Arc::new(BinaryArray::from_iter_values(images.iter())),
+            ],
+        )
+        .unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("part-00000-of-00001.parquet");
+        write_parquet_in_row_groups(&path, schema, &[batch], Some(per_group)).unwrap();
+
+        let options = ArrowReaderOptions::new().with_offset_index_policy(PageIndexPolicy::Required);
+        let builder = ParquetRecordBatchReaderBuilder::try_new_with_options(
+            fs::File::open(&path).unwrap(),
+            options,
+        )
+        .unwrap();
+        let metadata = builder.metadata();
+        let pages_per_group: Vec<usize> = (0..metadata.num_row_groups())
+            .map(|g| {
+                let index = metadata.page_index_for_row_group(g);
+                index.page_locations(1).expect("an offset index").len()
+            })
+            .collect();
+        assert_eq!(pages_per_group, [16, 4], "one page per image");
     }
 }
