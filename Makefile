@@ -236,12 +236,13 @@ $(TORCH_VENV)/.stamp: requirements-torch.txt
 	$(TORCH_VENV)/bin/pip install --quiet -r requirements-torch.txt
 	touch $@
 
-bench-backends: setup ## Keypoint network training speed on every backend built here (flex; tch, wgpu, cuda once `make train BACKEND=…` built them), one run
+bench-backends: setup ## Keypoint network training speed on every backend built here (flex; tch, wgpu, cuda once `make train BACKEND=…` built them), one run: the bare step, then `boxpose train` in its first epoch and in the steady state
 	cargo bench --no-run --quiet --workspace --bench keypoint_step
 	if [ -x target/tch/release/boxpose ]; then \
 	  LIBTORCH=$(LIBTORCH_DIR) RUSTFLAGS="-C link-arg=-Wl,-rpath,$(LIBTORCH_DIR)/lib" CARGO_TARGET_DIR=target/tch \
 	    cargo bench --no-run --quiet -p boxpose-learn --features tch --bench keypoint_step; fi
 	scripts/bench_backends.sh
+	FIRST=200 STEPS=200 BACKBONES=slim scripts/bench_backends.sh  # again past the first epoch: the steady state
 
 bench-learn: setup $(TORCH_VENV)/.stamp ## Keypoint network training step and per-crop inference: burn next to PyTorch, same architecture
 	$(TORCH_VENV)/bin/python scripts/bench_learn.py
