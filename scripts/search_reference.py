@@ -11,6 +11,14 @@
         interval, the discordant pairs and McNemar's exact test; and the median, 99th percentile
         and largest paper error, rotation and translation error of each.
 
+    python scripts/search_reference.py against REFERENCE/errors.csv.gz RUN [RUN ...]
+        checks finished runs of any sampler against a Monte Carlo reference of the same event
+        (space, recipe, crops, networks, fit; the predicate is each run's own, applied to the
+        reference's errors): each run's estimate, whether its 95 % interval covers the
+        reference's p̂, and the samples Monte Carlo would need for the run's own precision, as a
+        ratio ("× fewer": (δ_MC / δ)², δ_MC = √((1 − p)/(n p)) at the run's budget n with the
+        reference's p); then the runs' spread and the ratio it implies.
+
 Reads Parquet with pandas only (boxpose itself is not needed)."""
 
 from __future__ import annotations
@@ -102,6 +110,88 @@ def pair(before_path: Path, after_path: Path) -> None:
         print(f"  {column} median / 99 % / max: {'; '.join(quantiles)}")
 
 
+# run.json's predicate metric → the errors column it judges
+PREDICATE_COLUMNS = {
+    "paper_error": "paper_error_normalized",
+    "cube_mssd": "cube_mssd_over_diameter",
+    "mssd": "mssd_over_diameter",
+}
+# what must agree between a run and the reference for them to estimate the same event
+EVENT_SETTINGS = ["crops", "fit", "model", "segmenter", "refine_depth", "sensor_depth"]
+
+
+def event_of(run_json: dict) -> dict:
+    settings = run_json["settings"]
+    event = {key: settings.get(key, False) for key in EVENT_SETTINGS}
+    event.update(space=run_json["space_toml"], recipe=run_json["recipe_toml"])
+    return event
+
+
+def against(reference_errors: Path, runs: list[Path]) -> None:
+    reference_dir = reference_errors.parent
+    reference = json.loads((reference_dir / "run.json").read_text())
+    errors = pd.read_csv(reference_errors)
+    if "valid" in errors:
+        errors = errors[errors.valid.astype(bool)]
+    rows, estimates, budgets, p_reference = [], [], [], None
+    for run in runs:
+        record = json.loads((run / "run.json").read_text())
+        summary = json.loads((run / "summary.json").read_text())
+        differ = [k for k, v in event_of(record).items() if v != event_of(reference)[k]]
+        if differ:
+            raise SystemExit(f"{run}: not the reference's event ({', '.join(differ)} differ)")
+        predicate = record["settings"]["predicate"]
+        threshold = predicate.get("threshold", predicate.get("fraction"))
+        failing = int(fails(errors, PREDICATE_COLUMNS[predicate["metric"]], threshold).sum())
+        if p_reference is None:
+            p_reference, event_name = failing / len(errors), f"{predicate['metric']} > {threshold}"
+            low, high = clopper_pearson(failing, len(errors))
+            print(
+                f"reference {reference_dir}: {event_name}: {failing} of {len(errors)}, "
+                f"p̂ {p_reference:.2e} [{low:.2e}, {high:.2e}]"
+            )
+            if failing == 0:
+                raise SystemExit("the reference never fails under this predicate: no ratio to give")
+        elif failing / len(errors) != p_reference:
+            raise SystemExit(f"{run}: another predicate than the first run's")
+        estimate = summary["estimate"]
+        p_hat, (lo, hi) = estimate["p_hat"], estimate["ci95"] or (float("nan"),) * 2
+        delta, spent = estimate["relative_error"], summary["samples_spent"]
+        delta_mc = ((1 - p_reference) / (spent * p_reference)) ** 0.5
+        splitting = summary.get("splitting") or {}
+        lineages = splitting.get("distinct_ancestors", "")
+        stages = len(splitting.get("levels", [])) or ""
+        covers = "yes" if lo <= p_reference <= hi else "**no**"
+        # no failure, no relative error: the run says nothing to compare precisions by
+        delta_text, ratio = ("—", "—")
+        if delta:
+            delta_text, ratio = f"{delta:.2f}", f"{(delta_mc / delta) ** 2:.1f}×"
+        settings = record["settings"]
+        rows.append(
+            f"| {settings['sampler']} | {settings['seed']} | {spent:,} | {stages} "
+            f"| {p_hat:.2e} [{lo:.2e}, {hi:.2e}] | {covers} | {delta_text} | {lineages} "
+            f"| {delta_mc:.2f} | {ratio} |"
+        )
+        estimates.append(p_hat)
+        budgets.append(spent)
+    print(
+        "| sampler | seed | evaluations | stages | p̂ [95 % CI] | covers the reference | δ "
+        "| lineages | Monte Carlo's δ at that budget | × fewer than MC |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("\n".join(rows))
+    if len(estimates) > 1:
+        series = pd.Series(estimates)
+        spread = series.std() / p_reference
+        budget = sum(budgets) / len(budgets)
+        delta_mc = ((1 - p_reference) / (budget * p_reference)) ** 0.5
+        print(
+            f"{len(estimates)} runs: mean p̂ {series.mean():.2e}, spread (std / reference p̂) "
+            f"{spread:.2f} at a mean {budget:,.0f} evaluations, where Monte Carlo's δ is "
+            f"{delta_mc:.2f}: {(delta_mc / spread) ** 2:.1f}× fewer by the spread"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
@@ -111,11 +201,18 @@ def main() -> None:
     pair_parser = commands.add_parser("pair", help="two runs' errors.csv.gz paired")
     pair_parser.add_argument("before", type=Path)
     pair_parser.add_argument("after", type=Path)
+    against_parser = commands.add_parser(
+        "against", help="runs of any sampler checked against a Monte Carlo reference"
+    )
+    against_parser.add_argument("reference", type=Path, help="the reference's errors.csv.gz")
+    against_parser.add_argument("runs", type=Path, nargs="+")
     args = parser.parse_args()
     if args.command == "keep":
         keep(args.run, args.out)
-    else:
+    elif args.command == "pair":
         pair(args.before, args.after)
+    else:
+        against(args.reference, args.runs)
 
 
 if __name__ == "__main__":

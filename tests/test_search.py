@@ -276,6 +276,24 @@ def test_a_run_kept_as_a_reference_pairs_with_itself(mc_run, tmp_path):
     r = subprocess.run(list(map(str, pair)), check=True, capture_output=True, text=True)
     assert "6 paired samples" in r.stdout
     assert r.stdout.count("fixed 0, new 0, McNemar p = 1") == 4, r.stdout
+    # a run checked against itself as the reference: it covers it, and it is Monte Carlo, so
+    # Monte Carlo at its own budget is exactly as precise
+    against = [sys.executable, script, "against", kept / "errors.csv.gz", mc_run]
+    r = subprocess.run(list(map(str, against)), check=False, capture_output=True, text=True)
+    k = int(samples.failed.sum())
+    if k == 0:  # nothing to compare by: refused, and said why
+        assert r.returncode != 0 and "never fails" in r.stderr, r.stderr
+    else:
+        assert r.returncode == 0, r.stderr
+        row = r.stdout.splitlines()[-1].split(" | ")
+        assert row[0] == "| mc" and row[5] == "yes", r.stdout
+        assert row[-1] == ("— |" if k == len(samples) else "1.0× |"), r.stdout
+    # another event (here another fit) is no reference for the run
+    record = json.loads((kept / "run.json").read_text())
+    record["settings"]["fit"] = "robust"
+    (kept / "run.json").write_text(json.dumps(record))
+    r = subprocess.run(list(map(str, against)), check=False, capture_output=True, text=True)
+    assert r.returncode != 0 and "not the reference's event (fit differ)" in r.stderr, r.stderr
 
 
 def test_two_shards_merge_to_the_single_process_table(mc_run, spaces, boxpose_bin, tmp_path):
