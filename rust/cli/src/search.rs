@@ -294,6 +294,12 @@ struct RunArgs {
     /// Splitting: the correlation ρ of the first stage's moves (z' = ρ z + √(1 − ρ²) ξ).
     #[arg(long, default_value_t = 0.8)]
     splitting_initial_rho: f64,
+    /// Splitting: the probability that a move keeps its chain's scene seed — what the space does
+    /// not search (the box's appearance, mass and friction, the render's noise) — instead of
+    /// drawing a new one. Runs begun before 2026-12-07 drew a new one at every move: resume one
+    /// with 0.
+    #[arg(long, default_value_t = SplittingConfig::default().keep_scene_seed)]
+    splitting_keep_scene_seed: f64,
     /// Print the work a scheduler can hand out now as one JSON line (the current iteration, its
     /// uncommitted batches, whether the run is complete), passing every finished iteration's
     /// cross-entropy barrier first, and exit: what `python -m boxpose_ray search` asks between
@@ -640,6 +646,7 @@ fn run_settings(args: &RunArgs) -> RunSettings {
             level_probability: args.splitting_level_probability,
             target_acceptance: args.splitting_target_acceptance,
             initial_rho: args.splitting_initial_rho,
+            keep_scene_seed: args.splitting_keep_scene_seed,
             max_levels: args.splitting_max_levels,
         }),
         // with another system under test, the networks and the fit are its own

@@ -20,6 +20,15 @@
 //!    chain's first state), with moves that leave the nominal conditioned on {score > b}
 //!    invariant ([`propose_move`], accepted iff the candidate's score is > b).
 //!
+//! A particle is z and its **scene seed**: the search's score also depends on draws that z does
+//! not hold (the box's appearance, mass and friction, the render's noise), made from a seed
+//! that is uniform under the nominal. A move keeps the chain's scene seed with probability
+//! `keep_scene_seed` and otherwise draws a new one ([`fresh_scene_seed`]); either is reversible
+//! with respect to the seed's uniform law, so the kernel still leaves the conditioned nominal of
+//! (z, seed) invariant. Drawing it afresh at every move (0, the only kernel before 2026-12-07)
+//! makes every move also an independence proposal in the nuisances, which a failure that
+//! depends on them mostly rejects however small the step in z.
+//!
 //! p̂ = Π_{i<L} p̂_i · p̂_L (≈ p₀^{L−1} p̂_L). Its coefficient of variation is Au & Beck's
 //! δ² = Σ_i δ_i², δ_i² = (1 − p̂_i)/(N p̂_i) · (1 + γ_i), where γ_i ([`correlation_factor`])
 //! accounts for the correlation of the indicators along each chain (γ₀ = 0: stage 0 is
@@ -61,6 +70,10 @@ pub struct SplittingConfig {
     /// Most stages (stage 0 included) before the run gives up without reaching the failure
     /// level (≥ 1); p₀^max_levels bounds the smallest probability it can reach.
     pub max_levels: u32,
+    /// Probability in [0, 1) that a move keeps its chain's scene seed rather than drawing a new
+    /// one (a run recorded before the setting existed drew a new one at every move: 0).
+    #[serde(default)]
+    pub keep_scene_seed: f64,
 }
 
 impl Default for SplittingConfig {
@@ -71,6 +84,9 @@ impl Default for SplittingConfig {
             target_acceptance: 0.3,
             initial_rho: 0.8,
             max_levels: 30,
+            // measured on analytic failures that depend on the seed (tests/splitting.rs,
+            // `keep_scene_seed_study`): 0.8 needed the fewest evaluations of 0, 0.5, 0.8, 0.9
+            keep_scene_seed: 0.8,
         }
     }
 }
@@ -146,6 +162,13 @@ impl SplittingConfig {
         if self.max_levels < 1 {
             return Err(bad("max_levels", "must be at least 1"));
         }
+        // 1 would tie every chain to a stage-0 seed for good: invariant, but never mixing
+        if !(0.0..1.0).contains(&self.keep_scene_seed) {
+            return Err(bad(
+                "keep_scene_seed",
+                format!("{} is not in [0, 1)", self.keep_scene_seed),
+            ));
+        }
         Ok(())
     }
 
@@ -173,6 +196,16 @@ pub fn validate_rotation_blocks(dim: usize, starts: &[usize]) -> Result<(), Spli
         }
     }
     Ok(())
+}
+
+/// The [`sample_rng`] stream of the scene seeds drawn afresh (the chains' moves use the streams
+/// of their stages, 0, 1, 2, …).
+const SCENE_SEED_STREAM: u32 = u32::MAX;
+
+/// The scene seed drawn afresh for the run's `evaluation`-th score evaluation (63 bits, so that
+/// it is also a non-negative i64).
+pub fn fresh_scene_seed(run_seed: u64, evaluation: u64) -> u64 {
+    sample_rng(run_seed, SCENE_SEED_STREAM, evaluation).random::<u64>() >> 1
 }
 
 /// ρ ↔ σ = √(1 − ρ²), the standard deviation of the fresh noise in a pCN move.
@@ -435,11 +468,15 @@ mod non_finite {
     }
 }
 
-/// A particle: its z, its score and its ancestor.
+/// A particle: its z and scene seed, its score and its ancestor.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Particle {
     /// The point in z-space.
     pub z: Vec<f64>,
+    /// Its scene seed (read only where moves keep it: states saved before the field existed
+    /// hold 0).
+    #[serde(default)]
+    pub scene_seed: u64,
     /// Its score (NaN: invalid, below every threshold; +∞: nothing fitted).
     #[serde(with = "non_finite")]
     pub score: f64,
@@ -530,10 +567,12 @@ impl SplittingRun {
 }
 
 /// One point to score: the `evaluation`-th of the run, drawn from
-/// [`sample_rng`]`(seed, stream, index)` (stage 0: the nominal; later: a move of chain `chain`).
+/// [`sample_rng`]`(seed, stream, index)` (stage 0: the nominal; later: a move of chain `chain`),
+/// with its scene seed (the chain's, or [`fresh_scene_seed`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Candidate {
     pub z: Vec<f64>,
+    pub scene_seed: u64,
     pub chain: usize,
     pub stream: u32,
     pub index: u64,
@@ -638,6 +677,7 @@ impl SplittingState {
                         z: (0..self.dim)
                             .map(|_| StandardNormal.sample(&mut rng))
                             .collect(),
+                        scene_seed: fresh_scene_seed(self.seed, i as u64),
                         chain: i,
                         stream: 0,
                         index: i as u64,
@@ -657,8 +697,18 @@ impl SplittingState {
                 let current = chain.last().expect("a chain starts at its seed");
                 let index = ((step as u64) << 32) | j as u64;
                 let mut rng = sample_rng(self.seed, self.stage as u32, index);
+                let z = propose_move(&current.z, &self.rotation_blocks, rho, &mut rng);
+                // drawn after z's move, and only when a seed may be kept: a run that always
+                // draws a new one makes the moves it always made
+                let keep = self.config.keep_scene_seed;
+                let scene_seed = if keep > 0.0 && rng.random::<f64>() < keep {
+                    current.scene_seed
+                } else {
+                    fresh_scene_seed(self.seed, evaluation)
+                };
                 let candidate = Candidate {
-                    z: propose_move(&current.z, &self.rotation_blocks, rho, &mut rng),
+                    z,
+                    scene_seed,
                     chain: j,
                     stream: self.stage as u32,
                     index,
@@ -687,6 +737,7 @@ impl SplittingState {
                 .map(|(c, &score)| {
                     vec![Particle {
                         z: c.z,
+                        scene_seed: c.scene_seed,
                         score,
                         ancestor: c.chain,
                         evaluation: c.evaluation,
@@ -706,6 +757,7 @@ impl SplittingState {
                 step_accepted += 1;
                 Particle {
                     z: candidate.z.clone(),
+                    scene_seed: candidate.scene_seed,
                     score,
                     ancestor: current.ancestor,
                     evaluation: candidate.evaluation,
@@ -831,18 +883,22 @@ impl SplittingState {
 /// process, [`SplittingState`] in a loop.
 ///
 /// z ∈ R^`dim` with the orientation blocks z[s..s + 4], s ∈ `rotation_blocks`; failure ⇔
-/// score(z) > 0 (the search's scores are log10(metric/threshold)); a NaN score marks an
-/// invalid sample, which is below every threshold.
+/// score(z, scene seed) > 0 (the search's scores are log10(metric/threshold)); a NaN score
+/// marks an invalid sample, which is below every threshold.
 pub fn run_in_memory(
     config: &SplittingConfig,
     dim: usize,
     rotation_blocks: &[usize],
     seed: u64,
-    score: impl Fn(&[f64]) -> f64,
+    score: impl Fn(&[f64], u64) -> f64,
 ) -> Result<SplittingRun, SplittingError> {
     let mut state = SplittingState::new(config, dim, rotation_blocks, seed)?;
     loop {
-        let scores: Vec<f64> = state.candidates().iter().map(|c| score(&c.z)).collect();
+        let scores: Vec<f64> = state
+            .candidates()
+            .iter()
+            .map(|c| score(&c.z, c.scene_seed))
+            .collect();
         if let Some(run) = state.advance(&scores)? {
             return Ok(run);
         }
@@ -858,7 +914,7 @@ mod tests {
     fn config_errors_name_the_key() {
         let ok = SplittingConfig::default();
         assert!(ok.validate().is_ok());
-        let cases: [(SplittingConfig, &str); 6] = [
+        let cases: [(SplittingConfig, &str); 7] = [
             (
                 SplittingConfig {
                     particles: 1,
@@ -900,6 +956,13 @@ mod tests {
                     ..ok.clone()
                 },
                 "max_levels",
+            ),
+            (
+                SplittingConfig {
+                    keep_scene_seed: 1.0,
+                    ..ok.clone()
+                },
+                "keep_scene_seed",
             ),
         ];
         for (config, key) in cases {
@@ -1044,7 +1107,7 @@ mod tests {
             particles: 200,
             ..SplittingConfig::default()
         };
-        let score = |z: &[f64]| z[0] + z[1] - 4.0;
+        let score = |z: &[f64], _: u64| z[0] + z[1] - 4.0;
         let a = run_in_memory(&config, 8, &[4], 3, score).unwrap();
         assert_eq!(a, run_in_memory(&config, 8, &[4], 3, score).unwrap());
         let b = run_in_memory(&config, 8, &[4], 4, score).unwrap();
@@ -1067,13 +1130,46 @@ mod tests {
             max_levels: 2,
             ..config
         };
-        let r = run_in_memory(&capped, 8, &[], 3, |z| z[0] - 8.0).unwrap();
+        let r = run_in_memory(&capped, 8, &[], 3, |z, _| z[0] - 8.0).unwrap();
         assert!(!r.reached && r.estimate.is_none() && r.levels.len() == 2);
         // A plateau: every score equal below 0.
         assert!(matches!(
-            run_in_memory(&config, 8, &[], 3, |_| -1.0),
+            run_in_memory(&config, 8, &[], 3, |_, _| -1.0),
             Err(SplittingError::Plateau { stage: 0, .. })
         ));
+    }
+
+    /// A move keeps its chain's scene seed with probability `keep_scene_seed`, else draws the
+    /// evaluation's own fresh one; with 0 every candidate's seed is fresh, and z's moves are the
+    /// same whatever the setting (the keep draw comes after them).
+    #[test]
+    fn moves_keep_the_scene_seed_as_often_as_asked() {
+        let score = |z: &[f64], _: u64| z[0] - 3.0;
+        let moved = |keep: f64| {
+            let config = SplittingConfig {
+                particles: 1000,
+                keep_scene_seed: keep,
+                ..SplittingConfig::default()
+            };
+            let mut state = SplittingState::new(&config, 6, &[], 5).unwrap();
+            let first: Vec<f64> = state.candidates().iter().map(|c| score(&c.z, 0)).collect();
+            assert!(state.advance(&first).unwrap().is_none());
+            let current: Vec<u64> = state.chains.iter().map(|c| c[0].scene_seed).collect();
+            let candidates = state.candidates();
+            let kept = candidates
+                .iter()
+                .filter(|c| c.scene_seed == current[c.chain])
+                .count();
+            assert!(candidates.iter().all(|c| c.scene_seed == current[c.chain]
+                || c.scene_seed == fresh_scene_seed(5, c.evaluation)));
+            (kept as f64 / candidates.len() as f64, candidates)
+        };
+        let (never, fresh) = moved(0.0);
+        assert_eq!(never, 0.0);
+        let (often, kept) = moved(0.8);
+        assert!((often - 0.8).abs() < 0.1, "kept {often}");
+        let zs = |c: &[Candidate]| c.iter().map(|c| c.z.clone()).collect::<Vec<_>>();
+        assert_eq!(zs(&fresh), zs(&kept));
     }
 
     /// What a run folder does: the state saved as JSON and read back before every step, the
@@ -1085,7 +1181,7 @@ mod tests {
             particles: 100,
             ..SplittingConfig::default()
         };
-        let score = |z: &[f64]| {
+        let score = |z: &[f64], _: u64| {
             if z[2] > 2.5 {
                 f64::NAN
             } else if z[3] > 3.0 {
@@ -1103,7 +1199,7 @@ mod tests {
             numbers.extend(candidates.iter().map(|c| c.evaluation));
             let mut scores = vec![0.0; candidates.len()];
             for (i, c) in candidates.iter().enumerate().rev() {
-                scores[i] = score(&c.z);
+                scores[i] = score(&c.z, c.scene_seed);
             }
             if let Some(run) = state.advance(&scores).unwrap() {
                 break run;

@@ -394,7 +394,7 @@ fn subset_simulation_in_a_run_folder_is_the_in_memory_run_and_resumes() {
         record.dimensions.len(),
         &blocks,
         s.seed,
-        |z| closed.score_of_quantile(normal_cdf(z[k])),
+        |z, _| closed.score_of_quantile(normal_cdf(z[k])),
     )
     .unwrap();
     let levels = result["levels"].as_array().unwrap();

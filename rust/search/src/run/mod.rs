@@ -42,10 +42,6 @@ use crate::error::{Result, SearchError};
 use crate::space::SearchSpace;
 use crate::sut::{Evaluate, Outcome};
 
-/// The random stream of splitting candidates' scene seeds (the chains' moves use the streams of
-/// their stages, 0, 1, 2, …).
-const SPLITTING_SEED_STREAM: u32 = u32::MAX;
-
 /// A run folder, opened for sampling or reading.
 pub struct Run {
     pub dir: PathBuf,
@@ -619,14 +615,11 @@ impl Run {
             // proportional allocation: every stratum gets its nominal share of every iteration
             let stratum = index % strata.len();
             let (sample_id, z, seed) = match &candidates {
-                // a splitting candidate's z comes from its chain; its scene seed is drawn
-                // afresh (an independent proposal from the seed's own nominal, so the move
-                // still leaves the conditioned nominal of (z, seed) invariant)
+                // a splitting candidate's z and scene seed come from its chain (the seed kept or
+                // drawn afresh: `boxpose_search_stats::splitting`)
                 Some(candidates) => {
                     let c = &candidates[index];
-                    let mut rng = sample_rng(s.seed, SPLITTING_SEED_STREAM, c.evaluation);
-                    let seed = (rng.random::<u64>() >> 1) as i64;
-                    (c.evaluation as i64, c.z.clone(), seed)
+                    (c.evaluation as i64, c.z.clone(), c.scene_seed as i64)
                 }
                 None => {
                     let mut rng = sample_rng(s.seed, iteration, index as u64);

@@ -366,5 +366,23 @@ mod tests {
                 "--splitting-level-probability is 0.1 there, 0.2 here"
             ]
         );
+        // a run recorded before the scene seed could be kept drew a new one at every move: it
+        // reads as 0, and a command with today's default is told which flag resumes it
+        let mut old: serde_json::Value = serde_json::to_value(&split).unwrap();
+        old["settings"]["splitting"]
+            .as_object_mut()
+            .unwrap()
+            .remove("keep_scene_seed");
+        let old: RunRecord = serde_json::from_value(old).unwrap();
+        assert_eq!(
+            old.settings.splitting.as_ref().unwrap().keep_scene_seed,
+            0.0
+        );
+        let mut today = split.clone();
+        today.settings.splitting.as_mut().unwrap().keep_scene_seed = 0.8;
+        assert_eq!(
+            differences(&old, &today),
+            ["--splitting-keep-scene-seed is 0.0 there, 0.8 here"]
+        );
     }
 }
