@@ -140,7 +140,8 @@ def against(reference_errors: Path, runs: list[Path]) -> None:
         differ = [k for k, v in event_of(record).items() if v != event_of(reference)[k]]
         if differ:
             raise SystemExit(f"{run}: not the reference's event ({', '.join(differ)} differ)")
-        predicate = record["settings"]["predicate"]
+        settings = record["settings"]
+        predicate = settings["predicate"]
         threshold = predicate.get("threshold", predicate.get("fraction"))
         failing = int(fails(errors, PREDICATE_COLUMNS[predicate["metric"]], threshold).sum())
         if p_reference is None:
@@ -159,6 +160,8 @@ def against(reference_errors: Path, runs: list[Path]) -> None:
         delta, spent = estimate["relative_error"], summary["samples_spent"]
         delta_mc = ((1 - p_reference) / (spent * p_reference)) ** 0.5
         splitting = summary.get("splitting") or {}
+        # subset simulation's chance of a move keeping its chain's scene seed (0 before it existed)
+        kept = (settings.get("splitting") or {}).get("keep_scene_seed", 0) if splitting else ""
         lineages = splitting.get("distinct_ancestors", "")
         stages = len(splitting.get("levels", [])) or ""
         covers = "yes" if lo <= p_reference <= hi else "**no**"
@@ -166,19 +169,18 @@ def against(reference_errors: Path, runs: list[Path]) -> None:
         delta_text, ratio = ("—", "—")
         if delta:
             delta_text, ratio = f"{delta:.2f}", f"{(delta_mc / delta) ** 2:.1f}×"
-        settings = record["settings"]
         rows.append(
-            f"| {settings['sampler']} | {settings['seed']} | {spent:,} | {stages} "
+            f"| {settings['sampler']} | {kept} | {settings['seed']} | {spent:,} | {stages} "
             f"| {p_hat:.2e} [{lo:.2e}, {hi:.2e}] | {covers} | {delta_text} | {lineages} "
             f"| {delta_mc:.2f} | {ratio} |"
         )
         estimates.append(p_hat)
         budgets.append(spent)
     print(
-        "| sampler | seed | evaluations | stages | p̂ [95 % CI] | covers the reference | δ "
-        "| lineages | Monte Carlo's δ at that budget | × fewer than MC |"
+        "| sampler | scene seed kept | seed | evaluations | stages | p̂ [95 % CI] "
+        "| covers the reference | δ | lineages | Monte Carlo's δ at that budget | × fewer than MC |"
     )
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |")
     print("\n".join(rows))
     if len(estimates) > 1:
         series = pd.Series(estimates)

@@ -286,7 +286,7 @@ def test_a_run_kept_as_a_reference_pairs_with_itself(mc_run, tmp_path):
     else:
         assert r.returncode == 0, r.stderr
         row = r.stdout.splitlines()[-1].split(" | ")
-        assert row[0] == "| mc" and row[5] == "yes", r.stdout
+        assert row[0] == "| mc" and row[6] == "yes", r.stdout
         assert row[-1] == ("— |" if k == len(samples) else "1.0× |"), r.stdout
     # another event (here another fit) is no reference for the run
     record = json.loads((kept / "run.json").read_text())
