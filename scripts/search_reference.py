@@ -127,13 +127,18 @@ def event_of(run_json: dict) -> dict:
     return event
 
 
+def monte_carlo_delta(p: float, samples: float) -> float:
+    """Monte Carlo's coefficient of variation with `samples` draws at probability p."""
+    return ((1 - p) / (samples * p)) ** 0.5
+
+
 def against(reference_errors: Path, runs: list[Path]) -> None:
     reference_dir = reference_errors.parent
     reference = json.loads((reference_dir / "run.json").read_text())
     errors = pd.read_csv(reference_errors)
     if "valid" in errors:
         errors = errors[errors.valid.astype(bool)]
-    rows, estimates, budgets, p_reference = [], [], [], None
+    rows, estimates, budgets, p_reference, first_predicate = [], [], [], None, None
     for run in runs:
         record = json.loads((run / "run.json").read_text())
         summary = json.loads((run / "summary.json").read_text())
@@ -144,7 +149,8 @@ def against(reference_errors: Path, runs: list[Path]) -> None:
         predicate = settings["predicate"]
         threshold = predicate.get("threshold", predicate.get("fraction"))
         failing = int(fails(errors, PREDICATE_COLUMNS[predicate["metric"]], threshold).sum())
-        if p_reference is None:
+        if first_predicate is None:
+            first_predicate = predicate
             p_reference, event_name = failing / len(errors), f"{predicate['metric']} > {threshold}"
             low, high = clopper_pearson(failing, len(errors))
             print(
@@ -153,12 +159,12 @@ def against(reference_errors: Path, runs: list[Path]) -> None:
             )
             if failing == 0:
                 raise SystemExit("the reference never fails under this predicate: no ratio to give")
-        elif failing / len(errors) != p_reference:
+        elif predicate != first_predicate:
             raise SystemExit(f"{run}: another predicate than the first run's")
         estimate = summary["estimate"]
         p_hat, (lo, hi) = estimate["p_hat"], estimate["ci95"] or (float("nan"),) * 2
         delta, spent = estimate["relative_error"], summary["samples_spent"]
-        delta_mc = ((1 - p_reference) / (spent * p_reference)) ** 0.5
+        delta_mc = monte_carlo_delta(p_reference, spent)
         splitting = summary.get("splitting") or {}
         # subset simulation's chance of a move keeping its chain's scene seed (0 before it existed)
         kept = (settings.get("splitting") or {}).get("keep_scene_seed", 0) if splitting else ""
@@ -186,7 +192,7 @@ def against(reference_errors: Path, runs: list[Path]) -> None:
         series = pd.Series(estimates)
         spread = series.std() / p_reference
         budget = sum(budgets) / len(budgets)
-        delta_mc = ((1 - p_reference) / (budget * p_reference)) ** 0.5
+        delta_mc = monte_carlo_delta(p_reference, budget)
         print(
             f"{len(estimates)} runs: mean p̂ {series.mean():.2e}, spread (std / reference p̂) "
             f"{spread:.2f} at a mean {budget:,.0f} evaluations, where Monte Carlo's δ is "

@@ -698,10 +698,8 @@ impl SplittingState {
                 let index = ((step as u64) << 32) | j as u64;
                 let mut rng = sample_rng(self.seed, self.stage as u32, index);
                 let z = propose_move(&current.z, &self.rotation_blocks, rho, &mut rng);
-                // drawn after z's move, and only when a seed may be kept: a run that always
-                // draws a new one makes the moves it always made
-                let keep = self.config.keep_scene_seed;
-                let scene_seed = if keep > 0.0 && rng.random::<f64>() < keep {
+                // drawn after z's move, so that z's moves do not depend on the setting
+                let scene_seed = if rng.random::<f64>() < self.config.keep_scene_seed {
                     current.scene_seed
                 } else {
                     fresh_scene_seed(self.seed, evaluation)
