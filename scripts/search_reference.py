@@ -11,13 +11,21 @@
         interval, the discordant pairs and McNemar's exact test; and the median, 99th percentile
         and largest paper error, rotation and translation error of each.
 
-    python scripts/search_reference.py against REFERENCE/errors.csv.gz RUN [RUN ...]
+    python scripts/search_reference.py pool REFERENCE/errors.csv.gz OTHER/errors.csv.gz ...
+        Monte Carlo runs of the same event with other seeds (independent samples, checked), under
+        each predicate: each run's failures with their 95 % Clopper–Pearson interval, the runs
+        pooled, and for two runs whether they agree (the exact conditional test of two rates:
+        given k₁ + k₂ failures, k₁ ~ Binomial(k₁ + k₂, n₁ / (n₁ + n₂)) when the rates are equal).
+
+    python scripts/search_reference.py against REFERENCE/errors.csv.gz [--pool OTHER/errors.csv.gz]
+            RUN [RUN ...]
         checks finished runs of any sampler against a Monte Carlo reference of the same event
         (space, recipe, crops, networks, fit; the predicate is each run's own, applied to the
-        reference's errors): each run's estimate, whether its 95 % interval covers the
-        reference's p̂, and the samples Monte Carlo would need for the run's own precision, as a
-        ratio ("× fewer": (δ_MC / δ)², δ_MC = √((1 − p)/(n p)) at the run's budget n with the
-        reference's p); then the runs' spread and the ratio it implies.
+        reference's errors; `--pool` adds more Monte Carlo runs of the event, as `pool` does):
+        each run's estimate, whether its 95 % interval covers the reference's p̂, and the samples
+        Monte Carlo would need for the run's own precision, as a ratio ("× fewer": (δ_MC / δ)²,
+        δ_MC = √((1 − p)/(n p)) at the run's budget n with the reference's p); then the runs'
+        spread and the ratio it implies.
 
 Reads Parquet with pandas only (boxpose itself is not needed)."""
 
@@ -29,7 +37,7 @@ import shutil
 from pathlib import Path
 
 import pandas as pd
-from quarter_turns import clopper_pearson, mcnemar_exact
+from quarter_turns import binomial_cdf, clopper_pearson, mcnemar_exact
 
 COLUMNS = [
     "sample_id",
@@ -132,12 +140,67 @@ def monte_carlo_delta(p: float, samples: float) -> float:
     return ((1 - p) / (samples * p)) ** 0.5
 
 
-def against(reference_errors: Path, runs: list[Path]) -> None:
-    reference_dir = reference_errors.parent
-    reference = json.loads((reference_dir / "run.json").read_text())
-    errors = pd.read_csv(reference_errors)
-    if "valid" in errors:
-        errors = errors[errors.valid.astype(bool)]
+def load_references(paths: list[Path]) -> tuple[dict, list[pd.DataFrame]]:
+    """The first reference's run.json and every reference's valid samples: Monte Carlo runs of
+    one event with distinct seeds, so that their samples are independent and may be pooled."""
+    first, frames, seeds = None, [], set()
+    for path in paths:
+        record = json.loads((path.parent / "run.json").read_text())
+        settings = record["settings"]
+        if settings["sampler"] != "mc":
+            raise SystemExit(f"{path}: a reference is a Monte Carlo run, not {settings['sampler']}")
+        if first is None:
+            first = record
+        differ = [k for k, v in event_of(record).items() if v != event_of(first)[k]]
+        if differ:
+            differ_text = ", ".join(differ)
+            raise SystemExit(f"{path}: not the first reference's event ({differ_text} differ)")
+        if settings["seed"] in seeds:
+            raise SystemExit(
+                f"{path}: seed {settings['seed']} again: the same samples, not independent ones"
+            )
+        seeds.add(settings["seed"])
+        errors = pd.read_csv(path)
+        if "valid" in errors:
+            errors = errors[errors.valid.astype(bool)]
+        frames.append(errors)
+    return first, frames
+
+
+def rates_agree(k1: int, n1: int, k2: int, n2: int) -> float:
+    """Two-sided p of the exact conditional test that two runs fail at one rate: given the
+    k1 + k2 failures, k1 ~ Binomial(k1 + k2, n1 / (n1 + n2)) (exact for Poisson counts; for rare
+    events the binomial counts of Monte Carlo are those)."""
+    k, share = k1 + k2, n1 / (n1 + n2)
+    if k == 0:
+        return 1.0
+    lower = binomial_cdf(k1, k, share)
+    upper = 1.0 - binomial_cdf(k1 - 1, k, share) if k1 > 0 else 1.0
+    return min(1.0, 2 * min(lower, upper))
+
+
+def pool(references: list[Path]) -> None:
+    _, frames = load_references(references)
+    sizes = [len(f) for f in frames]
+    head = " | ".join(path.parent.name for path in references)
+    print(f"| predicate | {head} | pooled, {sum(sizes):,} samples | the runs agree (p) |")
+    print("| --- " * (len(frames) + 3) + "|")
+    for name, column, threshold in PREDICATES:
+        counts = [int(fails(f, column, threshold).sum()) for f in frames]
+        cells = []
+        for k, n in [*zip(counts, sizes, strict=True), (sum(counts), sum(sizes))]:
+            low, high = clopper_pearson(k, n)
+            cells.append(f"{k}: {k / n:.2e} [{low:.2e}, {high:.2e}]")
+        agree = "—"
+        if len(frames) == 2:
+            agree = f"{rates_agree(counts[0], sizes[0], counts[1], sizes[1]):.2g}"
+        print(f"| {name} | {' | '.join(cells)} | {agree} |")
+
+
+def against(references: list[Path], runs: list[Path]) -> None:
+    reference, frames = load_references(references)
+    errors = pd.concat(frames, ignore_index=True)
+    reference_dir = " + ".join(str(path.parent) for path in references)
     rows, estimates, budgets, p_reference, first_predicate = [], [], [], None, None
     for run in runs:
         record = json.loads((run / "run.json").read_text())
@@ -213,14 +276,27 @@ def main() -> None:
         "against", help="runs of any sampler checked against a Monte Carlo reference"
     )
     against_parser.add_argument("reference", type=Path, help="the reference's errors.csv.gz")
+    against_parser.add_argument(
+        "--pool",
+        type=Path,
+        action="append",
+        default=[],
+        help="another Monte Carlo run of the event (another seed), pooled with the reference",
+    )
     against_parser.add_argument("runs", type=Path, nargs="+")
+    pool_parser = commands.add_parser(
+        "pool", help="Monte Carlo runs of one event with other seeds, side by side and pooled"
+    )
+    pool_parser.add_argument("references", type=Path, nargs="+", help="each run's errors.csv.gz")
     args = parser.parse_args()
     if args.command == "keep":
         keep(args.run, args.out)
     elif args.command == "pair":
         pair(args.before, args.after)
+    elif args.command == "pool":
+        pool(args.references)
     else:
-        against(args.reference, args.runs)
+        against([args.reference, *args.pool], args.runs)
 
 
 if __name__ == "__main__":

@@ -296,6 +296,50 @@ def test_a_run_kept_as_a_reference_pairs_with_itself(mc_run, tmp_path):
     assert r.returncode != 0 and "not the reference's event (fit differ)" in r.stderr, r.stderr
 
 
+def test_references_of_other_seeds_pool_and_are_tested_for_agreement(mc_run, tmp_path):
+    """scripts/search_reference.py pool: two Monte Carlo runs of one event with other seeds side by
+    side and pooled, with the exact conditional test of equal rates; a run of the same seed or
+    another sampler is no second reference."""
+    script = REPO / "scripts" / "search_reference.py"
+    first, second = tmp_path / "first", tmp_path / "second"
+    subprocess.run(list(map(str, [sys.executable, script, "keep", mc_run, first])), check=True)
+    shutil.copytree(first, second)
+    errors = pd.read_csv(first / "errors.csv.gz")
+    n = int(errors.valid.sum())
+    # every valid sample of the first fails the paper's predicate and the run's own (exact MSSD >
+    # 0.05 d), none of the second: given the n failures, all n fell in the first run where equal
+    # rates put each there with chance ½
+    for folder, error in [(first, 1.0), (second, 0.0)]:
+        changed = errors.assign(paper_error_normalized=error, mssd_over_diameter=error)
+        changed.to_csv(folder / "errors.csv.gz", index=False)
+    record = json.loads((second / "run.json").read_text())
+    record["settings"]["seed"] += 1
+    (second / "run.json").write_text(json.dumps(record))
+    pool = [sys.executable, script, "pool", first / "errors.csv.gz", second / "errors.csv.gz"]
+    r = subprocess.run(list(map(str, pool)), check=True, capture_output=True, text=True)
+    rows = {line.split(" | ")[0]: line.split(" | ") for line in r.stdout.splitlines()}
+    paper = rows["| the paper's (normalised error > 0.005)"]
+    assert paper[1].startswith(f"{n}: 1.00e+00") and paper[2].startswith("0: 0.00e+00"), r.stdout
+    assert paper[3].startswith(f"{n}: 5.00e-01"), r.stdout
+    assert float(paper[4].rstrip(" |")) == pytest.approx(2 * 0.5**n, rel=0.01), r.stdout
+    # the cube metric's errors are the same in both runs: they agree exactly
+    assert rows["| cube MSSD > 0.05 d"][4] == "1 |", r.stdout
+    # `against --pool` checks a run against both together
+    against = [sys.executable, script, "against", first / "errors.csv.gz", "--pool"]
+    against += [second / "errors.csv.gz", mc_run]
+    r = subprocess.run(list(map(str, against)), check=True, capture_output=True, text=True)
+    assert f"{n} of {2 * n}, p̂ 5.00e-01" in r.stdout, r.stdout
+    # the same seed again is the same samples; cross-entropy is no reference
+    record["settings"]["seed"] -= 1
+    (second / "run.json").write_text(json.dumps(record))
+    r = subprocess.run(list(map(str, pool)), check=False, capture_output=True, text=True)
+    assert r.returncode != 0 and "the same samples, not independent ones" in r.stderr, r.stderr
+    record["settings"]["sampler"] = "ce"
+    (second / "run.json").write_text(json.dumps(record))
+    r = subprocess.run(list(map(str, pool)), check=False, capture_output=True, text=True)
+    assert r.returncode != 0 and "a reference is a Monte Carlo run, not ce" in r.stderr, r.stderr
+
+
 def test_two_shards_merge_to_the_single_process_table(mc_run, spaces, boxpose_bin, tmp_path):
     out = tmp_path / "run"
     args = [spaces["single"], "--out", out, "--fail-when", "mssd:0.05", *MC, "--num-shards", 2]
