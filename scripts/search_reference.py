@@ -25,7 +25,10 @@
         each run's estimate, whether its 95 % interval covers the reference's p̂, and the samples
         Monte Carlo would need for the run's own precision, as a ratio ("× fewer": (δ_MC / δ)²,
         δ_MC = √((1 − p)/(n p)) at the run's budget n with the reference's p); then the runs'
-        spread and the ratio it implies.
+        spread and the ratio it implies; and for subset simulation, level by level, the run's
+        running product of conditional shares against the reference's share of samples scoring
+        above the same level (the score is log10(metric / threshold), +∞ with nothing fitted):
+        where a run parts from Monte Carlo, not only whether it does.
 
 Reads Parquet with pandas only (boxpose itself is not needed)."""
 
@@ -36,6 +39,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from quarter_turns import binomial_cdf, clopper_pearson, mcnemar_exact
 
@@ -79,6 +83,12 @@ def keep(run: Path, out: Path) -> None:
 
 def fails(errors: pd.DataFrame, column: str, threshold: float) -> pd.Series:
     return errors[column].isna() | (errors[column] > threshold)
+
+
+def scores(errors: pd.DataFrame, column: str, threshold: float) -> pd.Series:
+    """The search's continuous score, log10(metric / threshold): a sample fails exactly when it
+    is > 0, and is +∞ when nothing was fitted (`boxpose search`'s `FailurePredicate::score`)."""
+    return np.log10(errors[column] / threshold).fillna(np.inf)
 
 
 def pair(before_path: Path, after_path: Path) -> None:
@@ -201,7 +211,8 @@ def against(references: list[Path], runs: list[Path]) -> None:
     reference, frames = load_references(references)
     errors = pd.concat(frames, ignore_index=True)
     reference_dir = " + ".join(str(path.parent) for path in references)
-    rows, estimates, budgets, p_reference, first_predicate = [], [], [], None, None
+    rows, level_rows, estimates, budgets = [], [], [], []
+    p_reference, first_predicate = None, None
     for run in runs:
         record = json.loads((run / "run.json").read_text())
         summary = json.loads((run / "summary.json").read_text())
@@ -233,6 +244,18 @@ def against(references: list[Path], runs: list[Path]) -> None:
         kept = (settings.get("splitting") or {}).get("keep_scene_seed", 0) if splitting else ""
         lineages = splitting.get("distinct_ancestors", "")
         stages = len(splitting.get("levels", [])) or ""
+        score = scores(errors, PREDICATE_COLUMNS[predicate["metric"]], threshold)
+        running = 1.0 / estimate.get("p_valid", 1.0)  # splitting's p̂ is of P(fail | valid)
+        for number, level in enumerate(splitting.get("levels", [])):
+            running *= level["conditional_probability"]
+            above = int((score > level["threshold"]).sum())
+            low, high = clopper_pearson(above, len(errors))
+            share = above / len(errors)
+            ratio_text = f"{running / share:.2f}" if above else "—"
+            level_rows.append(
+                f"| {run.name} | {number} | {level['threshold']:.3f} | {running:.2e} "
+                f"| {above} | {share:.2e} [{low:.2e}, {high:.2e}] | {ratio_text} |"
+            )
         covers = "yes" if lo <= p_reference <= hi else "**no**"
         # no failure, no relative error: the run says nothing to compare precisions by
         delta_text, ratio = ("—", "—")
@@ -261,6 +284,17 @@ def against(references: list[Path], runs: list[Path]) -> None:
             f"{spread:.2f} at a mean {budget:,.0f} evaluations, where Monte Carlo's δ is "
             f"{delta_mc:.2f}: {(delta_mc / spread) ** 2:.1f}× fewer by the spread"
         )
+    if level_rows:
+        print(
+            "\nsubset simulation level by level: the run's p̂ of scoring above each level (the "
+            "running product) against the reference's share"
+        )
+        print(
+            "| run | stage | level | run's p̂ above it | reference samples above it "
+            "| reference share [95 % CI] | run / reference |"
+        )
+        print("| --- | --- | --- | --- | --- | --- | --- |")
+        print("\n".join(level_rows))
 
 
 def main() -> None:

@@ -812,6 +812,37 @@ def test_a_killed_subset_simulation_resumes_to_the_same_run(
     assert r.returncode != 0 and "--splitting-level-probability is 0.2 there, 0.1 here" in r.stderr
 
 
+def test_a_splitting_run_against_a_reference_level_by_level(splitting_run, mc_run, tmp_path):
+    """scripts/search_reference.py against: a subset simulation's running product at each of
+    its levels beside the reference's share of samples scoring above that level, the score
+    being log10(metric / threshold) of the run's own predicate (here exact MSSD > 0.02 d)."""
+    script = REPO / "scripts" / "search_reference.py"
+    kept = tmp_path / "kept"
+    subprocess.run(list(map(str, [sys.executable, script, "keep", mc_run, kept])), check=True)
+    errors = pd.read_csv(kept / "errors.csv.gz")
+    # reference errors spread around the run's threshold, one sample with nothing fitted
+    spread = [0.001, 0.01, 0.019, 0.03, 0.2, float("nan")][: len(errors)]
+    errors = errors.assign(valid=True, mssd_over_diameter=spread)
+    errors.to_csv(kept / "errors.csv.gz", index=False)
+    against = [sys.executable, script, "against", kept / "errors.csv.gz", splitting_run]
+    r = subprocess.run(list(map(str, against)), check=True, capture_output=True, text=True)
+    # the level table's rows, named by the run's folder ("run"), not its header
+    cells = [line.split(" | ") for line in r.stdout.splitlines()]
+    rows = [c for c in cells if c[0] == "| run" and c[1].isdigit()]
+    levels = json.loads((splitting_run / "summary.json").read_text())["splitting"]["levels"]
+    assert len(rows) == len(levels), r.stdout
+    score = np.log10(errors.mssd_over_diameter / 0.02).fillna(np.inf)
+    running = 1.0
+    for row, level in zip(rows, levels, strict=True):
+        running *= level["conditional_probability"]
+        above = int((score > level["threshold"]).sum())
+        assert int(row[4]) == above, (level, r.stdout)
+        assert float(row[3]) == pytest.approx(running, rel=1e-2), r.stdout
+    # the last level is the failure level: above it are the failures, the sample with nothing
+    # fitted among them
+    assert levels[-1]["threshold"] == 0.0 and int(rows[-1][4]) == 3, r.stdout
+
+
 @pytest.mark.parametrize(
     "args, said",
     [
