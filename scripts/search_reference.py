@@ -81,14 +81,14 @@ def keep(run: Path, out: Path) -> None:
     print(f"{len(samples)} samples, {len(failing)} failing → {out}")
 
 
-def fails(errors: pd.DataFrame, column: str, threshold: float) -> pd.Series:
-    return errors[column].isna() | (errors[column] > threshold)
-
-
 def scores(errors: pd.DataFrame, column: str, threshold: float) -> pd.Series:
     """The search's continuous score, log10(metric / threshold): a sample fails exactly when it
     is > 0, and is +∞ when nothing was fitted (`boxpose search`'s `FailurePredicate::score`)."""
     return np.log10(errors[column] / threshold).fillna(np.inf)
+
+
+def fails(errors: pd.DataFrame, column: str, threshold: float) -> pd.Series:
+    return scores(errors, column, threshold) > 0
 
 
 def pair(before_path: Path, after_path: Path) -> None:
